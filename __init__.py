@@ -1,0 +1,21 @@
+"""Cliff Terrain: turn one UAV crop photo into a textured 3D relief (a Blender extension).
+
+Only registration lives here. The Blender side is in ``operators/`` (scene settings, operators, the
+numpy-to-Blender mesh and material code) and ``panels/`` (the 3D Viewport sidebar); the bpy-free core
+that does the image work is ``cliff_terrain/``.
+"""
+
+from . import operators, panels
+
+# Registered in this order, unregistered in reverse: the panel draws the operators' settings.
+_PACKAGES = (operators, panels)
+
+
+def register():
+    for package in _PACKAGES:
+        package.register()
+
+
+def unregister():
+    for package in reversed(_PACKAGES):
+        package.unregister()

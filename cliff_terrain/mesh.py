@@ -1,0 +1,260 @@
+"""Mesh arrays for a height grid (still no bpy): vertices, faces, per-corner UVs, affine transforms.
+
+Conventions shared with the Blender side and the renderers:
+
+* A height grid of shape (rows, cols) becomes a grid of (rows + 1) x (cols + 1) vertices at pixel
+  *corners*, so the mesh covers the image exactly (a top orthographic view reproduces every pixel).
+* x grows with the column, y grows upwards (the image's top row has the largest y), z is height.
+* Front UVs are (u, v) in [0, 1]^2 with v = 1 at the image's top row (Blender's image origin is the
+  bottom-left corner). Back/base corners have u = x_uv + 1, so ``u > 1`` means "back".
+* Faces are stored the Blender way: ``face_sizes`` and a flat ``corner_verts`` array; the first
+  ``n_front_faces`` faces are the front quads in row-major pixel order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import check_float
+from .errors import CliffTerrainError
+
+
+@dataclass
+class MeshArrays:
+    """A polygon mesh as flat arrays, ready for bulk transfer into Blender.
+
+    Attributes
+    ----------
+    vertices : (n_vertices, 3) float32
+        Positions (x, y, z).
+    face_sizes : (n_faces,) int32
+        Number of corners of each face.
+    corner_verts : (n_corners,) int32
+        Vertex index of each face corner, faces one after the other.
+    uvs : (n_corners, 2) float32
+        Texture coordinates per corner; u > 1 marks the back/base.
+    n_front_faces : int
+        The first faces are the front (textured) quads.
+    grid_shape : tuple of int
+        (rows, cols) of the height grid the front was built from.
+    """
+
+    vertices: np.ndarray
+    face_sizes: np.ndarray
+    corner_verts: np.ndarray
+    uvs: np.ndarray
+    n_front_faces: int
+    grid_shape: tuple[int, int]
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.face_sizes.shape[0])
+
+    @property
+    def face_offsets(self) -> np.ndarray:
+        """(n_faces,) int32 index of each face's first corner (Blender's ``loop_start``)."""
+        offsets = np.zeros(self.n_faces, dtype=np.int32)
+        np.cumsum(self.face_sizes[:-1], out=offsets[1:])
+        return offsets
+
+    def edge_face_counts(self) -> np.ndarray:
+        """Number of faces using each undirected edge (2 everywhere for a watertight mesh)."""
+        starts = self.face_offsets
+        nxt = np.arange(1, self.corner_verts.size + 1, dtype=np.int64)
+        # The corner after the last corner of a face is that face's first corner.
+        ends = starts + self.face_sizes
+        nxt[ends - 1] = starts
+        a = self.corner_verts.astype(np.int64)
+        b = self.corner_verts[nxt].astype(np.int64)
+        keys = np.minimum(a, b) * self.n_vertices + np.maximum(a, b)
+        _, counts = np.unique(keys, return_counts=True)
+        return counts
+
+
+def corner_heights(heights):
+    """Heights at pixel corners: the mean of the (up to four) pixels meeting at each corner.
+
+    Parameters
+    ----------
+    heights : (rows, cols) array
+        Heights per pixel.
+
+    Returns
+    -------
+    (rows + 1, cols + 1) float32 array
+    """
+    padded = np.pad(np.asarray(heights, dtype=np.float32), 1, mode="edge")
+    return 0.25 * (padded[:-1, :-1] + padded[:-1, 1:] + padded[1:, :-1] + padded[1:, 1:])
+
+
+def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
+    """Build the relief mesh of a height grid.
+
+    Parameters
+    ----------
+    heights : (rows, cols) array
+        Height of each pixel, in the same unit as `pixel_size`.
+    pixel_size : float, optional
+        Size of one grid pixel along x and y (metres when the GSD is known, else 1 = one pixel).
+    two_sided : bool, optional
+        Close the relief into a watertight solid: side walls down to a flat base, with back UVs
+        (u > 1).
+    base_depth : float, optional
+        How far below z = 0 the base lies; default 2 % of the longest side.
+
+    Returns
+    -------
+    MeshArrays
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> mesh = grid_mesh(np.zeros((2, 3)), two_sided=False)
+    >>> mesh.vertices.shape, mesh.n_faces
+    ((12, 3), 6)
+    """
+    heights = np.asarray(heights)
+    if heights.ndim != 2 or min(heights.shape) < 1:
+        raise CliffTerrainError(f"`heights` must be a non-empty 2-D array, got shape {heights.shape}")
+    if not np.all(np.isfinite(heights)):
+        raise CliffTerrainError("`heights` must be finite, got NaN or infinity")
+    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    rows, cols = heights.shape
+    if base_depth is None:
+        base_depth = 0.02 * max(rows, cols) * pixel_size
+    base_depth = check_float("base_depth", base_depth, minimum=0.0, strict_minimum=True)
+
+    # Front grid: vertex (r, c) has index r * (cols + 1) + c.
+    vr, vc = rows + 1, cols + 1
+    r = np.arange(vr, dtype=np.float32)[:, None]
+    c = np.arange(vc, dtype=np.float32)[None, :]
+    front = np.empty((vr, vc, 3), dtype=np.float32)
+    front[..., 0] = c * pixel_size
+    front[..., 1] = (rows - r) * pixel_size
+    front[..., 2] = corner_heights(heights)
+    front = front.reshape(-1, 3)
+
+    idx = np.arange(vr * vc, dtype=np.int32).reshape(vr, vc)
+    # Counter-clockwise seen from above (+z): bottom-left, bottom-right, top-right, top-left.
+    quads = np.stack([idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:], idx[:-1, :-1]], axis=-1).reshape(-1, 4)
+    vertex_uvs = np.empty((vr, vc, 2), dtype=np.float32)
+    vertex_uvs[..., 0] = c / cols
+    vertex_uvs[..., 1] = (rows - r) / rows
+    vertex_uvs = vertex_uvs.reshape(-1, 2)
+    quad_uvs = vertex_uvs[quads.ravel()]
+
+    if not two_sided:
+        return MeshArrays(
+            vertices=front,
+            face_sizes=np.full(quads.shape[0], 4, dtype=np.int32),
+            corner_verts=quads.ravel(),
+            uvs=quad_uvs,
+            n_front_faces=quads.shape[0],
+            grid_shape=(rows, cols),
+        )
+
+    # Border ring of the front grid, counter-clockwise seen from above, starting bottom-left.
+    ring = np.concatenate(
+        [
+            idx[-1, :-1],  # bottom row, left to right
+            idx[:0:-1, -1],  # right column, bottom to top
+            idx[0, :0:-1],  # top row, right to left
+            idx[:-1, 0],  # left column, top to bottom
+        ]
+    )
+    n_ring = ring.size
+    base = front[ring].copy()
+    base[:, 2] = -base_depth
+    base_idx = np.arange(front.shape[0], front.shape[0] + n_ring, dtype=np.int32)
+    nxt = np.roll(np.arange(n_ring), -1)
+    # Walls face outwards: top_i, base_i, base_i+1, top_i+1.
+    walls = np.stack([ring, base_idx, base_idx[nxt], ring[nxt]], axis=-1)
+    bottom = base_idx[::-1]  # clockwise from above, so its normal points down
+
+    vertices = np.concatenate([front, base])
+    corner_verts = np.concatenate([quads.ravel(), walls.ravel(), bottom]).astype(np.int32)
+    face_sizes = np.concatenate(
+        [np.full(quads.shape[0] + n_ring, 4, dtype=np.int32), np.array([n_ring], dtype=np.int32)]
+    )
+    back_uvs = np.concatenate([vertex_uvs, vertex_uvs[ring]])[corner_verts[quad_uvs.shape[0] :]]
+    back_uvs[:, 0] += 1.0
+    return MeshArrays(
+        vertices=vertices,
+        face_sizes=face_sizes,
+        corner_verts=corner_verts,
+        uvs=np.concatenate([quad_uvs, back_uvs]),
+        n_front_faces=quads.shape[0],
+        grid_shape=(rows, cols),
+    )
+
+
+def affine_matrix(*, rotation=None, translation=None, scale=None):
+    """A 4x4 affine matrix: scale first, then rotation, then translation.
+
+    Parameters
+    ----------
+    rotation : (3,) array_like or (3, 3) array_like, optional
+        Euler angles in radians applied in X, Y, Z order (Blender's default ``XYZ``), or a
+        rotation matrix.
+    translation : (3,) array_like, optional
+    scale : float or (3,) array_like, optional
+
+    Returns
+    -------
+    (4, 4) float64 array
+
+    Examples
+    --------
+    >>> m = affine_matrix(rotation=(0, 0, np.pi / 2), translation=(1, 0, 0))
+    >>> np.round(apply_transform(np.array([[1.0, 0, 0]]), m), 6)
+    array([[1., 1., 0.]])
+    """
+    m = np.eye(4)
+    s = np.ones(3) if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (3,))
+    if not np.all(np.isfinite(s)) or np.any(s == 0):
+        raise CliffTerrainError(f"`scale` must be finite and non-zero, got {scale!r}")
+    rot = np.eye(3)
+    if rotation is not None:
+        rotation = np.asarray(rotation, dtype=float)
+        if rotation.shape == (3, 3):
+            rot = rotation
+        elif rotation.shape == (3,):
+            rot = _euler_xyz(rotation)
+        else:
+            raise CliffTerrainError(
+                f"`rotation` must be 3 Euler angles or a 3x3 matrix, got shape {rotation.shape}"
+            )
+    m[:3, :3] = rot * s[None, :]
+    if translation is not None:
+        t = np.asarray(translation, dtype=float)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise CliffTerrainError(f"`translation` must be 3 finite numbers, got {translation!r}")
+        m[:3, 3] = t
+    return m
+
+
+def _euler_xyz(angles):
+    ax, ay, az = angles
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def apply_transform(vertices, matrix):
+    """Apply a 4x4 affine `matrix` to (n, 3) `vertices`; returns float32 like the mesh arrays."""
+    vertices = np.asarray(vertices)
+    matrix = np.asarray(matrix, dtype=float)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise CliffTerrainError(f"`vertices` must have shape (n, 3), got {vertices.shape}")
+    if matrix.shape != (4, 4):
+        raise CliffTerrainError(f"`matrix` must have shape (4, 4), got {matrix.shape}")
+    out = vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    return out.astype(np.float32)

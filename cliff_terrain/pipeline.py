@@ -1,0 +1,261 @@
+"""`build_relief`: the paper's whole pipeline, photo to textured relief mesh, with every stage kept."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ._validate import check_choice, check_float, check_int, check_rgb
+from .errors import CliffTerrainError
+from .heights import PROFILES, inflate
+from .image_io import ImageMetadata, load_image
+from .mesh import MeshArrays, grid_mesh
+from .quaternion import quaternion_filter
+from .segmentation import METHODS, distance_map, segment
+
+MIN_SIZE = 16
+MAX_SIZE = 16384
+
+
+@dataclass
+class Relief:
+    """Every stage of :func:`build_relief`.
+
+    Arrays of the processing grid have shape (rows, cols) = the working image's.
+
+    Attributes
+    ----------
+    image : (rows0, cols0, 3) uint8
+        The photo as loaded (possibly decoded reduced, see ``metadata.reduction``).
+    metadata : ImageMetadata
+        Source, camera and ground sampling distance.
+    working : (rows, cols, 3) uint8
+        The photo resized to the processing size.
+    filtered : (rows, cols, 3) float32
+        Quaternion filter output.
+    mask, labels, boundaries : (rows, cols) bool, int32, bool
+        Segmentation.
+    distance : (rows, cols) float32
+        Euclidean distance map per region, in processing pixels.
+    heights : (rows, cols) float32
+        Heights in `units`.
+    mesh : MeshArrays
+        The relief mesh, x/y/z in `units`.
+    units : {"m", "px"}
+        Metres when the ground sampling distance is known, else processing pixels.
+    pixel_size : float
+        Size of one processing pixel in `units`.
+    params : dict
+        The settings of the call.
+    timings : dict
+        Seconds per stage.
+    """
+
+    image: np.ndarray
+    metadata: ImageMetadata
+    working: np.ndarray
+    filtered: np.ndarray
+    mask: np.ndarray
+    labels: np.ndarray
+    boundaries: np.ndarray
+    distance: np.ndarray
+    heights: np.ndarray
+    mesh: MeshArrays
+    units: str
+    pixel_size: float
+    params: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def n_regions(self) -> int:
+        return int(self.labels.max(initial=0))
+
+    @property
+    def max_height(self) -> float:
+        return float(self.heights.max(initial=0.0))
+
+
+def build_relief(
+    image_or_path,
+    *,
+    max_size=1000,
+    segmentation="vegetation",
+    profile="circular",
+    exaggeration=1.0,
+    gsd=None,
+    two_sided=True,
+    progress=None,
+):
+    """Turn one UAV photo into a relief: filter, segment, inflate, mesh.
+
+    Parameters
+    ----------
+    image_or_path : str, os.PathLike or (rows, cols, 3) array
+        A photo file (JPEG, PNG, TIFF; see :func:`load_image`) or an RGB array (uint8, or float in
+        [0, 1]).
+    max_size : int, optional
+        Longest side of the processing grid in pixels (16 to 16384); smaller photos are not
+        enlarged. The mesh has (rows + 1) x (cols + 1) front vertices.
+    segmentation : {"vegetation", "paper"}, optional
+        ``"vegetation"``: plants rise and soil stays flat. ``"paper"``: the paper's Algorithm 2 as
+        printed (Otsu on the filtered image's brightness; it may raise bright soil). See
+        :mod:`cliff_terrain.segmentation`.
+    profile : {"circular", "poisson"}, optional
+        Cross-section of each region (see :func:`cliff_terrain.heights.inflate`).
+    exaggeration : float, optional
+        Height factor (> 0).
+    gsd : float, optional
+        Ground sampling distance of the *original* photo in metres per pixel; wins over what
+        the camera metadata gives. With a GSD the heights and the mesh are in metres.
+    two_sided : bool, optional
+        Close the relief into a watertight solid with a base (back UVs have u > 1).
+    progress : callable, optional
+        ``progress(fraction, stage)`` is called as each stage starts, fraction in [0, 1].
+
+    Returns
+    -------
+    Relief
+
+    Examples
+    --------
+    >>> from cliff_terrain.synthetic import synthetic_field
+    >>> img, truth = synthetic_field(shape=(240, 360), n_rows=2, seed=3)
+    >>> relief = build_relief(img, max_size=360)
+    >>> relief.n_regions == truth.n_plants, relief.units
+    (True, 'px')
+    """
+    max_size = check_int("max_size", max_size, minimum=MIN_SIZE, maximum=MAX_SIZE)
+    check_choice("segmentation", segmentation, METHODS)
+    check_choice("profile", profile, PROFILES)
+    exaggeration = check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True)
+    gsd = check_float("gsd", gsd, minimum=0.0, strict_minimum=True, allow_none=True)
+    if not isinstance(two_sided, bool | np.bool_):
+        raise CliffTerrainError(f"`two_sided` must be True or False, got {two_sided!r}")
+    if progress is not None and not callable(progress):
+        raise CliffTerrainError(f"`progress` must be callable or None, got {progress!r}")
+    params = {
+        "max_size": max_size,
+        "segmentation": segmentation,
+        "profile": profile,
+        "exaggeration": exaggeration,
+        "gsd": gsd,
+        "two_sided": bool(two_sided),
+    }
+    timings = {}
+    clock = _Stages(progress, timings)
+
+    clock.start("load", 0.0)
+    if isinstance(image_or_path, str | os.PathLike):
+        image, metadata = load_image(image_or_path, max_size=max_size, gsd=gsd)
+    else:
+        image, metadata = _from_array(image_or_path, gsd)
+
+    clock.start("resize", 0.1)
+    working = resize_longest(image, max_size)
+
+    clock.start("filter", 0.2)
+    filtered = quaternion_filter(working)
+
+    clock.start("segment", 0.35)
+    seg = segment(working, method=segmentation, filtered=filtered)
+
+    clock.start("heights", 0.6)
+    distance = distance_map(seg.labels)
+    heights_px = inflate(seg.labels, profile=profile, exaggeration=exaggeration, distance=distance)
+
+    clock.start("mesh", 0.8)
+    rows, cols = working.shape[:2]
+    if metadata.gsd_m_per_px:
+        units = "m"
+        pixel_size = float(metadata.gsd_m_per_px) * metadata.width / cols
+    else:
+        units, pixel_size = "px", 1.0
+    heights = heights_px * np.float32(pixel_size) if units == "m" else heights_px
+    mesh = grid_mesh(heights, pixel_size=pixel_size, two_sided=bool(two_sided))
+    clock.start(None, 1.0)
+
+    return Relief(
+        image=image,
+        metadata=metadata,
+        working=working,
+        filtered=filtered,
+        mask=seg.mask,
+        labels=seg.labels,
+        boundaries=seg.boundaries,
+        distance=distance,
+        heights=heights,
+        mesh=mesh,
+        units=units,
+        pixel_size=pixel_size,
+        params=params,
+        timings=timings,
+    )
+
+
+class _Stages:
+    """Times the stages and reports progress as each one starts."""
+
+    def __init__(self, progress, timings):
+        self.progress = progress
+        self.timings = timings
+        self.stage = None
+        self.t0 = time.perf_counter()
+
+    def start(self, stage, fraction):
+        now = time.perf_counter()
+        if self.stage is not None:
+            self.timings[self.stage] = now - self.t0
+        self.stage, self.t0 = stage, now
+        if self.progress is not None:
+            self.progress(fraction, stage or "done")
+
+
+def _from_array(image, gsd):
+    image = check_rgb("image_or_path", image, min_size=2)
+    if image.dtype != np.uint8:
+        if image.min() < 0.0 or image.max() > 1.0:
+            raise CliffTerrainError(
+                f"`image_or_path` as a float array must hold values in [0, 1], got [{image.min():.3g}, {image.max():.3g}]"
+            )
+        image = np.round(image * 255.0).astype(np.uint8)
+    rows, cols = image.shape[:2]
+    metadata = ImageMetadata(
+        path="",
+        format="array",
+        mode="RGB",
+        width=cols,
+        height=rows,
+        decoded_width=cols,
+        decoded_height=rows,
+        gsd_m_per_px=gsd,
+        gsd_source="user" if gsd is not None else None,
+    )
+    return np.ascontiguousarray(image), metadata
+
+
+def resize_longest(image, max_size):
+    """Shrink `image` so its longest side is at most `max_size` (area averaging); never enlarge.
+
+    Parameters
+    ----------
+    image : (rows, cols, 3) uint8 array
+    max_size : int
+
+    Returns
+    -------
+    (rows', cols', 3) uint8 array
+        The same array when no shrinking is needed.
+    """
+    image = check_rgb("image", image)
+    max_size = check_int("max_size", max_size, minimum=1)
+    rows, cols = image.shape[:2]
+    longest = max(rows, cols)
+    if longest <= max_size:
+        return image
+    scale = max_size / longest
+    size = (max(1, round(cols * scale)), max(1, round(rows * scale)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)

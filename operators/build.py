@@ -1,0 +1,209 @@
+"""The Build Relief operator: photo -> core pipeline -> a new textured relief object.
+
+Error policy: a :class:`CliffTerrainError` (bad photo or setting) is reported as an ERROR with the
+core's message and the operator returns CANCELLED. Any other exception is a bug: its traceback goes
+to the console, it is reported as an ERROR naming the exception, and the operator returns CANCELLED
+(Blender turns the ERROR report into a RuntimeError for scripts, so nothing fails silently). Either
+way every datablock the build made (object, mesh, material, image) is removed first: the scene is
+left as it was.
+"""
+
+import traceback
+from pathlib import Path
+
+import bpy
+
+from .material import load_photo, relief_material
+from .mesh_data import mesh_from_arrays
+from .properties import PARAMETER_NAMES, ReliefParameters
+
+# Without a known ground sampling distance the relief is scaled so its longest side is this many
+# Blender units ("normalised units"); with one, 1 Blender unit = 1 metre.
+NORMALISED_SIZE = 10.0
+# Share of the progress bar taken by the core pipeline; the rest is mesh and material.
+PIPELINE_SHARE = 0.8
+
+
+class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
+    """Build a textured 3D relief of a UAV photo as a new object"""
+
+    # Parameters not passed take the scene's Cliff Terrain settings, so
+    # bpy.ops.cliff_terrain.build_relief(filepath=..., max_size=2000) uses the panel's other values.
+
+    bl_idname = "cliff_terrain.build_relief"
+    bl_label = "Build Relief"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.mode == "OBJECT"
+
+    def invoke(self, context, event):
+        self.take_scene_settings(context)
+        if not self.filepath:
+            context.window_manager.fileselect_add(self)
+            return {"RUNNING_MODAL"}
+        return self.execute(context)
+
+    def take_scene_settings(self, context):
+        """Parameters not given explicitly take the scene's settings (what the panel shows)."""
+        settings = context.scene.cliff_terrain
+        for name in ("filepath", *PARAMETER_NAMES):
+            # ghost=False: a value remembered from the operator's last run does not count as given.
+            if not self.properties.is_property_set(name, ghost=False):
+                setattr(self, name, getattr(settings, name))
+
+    def execute(self, context):
+        # Imported here, not at registration: the core pulls in SciPy, scikit-image and OpenCV,
+        # which would slow every Blender start-up.
+        try:
+            from ..cliff_terrain import CliffTerrainError, build_relief
+        except ImportError as exc:
+            self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
+            return {"CANCELLED"}
+        # Also here, not only in invoke: headless and from scripts Blender calls execute directly.
+        self.take_scene_settings(context)
+        path = bpy.path.abspath(self.filepath)
+        params = self.core_kwargs()
+        created = []
+        try:
+            with _Progress(context) as progress:
+
+                def on_progress(fraction, stage):
+                    progress(PIPELINE_SHARE * fraction, stage)
+
+                relief = build_relief(path, progress=on_progress, **params)
+                progress(PIPELINE_SHARE, "building the mesh")
+                obj = build_relief_object(context, relief, path, params, created=created)
+                progress(1.0, "done")
+        except CliffTerrainError as exc:
+            _remove(created)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        except Exception as exc:
+            _remove(created)
+            traceback.print_exc()
+            self.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
+            return {"CANCELLED"}
+        except BaseException:
+            _remove(created)
+            raise
+        info = obj["cliff_terrain"]
+        self.report(
+            {"INFO"},
+            f"Built {obj.name}: {len(obj.data.vertices)} vertices, {info['regions']} regions, "
+            f"units {info['units']}",
+        )
+        return {"FINISHED"}
+
+
+def relief_scale(relief):
+    """Blender units per core unit: 1 for metres, else the longest side becomes NORMALISED_SIZE."""
+    if relief.units == "m":
+        return 1.0
+    rows, cols = relief.mesh.grid_shape
+    return NORMALISED_SIZE / (max(rows, cols) * float(relief.pixel_size))
+
+
+def build_relief_object(context, relief, path, params, *, created):
+    """Make the relief's mesh, material and object, linked to the active collection.
+
+    Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
+    all if a later step fails.
+    """
+    name = Path(path).stem or "relief"
+    scale = relief_scale(relief)
+    mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
+    created.append(mesh)
+    image, image_created = load_photo(path, metadata=relief.metadata, fallback_rgb=relief.image, name=name)
+    if image_created:
+        created.append(image)
+    material = relief_material(name, image)
+    created.append(material)
+    mesh.materials.append(material)
+
+    obj = bpy.data.objects.new(name, mesh)
+    created.append(obj)
+    collection = context.collection or context.scene.collection
+    collection.objects.link(obj)
+    obj["cliff_terrain"] = build_record(relief, path, params, scale)
+    obj.location = context.scene.cursor.location
+    for other in context.view_layer.objects.selected:
+        other.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+    return obj
+
+
+def build_record(relief, path, params, scale):
+    """What a relief object records about its build (its ``cliff_terrain`` custom property)."""
+    from ..cliff_terrain import __version__
+
+    return {
+        "version": __version__,
+        "source": str(path),
+        "units": relief.units,
+        "blender_units_per_unit": scale,
+        "size_mode": "metres" if relief.units == "m" else "normalised",
+        "pixel_size": float(relief.pixel_size),
+        "grid_rows": int(relief.mesh.grid_shape[0]),
+        "grid_cols": int(relief.mesh.grid_shape[1]),
+        "regions": int(relief.n_regions),
+        "max_height": relief.max_height,
+        "image_width": int(relief.metadata.width),
+        "image_height": int(relief.metadata.height),
+        # ID properties hold no None: an unknown GSD is stored as 0, as in the settings.
+        "params": {key: (0.0 if value is None else value) for key, value in params.items()},
+    }
+
+
+def _remove(datablocks):
+    """Remove what a failed build made, newest first (the object before its mesh and material)."""
+    collections = (
+        (bpy.types.Object, bpy.data.objects),
+        (bpy.types.Mesh, bpy.data.meshes),
+        (bpy.types.Material, bpy.data.materials),
+        (bpy.types.Image, bpy.data.images),
+    )
+    while datablocks:
+        block = datablocks.pop()
+        for kind, collection in collections:
+            if isinstance(block, kind):
+                collection.remove(block)
+                break
+
+
+class _Progress:
+    """Progress bar and status-bar text while building (both may be missing in background mode)."""
+
+    def __init__(self, context):
+        self.wm = context.window_manager
+        self.workspace = context.workspace
+
+    def __enter__(self):
+        self.wm.progress_begin(0, 100)
+        return self
+
+    def __call__(self, fraction, stage):
+        self.wm.progress_update(int(round(100 * min(max(fraction, 0.0), 1.0))))
+        if self.workspace is not None:
+            self.workspace.status_text_set(f"Cliff Terrain: {stage} ({fraction:.0%})")
+
+    def __exit__(self, *exc):
+        self.wm.progress_end()
+        if self.workspace is not None:
+            self.workspace.status_text_set(None)
+        return False
+
+
+CLASSES = (CLIFF_TERRAIN_OT_build_relief,)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

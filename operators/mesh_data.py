@@ -1,0 +1,79 @@
+"""numpy mesh arrays -> a Blender mesh, by bulk writes only (no per-vertex Python).
+
+The generic attribute API is the fast route (``position``, ``.corner_vert``, a FLOAT2 corner attribute
+for the UVs, then ``Mesh.update``): about 1.7 s for 2.7 M vertices and 10.7 M corners, where
+``vertices.foreach_set("co")`` + ``loops.foreach_set`` + ``validate`` takes about 6 s. The same calls
+work on Blender 4.2 and 5.0 (face sizes follow from ``loop_start``; a FLOAT2 corner attribute is a UV
+map). Used by the build operator and the render script.
+"""
+
+import bpy
+import numpy as np
+
+UV_NAME = "UVMap"
+
+
+def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
+    """Create a new mesh datablock from a :class:`cliff_terrain.mesh.MeshArrays`.
+
+    Parameters
+    ----------
+    name : str
+        Name of the new mesh (Blender adds a suffix if it is taken).
+    mesh_arrays : MeshArrays
+        Vertices, faces (``face_sizes`` + ``corner_verts``) and per-corner UVs.
+    scale : float, optional
+        Multiplies every vertex position (the relief's size in Blender units per core unit).
+    uv_name : str, optional
+        Name of the UV map.
+
+    Returns
+    -------
+    bpy.types.Mesh
+        The new mesh, one UV map (active for display and render), the first
+        ``n_front_faces`` faces smooth-shaded and the walls and base flat-shaded. Nothing is left
+        behind if this raises.
+    """
+    vertices = np.ascontiguousarray(mesh_arrays.vertices, dtype=np.float32)
+    corner_verts = np.ascontiguousarray(mesh_arrays.corner_verts, dtype=np.int32)
+    face_sizes = np.ascontiguousarray(mesh_arrays.face_sizes, dtype=np.int32)
+    uvs = np.ascontiguousarray(mesh_arrays.uvs, dtype=np.float32)
+    n_vertices, n_corners, n_faces = vertices.shape[0], corner_verts.shape[0], face_sizes.shape[0]
+    # Blender trusts these indices; a bad one would corrupt memory, not raise.
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(f"`vertices` must have shape (n, 3), got {vertices.shape}")
+    if int(face_sizes.sum()) != n_corners or (n_faces and int(face_sizes.min()) < 3):
+        raise ValueError("`face_sizes` must be >= 3 and add up to the number of corners")
+    if n_corners and (int(corner_verts.min()) < 0 or int(corner_verts.max()) >= n_vertices):
+        raise ValueError(f"`corner_verts` must index the {n_vertices} vertices")
+    if uvs.shape != (n_corners, 2):
+        raise ValueError(f"`uvs` must have shape ({n_corners}, 2), got {uvs.shape}")
+    if scale != 1.0:
+        vertices = vertices * np.float32(scale)
+    face_offsets = np.zeros(n_faces, dtype=np.int32)
+    np.cumsum(face_sizes[:-1], out=face_offsets[1:])
+
+    mesh = bpy.data.meshes.new(name)
+    try:
+        mesh.vertices.add(n_vertices)
+        mesh.attributes["position"].data.foreach_set("vector", vertices.ravel())
+        mesh.loops.add(n_corners)
+        mesh.attributes[".corner_vert"].data.foreach_set("value", corner_verts)
+        mesh.polygons.add(n_faces)
+        mesh.polygons.foreach_set("loop_start", face_offsets)
+        uv = mesh.attributes.new(uv_name, "FLOAT2", "CORNER")
+        uv.data.foreach_set("vector", uvs.ravel())
+        uv_layer = mesh.uv_layers[uv_name]
+        mesh.uv_layers.active = uv_layer
+        uv_layer.active_render = True
+        n_front = int(mesh_arrays.n_front_faces)
+        if n_front < n_faces:
+            # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
+            sharp = np.zeros(n_faces, dtype=bool)
+            sharp[n_front:] = True
+            mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
+        mesh.update(calc_edges=True)
+    except BaseException:
+        bpy.data.meshes.remove(mesh)
+        raise
+    return mesh

@@ -1,0 +1,201 @@
+"""The packaged extension: build the linux-x64 zip with tools/build_extension.py (Blender's own
+builder), install it into Blender with a throw-away user configuration, and run it on a real photo.
+
+The install runs in a subprocess: BLENDER_USER_RESOURCES must be set before bpy is imported, and
+the interpreter starts with ``-S`` and sees only bpy and numpy, so SciPy, scikit-image, OpenCV and
+Pillow can only come from the wheels inside the zip. Wheels are cached in ``wheels/`` (as for
+``make extension``), so only the first run downloads them.
+"""
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.blender, pytest.mark.slow]
+bpy = pytest.importorskip("bpy")
+
+ROOT = Path(__file__).resolve().parents[1]
+UAV = ROOT.parent / "shared" / "data" / "uav"
+MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # 261x284 RGBA GeoTIFF, 2.2 cm/px
+
+
+def load_tool():
+    spec = importlib.util.spec_from_file_location("_build_extension", ROOT / "tools" / "build_extension.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def tool():
+    return load_tool()
+
+
+@pytest.fixture(scope="module")
+def linux_zip(tmp_path_factory, tool):
+    out = tmp_path_factory.mktemp("dist")
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "tools" / "build_extension.py"),
+            "--platform",
+            "linux-x64",
+            "--output-dir",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert proc.returncode == 0, f"build_extension failed:\n{proc.stdout}\n{proc.stderr}"
+    zips = sorted(out.glob("*.zip"))
+    assert [z.name for z in zips] == [f"cliff_terrain-{tool.core_version()}-linux_x64.zip"], proc.stdout
+    return zips[0]
+
+
+def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
+    with zipfile.ZipFile(linux_zip) as archive:
+        names = archive.namelist()
+        manifest = tomllib.loads(archive.read("blender_manifest.toml").decode())
+    wheels = [Path(n).name for n in names if n.startswith("wheels/")]
+    packages = sorted(tool.wheel_name_version(w)[0] for w in wheels)
+    assert packages == sorted(tool.normalize(p) for p in tool.PACKAGES)
+    assert "numpy" not in packages
+    # Pure-Python or Linux x86-64 wheels, for CPython 3.11 (or the stable ABI).
+    for wheel in wheels:
+        python, abi, platform = wheel[: -len(".whl")].split("-")[-3:]
+        assert platform == "any" or ("linux" in platform and platform.endswith("x86_64")), wheel
+        assert python in ("py3", "cp311", "cp37") and abi in ("none", "cp311", "abi3"), wheel
+    assert manifest["build"]["generated"]["platforms"] == ["linux-x64"]
+    for required in ("__init__.py", "cliff_terrain/pipeline.py", "operators/build.py", "panels/sidebar.py"):
+        assert required in names
+    tops = {n.split("/", 1)[0] for n in names}
+    assert not tops & {
+        "tests",
+        "bench",
+        "tools",
+        "docs",
+        "dist",
+        ".ci",
+        ".venv",
+        "Makefile",
+        "pyproject.toml",
+    }
+    assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
+
+
+def test_build_fails_clearly_for_a_platform_the_manifest_lacks(tool, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        tool.main(["--platform", "linux-arm64", "--output-dir", str(tmp_path)])
+    assert exc.value.code == 2  # argparse: not one of the known platforms
+    assert not list(tmp_path.iterdir())
+
+
+INSTALL_AND_RUN = r"""
+import json, sys
+shim, zip_path, photo, res = sys.argv[1:5]
+sys.path.insert(0, shim)
+import bpy
+import numpy as np
+
+out = {"blender": bpy.app.version_string}
+out["install"] = sorted(bpy.ops.extensions.package_install_files(
+    filepath=zip_path, repo="user_default", enable_on_install=True))
+module = sys.modules.get("bl_ext.user_default.cliff_terrain")
+out["module_file"] = getattr(module, "__file__", None)
+out["build"] = sorted(bpy.ops.cliff_terrain.build_relief(filepath=photo, max_size=300))
+obj = bpy.context.active_object
+mesh = obj.data
+co = np.empty(len(mesh.vertices) * 3, np.float32)
+mesh.vertices.foreach_get("co", co)
+uv = np.empty(len(mesh.loops) * 2, np.float32)
+mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+tex = [n for n in obj.active_material.node_tree.nodes if n.bl_idname == "ShaderNodeTexImage"]
+out.update(
+    name=obj.name,
+    n_vertices=len(mesh.vertices),
+    n_faces=len(mesh.polygons),
+    z_max=float(co[2::3].max()),
+    uv_min=float(uv.min()),
+    uv_max=float(uv.max()),
+    material=obj.active_material.name,
+    texture_size=list(tex[0].image.size) if tex else None,
+    record=obj["cliff_terrain"].to_dict(),
+)
+import cv2, PIL, scipy, skimage
+out["libraries"] = {m.__name__: m.__file__ for m in (scipy, skimage, cv2, PIL, np)}
+print("RESULT " + json.dumps(out))
+"""
+
+
+def isolated_site(tmp_path):
+    """A folder with only bpy and numpy (as in Blender), linked from this interpreter's site-packages."""
+    shim = tmp_path / "site"
+    shim.mkdir()
+    for name in ("bpy", "numpy"):
+        spec = importlib.util.find_spec(name)
+        package = Path(spec.submodule_search_locations[0])
+        (shim / name).symlink_to(package)
+        libs = package.parent / f"{name}.libs"  # numpy's bundled OpenBLAS
+        if libs.is_dir():
+            (shim / libs.name).symlink_to(libs)
+    return shim
+
+
+@pytest.mark.skipif(not MAIZE.is_file(), reason=f"real UAV image not found at {MAIZE}")
+def test_installed_zip_builds_a_relief_with_its_own_wheels(linux_zip, tmp_path):
+    from cliff_terrain import build_relief, load_image
+
+    resources = tmp_path / "blender_user"
+    resources.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "BLENDER"))}
+    env["BLENDER_USER_RESOURCES"] = str(resources)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-S",
+            "-c",
+            INSTALL_AND_RUN,
+            str(isolated_site(tmp_path)),
+            str(linux_zip),
+            str(MAIZE),
+        ]
+        + [str(resources)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+        cwd=tmp_path,
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, (
+        f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    )
+    out = json.loads(lines[-1][len("RESULT ") :])
+
+    assert out["install"] == ["FINISHED"] and out["build"] == ["FINISHED"]
+    assert Path(out["module_file"]).is_relative_to(resources)
+    for name in ("scipy", "skimage", "cv2", "PIL"):
+        assert Path(out["libraries"][name]).is_relative_to(resources), (name, out["libraries"][name])
+    assert not Path(out["libraries"]["numpy"]).resolve().is_relative_to(resources)
+
+    ref = build_relief(str(MAIZE), max_size=300)
+    assert (out["n_vertices"], out["n_faces"]) == (ref.mesh.n_vertices, ref.mesh.n_faces)
+    # Metres (GeoTIFF pixel scale, no rescaling); corner heights average pixels, so <= the peak.
+    assert 0.0 < out["z_max"] <= ref.max_height
+    assert out["z_max"] == pytest.approx(float(ref.mesh.vertices[:, 2].max()), rel=1e-6)
+    assert out["uv_min"] >= 0.0 and out["uv_max"] <= 2.0
+    assert out["name"] == MAIZE.stem and out["material"] == MAIZE.stem
+    meta = load_image(str(MAIZE))[1]
+    assert out["texture_size"] == [meta.width, meta.height]  # the photo at full resolution
+    assert out["record"]["units"] == "m" and out["record"]["regions"] == ref.n_regions
+    assert np.isclose(out["record"]["pixel_size"], ref.pixel_size)

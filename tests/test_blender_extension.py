@@ -1,0 +1,469 @@
+"""The extension inside Blender (bpy wheel, in this process): settings, the Build Relief operator,
+the numpy-to-Blender mesh transfer, material, safety on errors, undo, and registration cycles.
+
+The repository root is loaded as a package (``cliff_terrain_addon``) and registered, as Blender
+would load the installed extension. bpy can be imported once per process and keeps its state, so
+every test starts from ``read_factory_settings(use_empty=True)`` (registered classes survive it).
+The installed-zip path is covered by test_blender_build.py.
+"""
+
+import importlib
+import importlib.util
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.blender
+bpy = pytest.importorskip("bpy")
+
+ROOT = Path(__file__).resolve().parents[1]
+UAV = ROOT.parent / "shared" / "data" / "uav"
+BROCCOLI = UAV / "broccoli" / "01_clip_raw_test.jpg"  # 1500x1500, no EXIF: normalised units
+MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # 261x284 GeoTIFF, 2.2 cm/px: metres
+ADDON = "cliff_terrain_addon"
+
+needs_uav = pytest.mark.skipif(not UAV.is_dir(), reason=f"real UAV images not found at {UAV}")
+
+
+def load_addon():
+    """Import the repository root as a package, the way Blender imports an extension."""
+    if ADDON in sys.modules:
+        return sys.modules[ADDON]
+    spec = importlib.util.spec_from_file_location(
+        ADDON, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[ADDON] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[ADDON]
+        raise
+    return module
+
+
+@pytest.fixture(scope="module")
+def addon():
+    module = load_addon()
+    registered_here = not hasattr(bpy.types.Scene, "cliff_terrain")
+    if registered_here:
+        module.register()
+    yield module
+    if registered_here and hasattr(bpy.types.Scene, "cliff_terrain"):
+        module.unregister()
+
+
+@pytest.fixture
+def scene(addon):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+@pytest.fixture(scope="module")
+def core(addon):
+    """The core package as the add-on imports it (``cliff_terrain_addon.cliff_terrain``)."""
+    return importlib.import_module(f"{ADDON}.cliff_terrain")
+
+
+def datablock_counts():
+    return {
+        kind: len(getattr(bpy.data, kind))
+        for kind in ("objects", "meshes", "materials", "images", "textures")
+    }
+
+
+def vertex_positions(mesh):
+    out = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
+    mesh.vertices.foreach_get("co", out)
+    return out.reshape(-1, 3)
+
+
+def corner_uvs(mesh, name="UVMap"):
+    out = np.empty(len(mesh.loops) * 2, dtype=np.float32)
+    mesh.uv_layers[name].uv.foreach_get("vector", out)
+    return out.reshape(-1, 2)
+
+
+def faces(mesh):
+    sizes = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", sizes)
+    corners = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", corners)
+    return sizes, corners
+
+
+def build(**kwargs):
+    result = bpy.ops.cliff_terrain.build_relief(
+        **{k: (str(v) if k == "filepath" else v) for k, v in kwargs.items()}
+    )
+    assert result == {"FINISHED"}
+    return bpy.context.active_object
+
+
+# ---- mesh transfer, on the core's grid mesh (no photo) ----
+
+
+def test_mesh_from_arrays_reproduces_grid_mesh(addon, core, scene):
+    mesh_data = importlib.import_module(f"{ADDON}.operators.mesh_data")
+    rng = np.random.default_rng(7)
+    heights = rng.random((23, 37)).astype(np.float32) * 4.0
+    arrays = core.grid_mesh(heights, pixel_size=0.5, two_sided=True)
+    mesh = mesh_data.mesh_from_arrays("grid", arrays, scale=2.0)
+
+    np.testing.assert_array_equal(vertex_positions(mesh), arrays.vertices * np.float32(2.0))
+    sizes, corners = faces(mesh)
+    np.testing.assert_array_equal(sizes, arrays.face_sizes)
+    np.testing.assert_array_equal(corners, arrays.corner_verts)
+    np.testing.assert_array_equal(corner_uvs(mesh), arrays.uvs)
+    assert [uv.name for uv in mesh.uv_layers] == ["UVMap"] and mesh.uv_layers.active.name == "UVMap"
+    # Blender finds nothing to repair, and the solid is closed: every edge has two faces.
+    assert mesh.validate(verbose=False) is False
+    assert len(mesh.edges) == arrays.edge_face_counts().size
+    assert np.all(arrays.edge_face_counts() == 2)
+    sharp = np.empty(len(mesh.polygons), dtype=bool)
+    mesh.attributes["sharp_face"].data.foreach_get("value", sharp)
+    assert not sharp[: arrays.n_front_faces].any() and sharp[arrays.n_front_faces :].all()
+
+
+def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene):
+    mesh_data = importlib.import_module(f"{ADDON}.operators.mesh_data")
+    arrays = core.grid_mesh(np.zeros((3, 4)), two_sided=False)
+    mesh = mesh_data.mesh_from_arrays("flat", arrays)
+    assert (len(mesh.vertices), len(mesh.polygons)) == (4 * 5, 12)
+    assert "sharp_face" not in mesh.attributes
+    assert mesh.validate(verbose=False) is False
+
+    before = datablock_counts()
+    arrays.corner_verts[5] = arrays.n_vertices  # one past the last vertex
+    with pytest.raises(ValueError, match="corner_verts"):
+        mesh_data.mesh_from_arrays("broken", arrays)
+    assert datablock_counts() == before
+
+
+# ---- the operator on real photos ----
+
+
+@needs_uav
+def test_build_matches_core_in_normalised_units(addon, core, scene):
+    obj = build(filepath=BROCCOLI, max_size=96)
+    ref = core.build_relief(str(BROCCOLI), max_size=96)
+    assert ref.units == "px"  # no EXIF and no GSD given
+    mesh = obj.data
+
+    # Longest side 10 Blender units, the rest scaled alike.
+    rows, cols = ref.mesh.grid_shape
+    scale = 10.0 / max(rows, cols)
+    np.testing.assert_allclose(
+        vertex_positions(mesh), ref.mesh.vertices * np.float32(scale), rtol=1e-6, atol=1e-6
+    )
+    assert max(obj.dimensions.x, obj.dimensions.y) == pytest.approx(10.0, rel=1e-6)
+
+    sizes, corners = faces(mesh)
+    np.testing.assert_array_equal(sizes, ref.mesh.face_sizes)
+    np.testing.assert_array_equal(corners, ref.mesh.corner_verts)
+    uvs = corner_uvs(mesh)
+    np.testing.assert_array_equal(uvs, ref.mesh.uvs)
+    n_front_corners = 4 * ref.mesh.n_front_faces
+    assert np.all(uvs[:n_front_corners] >= 0.0) and np.all(uvs[:n_front_corners] <= 1.0)
+    assert mesh.validate(verbose=False) is False
+    assert obj.name == BROCCOLI.stem and mesh.name == BROCCOLI.stem
+    # The relief rises (corner heights average pixels, so they stay under the peak).
+    assert 0.0 < vertex_positions(mesh)[:, 2].max() <= ref.max_height * scale * (1 + 1e-6)
+
+
+@needs_uav
+def test_walls_and_base_are_marked_by_u_above_one(addon, scene):
+    # The material tells walls and base from the top by U > 1, so every back corner needs it.
+    obj = build(filepath=BROCCOLI, max_size=40)
+    n_front_corners = 4 * (obj["cliff_terrain"]["grid_rows"] * obj["cliff_terrain"]["grid_cols"])
+    uvs = corner_uvs(obj.data)
+    assert n_front_corners < len(uvs)
+    assert np.all(uvs[:n_front_corners, 0] <= 1.0)
+    back_u = uvs[n_front_corners:, 0]
+    assert np.all(back_u > 1.0), (
+        f"{np.count_nonzero(back_u <= 1.0)} of {back_u.size} back corners have u <= 1"
+    )
+
+
+@needs_uav
+def test_build_records_its_settings_on_the_object(addon, core, scene):
+    obj = build(filepath=BROCCOLI, max_size=80, profile="poisson", exaggeration=2.5, segmentation="paper")
+    ref = core.build_relief(
+        str(BROCCOLI), max_size=80, profile="poisson", exaggeration=2.5, segmentation="paper"
+    )
+    info = obj["cliff_terrain"].to_dict()
+    assert info["version"] == core.__version__
+    assert Path(info["source"]) == BROCCOLI
+    assert info["units"] == "px" and info["size_mode"] == "normalised"
+    assert info["blender_units_per_unit"] == pytest.approx(10.0 / max(ref.mesh.grid_shape))
+    assert info["pixel_size"] == pytest.approx(ref.pixel_size)
+    assert (info["grid_rows"], info["grid_cols"]) == ref.mesh.grid_shape
+    assert info["regions"] == ref.n_regions > 0
+    assert info["max_height"] == pytest.approx(ref.max_height)
+    assert (info["image_width"], info["image_height"]) == (1500, 1500)
+    assert info["params"] == {
+        "segmentation": "paper",
+        "profile": "poisson",
+        "max_size": 80,
+        "exaggeration": 2.5,
+        "gsd": 0.0,
+        "two_sided": True,
+    }
+
+
+@needs_uav
+def test_build_in_metres_with_a_given_gsd(addon, core, scene):
+    obj = build(filepath=BROCCOLI, max_size=64, gsd=0.004)
+    info = obj["cliff_terrain"]
+    assert info["units"] == "m" and info["blender_units_per_unit"] == 1.0
+    # 1500 px at 4 mm/px = 6 m, whatever the processing size.
+    assert obj.dimensions.x == pytest.approx(6.0, rel=1e-5)
+    assert obj.dimensions.y == pytest.approx(6.0, rel=1e-5)
+
+
+@needs_uav
+def test_build_in_metres_from_geotiff(addon, core, scene):
+    obj = build(filepath=MAIZE, max_size=100, two_sided=False)
+    meta = core.load_image(str(MAIZE))[1]
+    assert meta.gsd_source == "geotiff"
+    assert obj["cliff_terrain"]["units"] == "m"
+    # Pixels stay square: x is exact, y is off by the resize's rounding (under one grid pixel).
+    pixel = obj["cliff_terrain"]["pixel_size"]
+    assert obj.dimensions.x == pytest.approx(meta.width * meta.gsd_m_per_px, rel=1e-5)
+    assert obj.dimensions.y == pytest.approx(meta.height * meta.gsd_m_per_px, abs=pixel)
+    # One-sided: front grid only, all UVs in [0, 1].
+    rows, cols = obj["cliff_terrain"]["grid_rows"], obj["cliff_terrain"]["grid_cols"]
+    assert len(obj.data.vertices) == (rows + 1) * (cols + 1)
+    uvs = corner_uvs(obj.data)
+    assert uvs.min() >= 0.0 and uvs.max() <= 1.0
+
+
+@needs_uav
+def test_material_uses_full_resolution_photo_and_darkens_the_back(addon, scene):
+    obj = build(filepath=BROCCOLI, max_size=48)
+    assert len(obj.material_slots) == 1
+    tree = obj.material_slots[0].material.node_tree
+    by_type = {}
+    for node in tree.nodes:
+        by_type.setdefault(node.bl_idname, []).append(node)
+    (tex,) = by_type["ShaderNodeTexImage"]
+    assert Path(bpy.path.abspath(tex.image.filepath)) == BROCCOLI
+    assert tuple(tex.image.size) == (1500, 1500)  # the photo, not the 48 px grid
+    assert tex.extension == "REPEAT" and tree.nodes.active == tex
+
+    def source(node, socket_id):
+        (socket,) = [s for s in node.inputs if s.identifier == socket_id]
+        assert socket.is_linked, f"{node.bl_idname}.{socket_id} is not linked"
+        link = socket.links[0]
+        return link.from_node, link.from_socket.identifier
+
+    (uv_map,) = by_type["ShaderNodeUVMap"]
+    assert uv_map.uv_map == "UVMap"
+    assert source(tex, "Vector") == (uv_map, "UV")
+    (shade,) = by_type["ShaderNodeHueSaturation"]
+    assert source(shade, "Color") == (tex, "Color")
+    assert shade.inputs["Saturation"].default_value < 1.0 and shade.inputs["Value"].default_value < 1.0
+    is_back, _ = source(shade, "Fac")
+    assert is_back.operation == "GREATER_THAN" and is_back.inputs[1].default_value == 1.0
+    split, socket = source(is_back, "Value")
+    assert socket == "X" and source(split, "Vector") == (uv_map, "UV")
+    (bsdf,) = by_type["ShaderNodeBsdfPrincipled"]
+    assert source(bsdf, "Base Color") == (shade, "Color")
+
+
+@needs_uav
+def test_second_build_is_a_second_object_and_user_objects_are_untouched(addon, scene):
+    bpy.ops.mesh.primitive_cube_add(size=2.0)
+    cube = bpy.context.active_object
+    cube_vertices = vertex_positions(cube.data).copy()
+    first = build(filepath=BROCCOLI, max_size=40)
+    second = build(filepath=BROCCOLI, max_size=40)
+    assert first != second and first.data != second.data
+    assert {o.name for o in bpy.data.objects} == {"Cube", first.name, second.name}
+    np.testing.assert_array_equal(vertex_positions(cube.data), cube_vertices)
+    assert len(cube.data.materials) == 0
+    # The photo is loaded once and shared.
+    assert (
+        first.active_material.node_tree.nodes.active.image
+        == second.active_material.node_tree.nodes.active.image
+    )
+    assert bpy.context.active_object == second and second.select_get() and not cube.select_get()
+
+
+@needs_uav
+def test_object_transform_applies_like_the_core(addon, core, scene):
+    obj = build(filepath=BROCCOLI, max_size=40)
+    before = vertex_positions(obj.data).copy()
+    uvs_before = corner_uvs(obj.data).copy()
+    rotation, translation, scale = (0.3, -0.2, 1.1), (1.0, -2.0, 0.5), (2.0, 1.5, 0.25)
+    obj.location = translation
+    obj.rotation_euler = rotation
+    obj.scale = scale
+    bpy.ops.object.transform_apply(location=True, rotation=True, scale=True)
+    expected = core.apply_transform(
+        before, core.affine_matrix(rotation=rotation, translation=translation, scale=scale)
+    )
+    np.testing.assert_allclose(vertex_positions(obj.data), expected, atol=1e-5)
+    np.testing.assert_array_equal(corner_uvs(obj.data), uvs_before)
+
+
+@needs_uav
+def test_parameters_not_given_come_from_the_scene_settings(addon, scene):
+    # Blender runs invoke only with a window event, so headless this goes through execute, which
+    # fills the parameters the same way.
+    settings = scene.cliff_terrain
+    settings.filepath = str(BROCCOLI)
+    settings.max_size = 32
+    settings.two_sided = False
+    settings.profile = "poisson"
+    assert bpy.ops.cliff_terrain.build_relief("INVOKE_DEFAULT") == {"FINISHED"}
+    params = bpy.context.active_object["cliff_terrain"]["params"]
+    assert (params["max_size"], params["two_sided"], params["profile"]) == (32, False, "poisson")
+    assert len(bpy.context.active_object.data.vertices) == 33 * 33
+    # An explicit value wins over the scene's; the last run's value does not.
+    assert bpy.ops.cliff_terrain.build_relief(max_size=24) == {"FINISHED"}
+    assert bpy.context.active_object["cliff_terrain"]["params"]["max_size"] == 24
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    assert bpy.context.active_object["cliff_terrain"]["params"]["max_size"] == 32
+
+
+# ---- safety ----
+
+
+def test_missing_file_is_reported_and_changes_nothing(addon, scene, tmp_path):
+    before = datablock_counts()
+    missing = tmp_path / "no_such_photo.jpg"
+    with pytest.raises(RuntimeError, match=r"(?s)Error: .*no_such_photo\.jpg"):
+        bpy.ops.cliff_terrain.build_relief(filepath=str(missing))
+    assert datablock_counts() == before
+
+
+def test_bad_setting_is_reported_with_the_core_message(addon, scene, tmp_path):
+    # A file that exists but is no image.
+    junk = tmp_path / "notes.jpg"
+    junk.write_text("not a photo")
+    before = datablock_counts()
+    with pytest.raises(RuntimeError, match=r"notes\.jpg"):
+        bpy.ops.cliff_terrain.build_relief(filepath=str(junk))
+    assert datablock_counts() == before
+
+
+@needs_uav
+def test_failure_after_the_object_exists_removes_every_new_datablock(addon, scene, monkeypatch):
+    build_module = importlib.import_module(f"{ADDON}.operators.build")
+
+    def fail(*args):
+        # By now the mesh, the photo, the material and the linked object exist.
+        assert len(bpy.data.objects) == 1 and bpy.data.objects[0].users_collection
+        raise RuntimeError("injected failure while recording")
+
+    monkeypatch.setattr(build_module, "build_record", fail)
+    before = datablock_counts()
+    with pytest.raises(RuntimeError, match="injected failure while recording"):
+        bpy.ops.cliff_terrain.build_relief(filepath=str(BROCCOLI), max_size=32)
+    assert datablock_counts() == before
+    assert len(bpy.context.scene.collection.all_objects) == 0
+
+
+@needs_uav
+def test_failure_keeps_a_photo_that_was_already_loaded(addon, scene, monkeypatch):
+    image = bpy.data.images.load(str(BROCCOLI))
+    build_module = importlib.import_module(f"{ADDON}.operators.build")
+
+    def fail(name, photo):
+        raise RuntimeError("injected failure")
+
+    monkeypatch.setattr(build_module, "relief_material", fail)
+    with pytest.raises(RuntimeError, match="injected failure"):
+        bpy.ops.cliff_terrain.build_relief(filepath=str(BROCCOLI), max_size=32)
+    assert list(bpy.data.images) == [image]
+    assert len(bpy.data.meshes) == 0
+
+
+@needs_uav
+def test_undo_removes_the_relief(addon, scene):
+    # Headless, Blender pushes no undo step after an operator (its own primitive_cube_add neither):
+    # the step the UI pushes after an UNDO operator is pushed here by hand.
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.ops.ed.undo_push(message="before build")
+    before = {
+        kind: sorted(b.name for b in getattr(bpy.data, kind)) for kind in ("objects", "meshes", "images")
+    }
+    obj = build(filepath=BROCCOLI, max_size=32)
+    name = obj.name
+    bpy.ops.ed.undo_push(message="Build Relief")
+    bpy.ops.ed.undo()
+    after = {
+        kind: sorted(b.name for b in getattr(bpy.data, kind)) for kind in ("objects", "meshes", "images")
+    }
+    assert after == before
+    assert len(bpy.data.materials) == 0
+    bpy.ops.ed.redo()
+    assert name in bpy.data.objects and bpy.data.objects[name].get("cliff_terrain") is not None
+
+
+# ---- registration ----
+
+
+def test_register_unregister_cycles_leave_nothing(addon):
+    names = ("CLIFF_TERRAIN_OT_build_relief", "CLIFF_TERRAIN_PT_sidebar")
+    settings_class = addon.operators.properties.CliffTerrainSettings
+    assert hasattr(bpy.types.Scene, "cliff_terrain")
+    for _ in range(2):
+        addon.unregister()
+        assert not hasattr(bpy.types.Scene, "cliff_terrain")
+        assert "cliff_terrain" not in bpy.types.Scene.bl_rna.properties
+        assert not any(hasattr(bpy.types, name) for name in names)
+        assert not settings_class.is_registered
+        assert "build_relief" not in dir(bpy.ops.cliff_terrain)
+        addon.register()
+        assert all(hasattr(bpy.types, name) for name in names) and settings_class.is_registered
+        assert bpy.context.scene.cliff_terrain.max_size == 1000
+    panel = bpy.types.CLIFF_TERRAIN_PT_sidebar
+    assert (panel.bl_space_type, panel.bl_region_type, panel.bl_category) == (
+        "VIEW_3D",
+        "UI",
+        "Cliff Terrain",
+    )
+
+
+def test_settings_match_the_brief_and_the_core(addon, core, scene):
+    settings = scene.cliff_terrain
+    rna = settings.bl_rna.properties
+    assert rna["filepath"].subtype == "FILE_PATH" and rna["output_dir"].subtype == "DIR_PATH"
+    assert (rna["max_size"].hard_min, rna["max_size"].hard_max, rna["max_size"].default) == (16, 8000, 1000)
+    segmentation = importlib.import_module(f"{ADDON}.cliff_terrain.segmentation")
+    heights = importlib.import_module(f"{ADDON}.cliff_terrain.heights")
+    assert tuple(item.identifier for item in rna["segmentation"].enum_items) == segmentation.METHODS
+    assert tuple(item.identifier for item in rna["profile"].enum_items) == heights.PROFILES
+    assert settings.core_kwargs()["gsd"] is None
+    settings.gsd = 0.02
+    assert settings.core_kwargs()["gsd"] == pytest.approx(0.02)
+    for name in ("psnr", "ssim", "exaggeration", "two_sided"):
+        assert name in rna
+
+
+def test_manifest_follows_the_core_and_bundles_no_numpy(core):
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    assert manifest["id"] == "cliff_terrain" and manifest["version"] == core.__version__
+    assert manifest["blender_version_min"] == "4.2.0" and manifest["type"] == "add-on"
+    assert not manifest["tagline"].endswith((".", "!", "?"))
+    assert not manifest["permissions"]["files"].endswith((".", "!", "?"))
+    wheels = [Path(w).name for w in manifest["wheels"]]
+    assert wheels and not any(w.lower().startswith("numpy-") for w in wheels)
+    # Every platform gets exactly one wheel of each bundled package.
+    spec = importlib.util.spec_from_file_location("_build_extension", ROOT / "tools" / "build_extension.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    blender_ext = tool.load_blender_ext(tool.blender_ext_path())
+    for platform in manifest["platforms"]:
+        usable = [
+            w
+            for w in wheels
+            if blender_ext.blender_platform_compatible_with_wheel_platform_from_filepath(platform, w)
+        ]
+        names = sorted(tool.wheel_name_version(w)[0] for w in usable)
+        assert names == sorted(tool.normalize(p) for p in tool.PACKAGES), platform

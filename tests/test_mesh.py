@@ -1,0 +1,98 @@
+"""Mesh arrays: topology, orientation, UV conventions and affine transforms."""
+
+import numpy as np
+import pytest
+
+from cliff_terrain import CliffTerrainError, affine_matrix, apply_transform, grid_mesh
+from cliff_terrain.mesh import corner_heights
+
+
+def _signed_volume(mesh):
+    v = mesh.vertices.astype(np.float64)
+    total = 0.0
+    for start, size in zip(mesh.face_offsets, mesh.face_sizes, strict=True):
+        p = v[mesh.corner_verts[start : start + size]]
+        # Fan triangulation; exact for planar polygons.
+        total += np.einsum("ij,ij->i", np.repeat(p[:1], size - 2, 0), np.cross(p[1:-1], p[2:])).sum() / 6.0
+    return total
+
+
+def test_one_sided_grid_counts_positions_and_uvs():
+    heights = np.arange(6, dtype=np.float32).reshape(2, 3)
+    mesh = grid_mesh(heights, pixel_size=0.5, two_sided=False)
+    assert mesh.vertices.shape == (12, 3)
+    assert mesh.n_faces == mesh.n_front_faces == 6
+    assert np.all(mesh.face_sizes == 4)
+    # Vertex (row 0, col 0) is the image's top-left corner: largest y.
+    assert mesh.vertices[0].tolist()[:2] == [0.0, 1.0]
+    assert mesh.vertices[-1].tolist()[:2] == [1.5, 0.0]
+    # Front UVs are the vertex position over the extent, v = 1 at the top row.
+    xy = mesh.vertices[mesh.corner_verts, :2]
+    np.testing.assert_allclose(mesh.uvs, xy / [1.5, 1.0], atol=1e-6)
+    # An open sheet: its border edges belong to one face only.
+    counts = mesh.edge_face_counts()
+    assert counts.min() == 1 and counts.max() == 2
+
+
+def test_two_sided_is_watertight_outward_and_marks_back_uvs():
+    rng = np.random.default_rng(0)
+    heights = rng.uniform(0, 3, (7, 9)).astype(np.float32)
+    mesh = grid_mesh(heights, base_depth=1.0)
+    assert np.all(mesh.edge_face_counts() == 2)
+    # Outward normals give a positive volume: the grid's volume above the base.
+    vol = _signed_volume(mesh)
+    assert vol > 0
+    # Volume of the solid = base slab + the relief's volume (trapezoid rule on corner heights).
+    zc = corner_heights(heights).astype(np.float64)
+    relief = (0.25 * (zc[:-1, :-1] + zc[:-1, 1:] + zc[1:, :-1] + zc[1:, 1:])).sum()
+    # Bilinear quads split into triangles are not exactly bilinear; a loose bound keeps it honest.
+    expected = 7 * 9 * 1.0 + relief
+    assert vol == pytest.approx(expected, rel=0.02)
+    front = mesh.uvs[: mesh.n_front_faces * 4]
+    back = mesh.uvs[mesh.n_front_faces * 4 :]
+    assert front[:, 0].min() >= 0 and front[:, 0].max() <= 1
+    assert back[:, 0].min() >= 1 and back[:, 0].max() <= 2
+    assert back[:, 1].min() >= 0 and back[:, 1].max() <= 1
+    base = mesh.vertices[(7 + 1) * (9 + 1) :]
+    assert np.all(base[:, 2] == -1.0)
+
+
+def test_corner_heights_average_neighbours():
+    h = np.array([[0, 4], [8, 12]], dtype=np.float32)
+    zc = corner_heights(h)
+    assert zc.shape == (3, 3)
+    assert zc[1, 1] == 6.0 and zc[0, 0] == 0.0 and zc[2, 2] == 12.0 and zc[0, 1] == 2.0
+
+
+def test_affine_transform_matches_explicit_rotation():
+    m = affine_matrix(rotation=(0.0, 0.0, np.pi / 2), translation=(1.0, 2.0, 3.0), scale=2.0)
+    p = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]])
+    out = apply_transform(p, m)
+    np.testing.assert_allclose(out, [[1.0, 4.0, 3.0], [-1.0, 2.0, 5.0]], atol=1e-6)
+    # Euler XYZ: X first, then Y, then Z (Blender's default order).
+    m = affine_matrix(rotation=(np.pi / 2, np.pi / 2, 0.0))
+    np.testing.assert_allclose(apply_transform(np.array([[0.0, 1.0, 0.0]]), m), [[1.0, 0.0, 0.0]], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"heights": np.zeros(3)}, r"`heights` must be a non-empty 2-D array, got shape \(3,\)"),
+        ({"heights": np.full((2, 2), np.nan)}, "`heights` must be finite"),
+        ({"heights": np.zeros((2, 2)), "pixel_size": 0}, r"`pixel_size` must be > 0.0, got 0.0"),
+        ({"heights": np.zeros((2, 2)), "base_depth": -1}, r"`base_depth` must be > 0.0, got -1.0"),
+    ],
+)
+def test_grid_mesh_rejects_bad_arguments(kwargs, match):
+    heights = kwargs.pop("heights")
+    with pytest.raises(CliffTerrainError, match=match):
+        grid_mesh(heights, **kwargs)
+
+
+def test_affine_rejects_bad_arguments():
+    with pytest.raises(CliffTerrainError, match="`scale` must be finite and non-zero"):
+        affine_matrix(scale=0)
+    with pytest.raises(CliffTerrainError, match=r"`rotation` must be 3 Euler angles or a 3x3 matrix"):
+        affine_matrix(rotation=(1, 2))
+    with pytest.raises(CliffTerrainError, match=r"`vertices` must have shape \(n, 3\)"):
+        apply_transform(np.zeros((2, 2)), np.eye(4))

@@ -1,0 +1,134 @@
+"""build_relief end to end: the synthetic oracle, real photos, units, progress and bad arguments."""
+
+import numpy as np
+import pytest
+from conftest import uav_image
+
+from cliff_terrain import CliffTerrainError, build_relief, synthetic_field
+from cliff_terrain.synthetic import main as synthetic_main
+
+
+@pytest.fixture(scope="module")
+def field():
+    return synthetic_field(shape=(600, 900), seed=11)
+
+
+def test_plants_counted_and_domes_as_tall_as_their_radii(field):
+    image, truth = field
+    relief = build_relief(image, max_size=900)
+    assert abs(relief.n_regions - truth.n_plants) <= 0.05 * truth.n_plants
+    rc = np.round(truth.centres).astype(int)
+    peaks = np.array([relief.heights[relief.labels == relief.labels[r, c]].max() for r, c in rc])
+    np.testing.assert_allclose(peaks, truth.radii, rtol=0.10)
+    # Soil stays flat (a pixel's margin for the plants' soft edges).
+    from scipy.ndimage import binary_dilation
+
+    soil = ~binary_dilation(truth.mask, iterations=2)
+    assert relief.heights[soil].max() == 0.0
+
+
+def test_stages_are_consistent(field):
+    image, _ = field
+    seen = []
+    relief = build_relief(image, max_size=450, progress=lambda f, s: seen.append((f, s)))
+    rows, cols = relief.working.shape[:2]
+    assert (rows, cols) == (300, 450)
+    for name in ("mask", "labels", "boundaries", "distance", "heights"):
+        assert getattr(relief, name).shape == (rows, cols)
+    assert relief.filtered.shape == (rows, cols, 3) and relief.filtered.dtype == np.float32
+    assert relief.mesh.grid_shape == (rows, cols)
+    assert relief.mesh.n_vertices == (rows + 1) * (cols + 1) + 2 * (rows + cols)
+    assert relief.mesh.vertices[:, 2].max() == pytest.approx(relief.max_height, rel=0.05)
+    stages = [s for _, s in seen]
+    assert stages == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] == 1.0
+    assert set(relief.timings) == {"load", "resize", "filter", "segment", "heights", "mesh"}
+    assert relief.params["max_size"] == 450 and relief.units == "px"
+
+
+def test_gsd_gives_metres(field):
+    image, _ = field
+    px = build_relief(image, max_size=450)
+    m = build_relief(image, max_size=450, gsd=0.01)
+    # 900 original columns on a 450-column grid: each processing pixel is 2 cm.
+    assert m.units == "m" and m.pixel_size == pytest.approx(0.02)
+    np.testing.assert_allclose(m.heights, px.heights * 0.02, rtol=1e-6)
+    assert m.mesh.vertices[:, 0].max() == pytest.approx(9.0)
+
+
+def test_two_sided_false_and_exaggeration(field):
+    image, _ = field
+    one = build_relief(image, max_size=300, two_sided=False, exaggeration=2.0)
+    ref = build_relief(image, max_size=300)
+    assert one.mesh.n_faces == one.mesh.n_front_faces
+    np.testing.assert_allclose(one.heights, 2 * ref.heights, rtol=1e-6)
+
+
+def test_float_image_in_unit_range_is_accepted(field):
+    image, _ = field
+    r8 = build_relief(image, max_size=300)
+    rf = build_relief(image.astype(np.float32) / 255.0, max_size=300)
+    np.testing.assert_array_equal(r8.labels, rf.labels)
+
+
+def test_real_photo_with_exif_from_a_path():
+    path = uav_image("broccoli/01_clip_raw_test.jpg")
+    relief = build_relief(path, max_size=500)
+    assert max(relief.working.shape[:2]) == 500
+    assert relief.metadata.width == 1500
+    assert relief.n_regions > 10 and relief.max_height > 5
+
+
+def test_orthophoto_with_georeference_is_in_metres():
+    relief = build_relief(uav_image("lamberton_soybean/20180822_Lamberton_clipped.tif"), max_size=800)
+    assert relief.units == "m"
+    width_m = relief.mesh.vertices[:, 0].max()
+    assert width_m == pytest.approx(relief.metadata.width * relief.metadata.gsd_m_per_px, rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"max_size": 3}, "`max_size` must be >= 16, got 3"),
+        ({"max_size": 2.5}, "`max_size` must be an integer, got 2.5"),
+        ({"segmentation": "kmeans"}, "`segmentation` must be one of 'vegetation', 'paper', got 'kmeans'"),
+        ({"profile": "cone"}, "`profile` must be one of 'circular', 'poisson', got 'cone'"),
+        ({"exaggeration": -1}, r"`exaggeration` must be > 0.0, got -1.0"),
+        ({"gsd": 0}, r"`gsd` must be > 0.0, got 0.0"),
+        ({"two_sided": "yes"}, "`two_sided` must be True or False, got 'yes'"),
+        ({"progress": 3}, "`progress` must be callable or None, got 3"),
+    ],
+)
+def test_bad_settings_name_the_parameter(kwargs, match):
+    with pytest.raises(CliffTerrainError, match=match):
+        build_relief(np.zeros((20, 20, 3), np.uint8), **kwargs)
+
+
+def test_bad_images_name_the_problem(tmp_path):
+    with pytest.raises(CliffTerrainError, match=r"`image_or_path` must have shape \(rows, cols, 3\)"):
+        build_relief(np.zeros((20, 20), np.uint8))
+    with pytest.raises(
+        CliffTerrainError, match=r"as a float array must hold values in \[0, 1\], got \[2, 2\]"
+    ):
+        build_relief(np.full((20, 20, 3), 2.0))
+    with pytest.raises(CliffTerrainError, match="must be uint8 or floating point, got dtype int64"):
+        build_relief(np.zeros((20, 20, 3), np.int64))
+    with pytest.raises(CliffTerrainError, match="missing.jpg"):
+        build_relief(tmp_path / "missing.jpg")
+
+
+def test_uniform_colour_has_no_regions():
+    relief = build_relief(np.full((64, 80, 3), (120, 90, 60), np.uint8))
+    assert relief.n_regions == 0 and relief.max_height == 0.0
+
+
+def test_synthetic_cli_writes_the_demo_field(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "demo field é" / "field.png"
+    assert synthetic_main([str(out), "--seed", "4", "--size", "200x300"]) == 0
+    written = np.asarray(Image.open(out))
+    expected, _ = synthetic_field(shape=(200, 300), seed=4)
+    np.testing.assert_array_equal(written, expected)
+    assert synthetic_main([str(out), "--size", "10x10"]) == 2

@@ -1,0 +1,139 @@
+"""Segmentation: plants found on the synthetic oracle and on real, georeferenced soybean plots."""
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+from conftest import uav_image
+from skimage.draw import polygon
+
+from cliff_terrain import (
+    CliffTerrainError,
+    build_relief,
+    quaternion_filter,
+    segment,
+    synthetic_field,
+    vegetation_index,
+)
+from cliff_terrain.segmentation import split_regions, trace_boundaries
+
+
+def test_vegetation_mode_finds_every_synthetic_plant():
+    image, truth = synthetic_field(shape=(600, 900), seed=7)
+    seg = segment(image, filtered=quaternion_filter(image))
+    assert abs(seg.n_regions - truth.n_plants) <= 0.05 * truth.n_plants
+    # Each true centre lies in a region, and each region holds one centre.
+    rc = np.round(truth.centres).astype(int)
+    hit = seg.labels[rc[:, 0], rc[:, 1]]
+    assert np.all(hit > 0)
+    assert np.unique(hit).size == truth.n_plants
+    iou = (seg.mask & truth.mask).sum() / (seg.mask | truth.mask).sum()
+    assert iou > 0.9
+
+
+def test_paper_mode_thresholds_brightness_and_raises_the_bright_soil():
+    # The synthetic plants are darker than the soil: taken literally, Algorithm 2 raises the soil.
+    image, truth = synthetic_field(shape=(300, 450), n_rows=3, seed=2)
+    seg = segment(image, method="paper", filtered=quaternion_filter(image))
+    assert seg.index == "grey"
+    soil = ~truth.mask
+    assert (seg.mask & soil).sum() > 0.5 * soil.sum()
+    # The vegetation mode leaves that soil flat.
+    veg = segment(image, filtered=quaternion_filter(image))
+    assert (veg.mask & soil).sum() < 0.02 * soil.sum()
+
+
+def test_touching_plants_are_split_by_the_watershed():
+    rr, cc = np.mgrid[:80, :140]
+    mask = (np.hypot(rr - 40, cc - 45) <= 25) | (np.hypot(rr - 40, cc - 92) <= 25)
+    from cliff_terrain import distance_map
+
+    labels = split_regions(mask, distance_map(mask))
+    assert labels.max() == 2
+    assert labels[40, 45] != labels[40, 92]
+    # A long single leaf (an ellipse) is not broken into beads.
+    leaf = ((rr - 40) / 10.0) ** 2 + ((cc - 70) / 60.0) ** 2 <= 1
+    assert split_regions(leaf, distance_map(leaf)).max() == 1
+
+
+def test_vegetation_index_orders_plants_soil_and_grey():
+    px = np.array(
+        [[[52, 128, 44], [114, 144, 145], [200, 190, 60], [150, 112, 80], [128, 128, 128], [60, 70, 95]]],
+        np.uint8,
+    )
+    vi, name = vegetation_index(px)
+    green, bluish_broccoli, yellow_canopy, soil, grey, blue_tarp = vi[0]
+    assert name == "green"
+    assert min(green, bluish_broccoli, yellow_canopy) > 0.15
+    assert max(soil, grey, blue_tarp) < 0.02
+
+
+def test_false_colour_nir_frame_is_detected(shared_uav):
+    from cliff_terrain import load_image, resize_longest
+
+    image, _ = load_image(uav_image("seneca_nir/IMG_0505.jpg"), max_size=400)
+    vi, name = vegetation_index(resize_longest(image, 400))
+    assert name == "nir"
+    rgb, _ = load_image(uav_image("broccoli/01_clip_raw_test.jpg"), max_size=400)
+    assert vegetation_index(resize_longest(rgb, 400))[1] == "green"
+
+
+def _plot_mask(tif, shape):
+    """Rasterise the plot polygons (EPSG:32615) onto a grid of `shape` over the GeoTIFF."""
+    page = tifffile.TiffFile(tif).pages[0]
+    sx, sy, _ = page.tags["ModelPixelScaleTag"].value
+    tie = page.tags["ModelTiepointTag"].value
+    rows0, cols0 = page.shape[:2]
+    plots = json.loads((tif.parent / "plots.geojson").read_text())
+    mask = np.zeros(shape, bool)
+    for feature in plots["features"]:
+        xy = np.asarray(feature["geometry"]["coordinates"][0])
+        cols = (xy[:, 0] - tie[3]) / sx * shape[1] / cols0
+        rows = (tie[4] - xy[:, 1]) / sy * shape[0] / rows0
+        r, c = polygon(rows, cols, shape)
+        mask[r, c] = True
+    return mask
+
+
+@pytest.mark.parametrize("date", ["20180815", "20180822", "20180905", "20180914"])
+def test_relief_stands_on_the_soybean_plots(date):
+    tif = uav_image(f"lamberton_soybean/{date}_Lamberton_clipped.tif")
+    relief = build_relief(tif, max_size=1000)
+    plots = _plot_mask(tif, relief.heights.shape)
+    inside = relief.heights[plots].sum() / relief.heights.sum()
+    assert inside >= 0.9, f"only {inside:.1%} of the relief volume is on the plots"
+
+
+def test_bare_stubble_stays_flat():
+    tif = uav_image("lamberton_soybean/20180925_Lamberton_clipped.tif")
+    relief = build_relief(tif, max_size=1000)
+    assert relief.mask.mean() < 0.01
+
+
+def test_trace_boundaries_outlines_each_region():
+    labels = np.zeros((20, 30), np.int32)
+    labels[2:8, 3:9] = 1
+    labels[10:18, 15:28] = 2
+    outlines = trace_boundaries(labels)
+    assert len(outlines) == 2
+    for k, outline in enumerate(outlines, start=1):
+        r, c = outline.T.astype(int)
+        assert np.all(labels[r, c] == k)
+        # The outline runs around the region's edge: its extent is the region's bounding box.
+        rows, cols = np.nonzero(labels == k)
+        assert (r.min(), r.max(), c.min(), c.max()) == (rows.min(), rows.max(), cols.min(), cols.max())
+
+
+def test_segment_rejects_bad_arguments():
+    img = np.zeros((10, 10, 3), np.uint8)
+    with pytest.raises(CliffTerrainError, match="`method` must be one of 'vegetation', 'paper', got 'otsu'"):
+        segment(img, method="otsu")
+    with pytest.raises(CliffTerrainError, match="`filtered` is required when `method` is 'paper', got None"):
+        segment(img, method="paper")
+    with pytest.raises(CliffTerrainError, match=r"`filtered` must have the shape of `image` \(10, 10, 3\)"):
+        segment(img, filtered=np.zeros((5, 5, 3), np.float32))
+    with pytest.raises(CliffTerrainError, match="`index` must be one of 'auto', 'green', 'nir', got 'ndvi'"):
+        vegetation_index(img, index="ndvi")
+    with pytest.raises(CliffTerrainError, match=r"`image` must have shape \(rows, cols, 3\), got \(10, 10\)"):
+        segment(np.zeros((10, 10), np.uint8))
