@@ -161,7 +161,15 @@ def build_relief(
     filtered = quaternion_filter(working)
 
     clock.start("segment", 0.35)
-    seg = segment(working, method=segmentation, filtered=filtered)
+    valid = None
+    if metadata.valid_mask is not None:  # an orthophoto's no-data area stays flat
+        valid = (
+            cv2.resize(
+                metadata.valid_mask.astype(np.uint8), working.shape[1::-1], interpolation=cv2.INTER_NEAREST
+            )
+            > 0
+        )
+    seg = segment(working, method=segmentation, filtered=filtered, valid=valid)
 
     clock.start("heights", 0.6)
     distance = distance_map(seg.labels)
@@ -171,6 +179,7 @@ def build_relief(
     rows, cols = working.shape[:2]
     if metadata.gsd_m_per_px:
         units = "m"
+        # The GSD is per original pixel; the grid is coarser by the original width over its own.
         pixel_size = float(metadata.gsd_m_per_px) * metadata.width / cols
     else:
         units, pixel_size = "px", 1.0

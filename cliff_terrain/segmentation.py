@@ -131,7 +131,7 @@ def _looks_false_colour_nir(rgb, exg):
     return float(np.percentile(exg_s, 99)) < 0.02 and green_weakest > 0.5
 
 
-def segment(image, *, method="vegetation", filtered=None, index="auto", min_region=None):
+def segment(image, *, method="vegetation", filtered=None, index="auto", min_region=None, valid=None):
     """Find the regions that rise: binarize, label, fill holes, trace boundaries, split by watershed.
 
     Parameters
@@ -148,6 +148,9 @@ def segment(image, *, method="vegetation", filtered=None, index="auto", min_regi
     min_region : int, optional
         Regions (and holes) smaller than this many pixels are dropped (filled); default scales with
         the image, 0.002 % of its pixels and at least 4.
+    valid : (rows, cols) bool array, optional
+        Pixels that hold data (an orthophoto's alpha); the others stay flat and do not count
+        for the threshold.
 
     Returns
     -------
@@ -173,12 +176,20 @@ def segment(image, *, method="vegetation", filtered=None, index="auto", min_regi
             raise CliffTerrainError(
                 f"`filtered` must have the shape of `image` {image.shape}, got {filtered.shape}"
             )
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if valid.shape != image.shape[:2]:
+            raise CliffTerrainError(f"`valid` must have shape {image.shape[:2]}, got {valid.shape}")
+        if valid.all():
+            valid = None
     if method == "paper":
         if filtered is None:
             raise CliffTerrainError("`filtered` is required when `method` is 'paper', got None")
-        mask, threshold, index_name = _paper_mask(filtered)
+        mask, threshold, index_name = _paper_mask(filtered, valid)
     else:
-        mask, threshold, index_name = _vegetation_mask(image, index)
+        mask, threshold, index_name = _vegetation_mask(image, index, valid)
+    if valid is not None:
+        mask &= valid
 
     mask = _clean(mask, min_region)
     distance = distance_map(mask)
@@ -190,17 +201,17 @@ def segment(image, *, method="vegetation", filtered=None, index="auto", min_regi
     )
 
 
-def _paper_mask(filtered):
+def _paper_mask(filtered, valid):
     grey = filtered.astype(np.float32).mean(axis=2)
-    threshold = _otsu(grey)
+    threshold = _otsu(grey if valid is None else grey[valid])
     return grey > threshold, threshold, "grey"
 
 
-def _vegetation_mask(image, index):
+def _vegetation_mask(image, index, valid):
     vi, name = vegetation_index(image, index=index)
     # A light blur: single noisy pixels should neither rise nor punch holes.
     vi = cv2.GaussianBlur(vi, (0, 0), 1.0)
-    otsu = _otsu(vi)
+    otsu = _otsu(vi if valid is None else vi[valid])
     low, high = _GREEN_BAND if name == "green" else _NIR_BAND
     threshold = float(np.clip(otsu, low, high))
     return vi > threshold, threshold, name
@@ -208,6 +219,8 @@ def _vegetation_mask(image, index):
 
 def _otsu(values):
     flat = values.ravel()
+    if flat.size == 0:
+        return 0.0
     if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
         flat = flat[:: flat.size // 400_000]
     if float(flat.min()) == float(flat.max()):
@@ -317,18 +330,34 @@ def split_regions(mask, distance, *, edges=None):
     peaks = mask & (smooth >= local_max - 1.0) & (smooth >= 1.0)
     markers, n_markers = ndi.label(peaks)
     if n_markers <= n:  # nothing to split
-        return _relabel(components)
-    landscape = -smooth
+        return components.astype(np.int32)
+    # Only components holding two or more markers need a watershed; flood each in its own box.
+    marker_component = label_max(components, markers)[1:].astype(np.int64)
+    per_component = np.bincount(marker_component, minlength=n + 1)
+    to_split = np.nonzero(per_component > 1)[0]
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
-        scale = float(np.percentile(dmax, 90)) / (float(np.percentile(e[mask], 99)) + 1e-6)
-        landscape = landscape + 0.5 * scale * e
-    labels = segmentation.watershed(landscape, markers, mask=mask)
-    # Components without a marker (tiny or flat) keep their own label.
-    missing = mask & (labels == 0)
-    if missing.any():
-        extra, _ = ndi.label(missing)
-        labels = np.where(missing, extra + labels.max(), labels)
+        edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(e[mask], 99)) + 1e-6)
+    labels = components.astype(np.int32)
+    next_label = n + 1
+    boxes = ndi.find_objects(components)
+    for k in to_split:
+        box = boxes[k - 1]
+        own = components[box] == k
+        landscape = -smooth[box]
+        if edges is not None:
+            landscape = landscape + edge_scale * e[box]
+        # Markers of this component, numbered from 1 (a lookup table over the few peak pixels).
+        m = np.where(own, markers[box], 0)
+        ids = np.unique(m[m > 0])
+        lut = np.zeros(n_markers + 1, dtype=np.int32)
+        lut[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
+        m = lut[m]
+        flooded = segmentation.watershed(landscape, m, mask=own)
+        # Part 1 keeps the component's label; the others get new ones.
+        new = np.where(flooded > 1, flooded - 2 + next_label, k)
+        labels[box][own] = new[own]
+        next_label += int(flooded.max()) - 1
     return _relabel(labels)
 
 
@@ -343,8 +372,12 @@ def label_max(values, labels):
 
 
 def _relabel(labels):
-    out, _, _ = segmentation.relabel_sequential(labels.astype(np.int32))
-    return out.astype(np.int32)
+    """Number the labels 1..n without gaps (a lookup table: no sort of the whole image)."""
+    present = np.bincount(labels.ravel()) > 0
+    present[0] = False
+    lut = np.zeros(present.size, dtype=np.int32)
+    lut[present] = np.arange(1, int(present.sum()) + 1, dtype=np.int32)
+    return lut[labels]
 
 
 def trace_boundaries(labels):

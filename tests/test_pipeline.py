@@ -132,3 +132,17 @@ def test_synthetic_cli_writes_the_demo_field(tmp_path):
     expected, _ = synthetic_field(shape=(200, 300), seed=4)
     np.testing.assert_array_equal(written, expected)
     assert synthetic_main([str(out), "--size", "10x10"]) == 2
+
+
+def test_orthophoto_no_data_stays_flat():
+    import cv2
+
+    relief = build_relief(uav_image("plantcv_dsm/rgb.tif"), max_size=284, segmentation="paper")
+    valid = relief.metadata.valid_mask
+    assert valid is not None and 0.2 < valid.mean() < 0.8
+    valid = (
+        cv2.resize(valid.astype(np.uint8), relief.heights.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    )
+    # Even the literal paper mode, which raises whatever is bright, leaves the no-data corners flat.
+    assert relief.heights[~valid].max() == 0.0
+    assert relief.heights[valid].max() > 0.0
