@@ -1,0 +1,110 @@
+"""Benchmark: build_relief from a 12 MP JPEG (decode included) to the finished relief.
+
+Goals (issue 2): at max_size=1000, <= 1.5 s to heights on a 2-core machine and <= 1 GB peak memory;
+max_size=4000 is reported as well. The peer, in the same run, is a plain full-resolution decode of
+the same JPEG with Pillow (`np.asarray(Image.open(path))`): the whole pipeline is measured as a
+multiple of just reading the photo. Each case runs in a fresh subprocess so the peak RSS is its own.
+
+    python bench/bench_pipeline.py [--image PATH] [--repeat 3]
+
+`main(argv=None)` returns the figures as a dict (for bench/run_all.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL_IMAGE = ROOT.parent / "shared" / "data" / "uav" / "caliterra" / "IMG_9370.jpg"  # 4000x3000 frame
+
+_CASE = r"""
+import json, resource, sys, time
+sys.path.insert(0, {root!r})
+import numpy as np
+from PIL import Image
+from cliff_terrain import build_relief
+case, path, repeat = sys.argv[1], sys.argv[2], int(sys.argv[3])
+times, timings = [], None
+for _ in range(repeat):
+    t = time.perf_counter()
+    if case == "decode":
+        with Image.open(path) as im:
+            np.asarray(im.convert("RGB"))
+    else:
+        relief = build_relief(path, max_size=int(case))
+        timings = relief.timings
+    times.append(time.perf_counter() - t)
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+print(json.dumps({{"best_s": min(times), "peak_rss_bytes": peak, "timings": timings}}))
+"""
+
+
+def _run(case, image, repeat):
+    code = _CASE.format(root=str(ROOT))
+    out = subprocess.run(
+        [sys.executable, "-c", code, case, str(image), str(repeat)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def machine():
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--image", type=Path, default=REAL_IMAGE)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args(argv)
+    if not args.image.is_file():
+        print(f"bench_pipeline: image not found: {args.image} (../shared is absent?)", file=sys.stderr)
+        return {}
+    print(f"machine: {machine()}")
+    decode = _run("decode", args.image, args.repeat)
+    print(
+        f"peer  full Pillow decode            {decode['best_s']:7.3f} s  peak RSS {decode['peak_rss_bytes'] / 2**20:6.0f} MiB"
+    )
+    results = {"machine": machine(), "image": args.image.name, "decode_s": decode["best_s"]}
+    for size in (1000, 4000):
+        r = _run(str(size), args.image, args.repeat if size == 1000 else 1)
+        to_heights = sum(v for k, v in r["timings"].items() if k != "mesh")
+        ratio = r["best_s"] / decode["best_s"]
+        print(
+            f"build_relief max_size={size:<5}         {r['best_s']:7.3f} s  peak RSS {r['peak_rss_bytes'] / 2**20:6.0f} MiB"
+            f"  ({ratio:.2f}x the decode; to heights {to_heights:.3f} s)"
+        )
+        print("   stages: " + ", ".join(f"{k} {v:.3f}" for k, v in r["timings"].items()))
+        results[f"max_size_{size}"] = {
+            "total_s": r["best_s"],
+            "to_heights_s": to_heights,
+            "peak_rss_mib": r["peak_rss_bytes"] / 2**20,
+            "ratio_to_decode": ratio,
+            "timings": r["timings"],
+        }
+    m = results["max_size_1000"]
+    print(
+        f"goal max_size=1000: to heights {m['to_heights_s']:.3f} s (<= 1.5 s: {'met' if m['to_heights_s'] <= 1.5 else 'NOT met'}),"
+        f" peak {m['peak_rss_mib']:.0f} MiB (<= 1024 MiB: {'met' if m['peak_rss_mib'] <= 1024 else 'NOT met'})"
+    )
+    return results
+
+
+if __name__ == "__main__":
+    main()
