@@ -130,36 +130,49 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
         base_depth = 0.02 * max(rows, cols) * pixel_size
     base_depth = check_float("base_depth", base_depth, minimum=0.0, strict_minimum=True)
 
-    # Front grid: vertex (r, c) has index r * (cols + 1) + c.
+    # Everything is written in place into arrays of the final size: at 12 M vertices the
+    # intermediate stacks, gathers and concatenations would double the time and the memory.
     vr, vc = rows + 1, cols + 1
-    r = np.arange(vr, dtype=np.float32)[:, None]
-    c = np.arange(vc, dtype=np.float32)[None, :]
-    front = np.empty((vr, vc, 3), dtype=np.float32)
-    front[..., 0] = c * pixel_size
-    front[..., 1] = (rows - r) * pixel_size
-    front[..., 2] = corner_heights(heights)
-    front = front.reshape(-1, 3)
+    n_front = rows * cols
+    n_ring = 2 * (rows + cols) if two_sided else 0
+    n_vertices = vr * vc + n_ring
+    n_corners = 4 * n_front + (5 * n_ring if two_sided else 0)
 
-    idx = np.arange(vr * vc, dtype=np.int32).reshape(vr, vc)
-    # Counter-clockwise seen from above (+z): bottom-left, bottom-right, top-right, top-left.
-    quads = np.stack([idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:], idx[:-1, :-1]], axis=-1).reshape(-1, 4)
-    vertex_uvs = np.empty((vr, vc, 2), dtype=np.float32)
-    vertex_uvs[..., 0] = c / cols
-    vertex_uvs[..., 1] = (rows - r) / rows
-    vertex_uvs = vertex_uvs.reshape(-1, 2)
-    quad_uvs = vertex_uvs[quads.ravel()]
+    # Front grid: vertex (r, c) has index r * (cols + 1) + c.
+    vertices = np.empty((n_vertices, 3), dtype=np.float32)
+    front = vertices[: vr * vc].reshape(vr, vc, 3)
+    front[..., 0] = (np.arange(vc, dtype=np.float32) * np.float32(pixel_size))[None, :]
+    front[..., 1] = ((rows - np.arange(vr, dtype=np.float32)) * np.float32(pixel_size))[:, None]
+    front[..., 2] = corner_heights(heights)
+
+    # Counter-clockwise seen from above (+z): bottom-left, bottom-right, top-right, top-left,
+    # i.e. corner k of pixel (r, c) is vertex (r + dr[k], c + dc[k]).
+    dr, dc = (1, 1, 0, 0), (0, 1, 1, 0)
+    corner_verts = np.empty(n_corners, dtype=np.int32)
+    uvs = np.empty((n_corners, 2), dtype=np.float32)
+    quads = corner_verts[: 4 * n_front].reshape(rows, cols, 4)
+    quad_uvs = uvs[: 4 * n_front].reshape(rows, cols, 4, 2)
+    row_start = np.arange(vr, dtype=np.int32) * vc
+    col = np.arange(vc, dtype=np.int32)
+    u = np.arange(vc, dtype=np.float32) / np.float32(cols)
+    v = (rows - np.arange(vr, dtype=np.float32)) / np.float32(rows)
+    for k in range(4):
+        quads[..., k] = row_start[dr[k] : dr[k] + rows, None] + col[None, dc[k] : dc[k] + cols]
+        quad_uvs[..., k, 0] = u[None, dc[k] : dc[k] + cols]
+        quad_uvs[..., k, 1] = v[dr[k] : dr[k] + rows, None]
 
     if not two_sided:
         return MeshArrays(
-            vertices=front,
-            face_sizes=np.full(quads.shape[0], 4, dtype=np.int32),
-            corner_verts=quads.ravel(),
-            uvs=quad_uvs,
-            n_front_faces=quads.shape[0],
+            vertices=vertices,
+            face_sizes=np.full(n_front, 4, dtype=np.int32),
+            corner_verts=corner_verts,
+            uvs=uvs,
+            n_front_faces=n_front,
             grid_shape=(rows, cols),
         )
 
     # Border ring of the front grid, counter-clockwise seen from above, starting bottom-left.
+    idx = np.arange(vr * vc, dtype=np.int32).reshape(vr, vc)
     ring = np.concatenate(
         [
             idx[-1, :-1],  # bottom row, left to right
@@ -168,28 +181,30 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
             idx[:-1, 0],  # left column, top to bottom
         ]
     )
-    n_ring = ring.size
-    base = front[ring].copy()
-    base[:, 2] = -base_depth
-    base_idx = np.arange(front.shape[0], front.shape[0] + n_ring, dtype=np.int32)
+    base_idx = np.arange(vr * vc, n_vertices, dtype=np.int32)
+    vertices[vr * vc :] = vertices[ring]
+    vertices[vr * vc :, 2] = -base_depth
     nxt = np.roll(np.arange(n_ring), -1)
-    # Walls face outwards: top_i, base_i, base_i+1, top_i+1.
-    walls = np.stack([ring, base_idx, base_idx[nxt], ring[nxt]], axis=-1)
-    bottom = base_idx[::-1]  # clockwise from above, so its normal points down
+    # Walls face outwards: top_i, base_i, base_i+1, top_i+1; the base is one n-gon, clockwise
+    # from above so that its normal points down.
+    walls = corner_verts[4 * n_front : 4 * n_front + 4 * n_ring].reshape(n_ring, 4)
+    walls[:, 0], walls[:, 1], walls[:, 2], walls[:, 3] = ring, base_idx, base_idx[nxt], ring[nxt]
+    corner_verts[4 * n_front + 4 * n_ring :] = base_idx[::-1]
 
-    vertices = np.concatenate([front, base])
-    corner_verts = np.concatenate([quads.ravel(), walls.ravel(), bottom]).astype(np.int32)
-    face_sizes = np.concatenate(
-        [np.full(quads.shape[0] + n_ring, 4, dtype=np.int32), np.array([n_ring], dtype=np.int32)]
-    )
-    back_uvs = np.concatenate([vertex_uvs, vertex_uvs[ring]])[corner_verts[quad_uvs.shape[0] :]]
-    back_uvs[:, 0] += 1.0
+    # Back UVs: the front UV of the vertex (or of the border vertex a base vertex sits under), u + 1.
+    back = corner_verts[4 * n_front :]
+    front_vertex = np.where(back >= vr * vc, ring[np.clip(back - vr * vc, 0, n_ring - 1)], back)
+    uvs[4 * n_front :, 0] = u[front_vertex % vc] + 1.0
+    uvs[4 * n_front :, 1] = v[front_vertex // vc]
+
+    face_sizes = np.full(n_front + n_ring + 1, 4, dtype=np.int32)
+    face_sizes[-1] = n_ring
     return MeshArrays(
         vertices=vertices,
         face_sizes=face_sizes,
         corner_verts=corner_verts,
-        uvs=np.concatenate([quad_uvs, back_uvs]),
-        n_front_faces=quads.shape[0],
+        uvs=uvs,
+        n_front_faces=n_front,
         grid_shape=(rows, cols),
     )
 
