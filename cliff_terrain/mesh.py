@@ -6,7 +6,8 @@ Conventions shared with the Blender side and the renderers:
   *corners*, so the mesh covers the image exactly (a top orthographic view reproduces every pixel).
 * x grows with the column, y grows upwards (the image's top row has the largest y), z is height.
 * Front UVs are (u, v) in [0, 1]^2 with v = 1 at the image's top row (Blender's image origin is the
-  bottom-left corner). Back/base corners have u = x_uv + 1, so ``u > 1`` means "back".
+  bottom-left corner). Back/base corners have u = x_uv + 1, so ``u > 1`` means "back" (on the left
+  edge, x_uv = 0, the back corners take half a texel, u = 1 + 0.5 / cols, so the rule is strict).
 * Faces are stored the Blender way: ``face_sizes`` and a flat ``corner_verts`` array; the first
   ``n_front_faces`` faces are the front quads in row-major pixel order.
 """
@@ -194,7 +195,8 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
     # Back UVs: the front UV of the vertex (or of the border vertex a base vertex sits under), u + 1.
     back = corner_verts[4 * n_front :]
     front_vertex = np.where(back >= vr * vc, ring[np.clip(back - vr * vc, 0, n_ring - 1)], back)
-    uvs[4 * n_front :, 0] = u[front_vertex % vc] + 1.0
+    # The left edge (u = 0) moves in by half a texel, so that u > 1 holds for every back corner.
+    uvs[4 * n_front :, 0] = np.maximum(u[front_vertex % vc], np.float32(0.5 / cols)) + 1.0
     uvs[4 * n_front :, 1] = v[front_vertex // vc]
 
     face_sizes = np.full(n_front + n_ring + 1, 4, dtype=np.int32)
