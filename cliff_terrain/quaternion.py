@@ -107,7 +107,8 @@ def quaternion_filter(image, *, scale=DEFAULT_SCALE, orientation="horizontal"):
         y = s^2 J (sum_below + sum_above) + s^2 K (sum_below - sum_above),
 
     where ``sum_below`` and ``sum_above`` are the sums of the three pixels in the rows below and
-    above. A convolution flips the mask, so its Rq row meets the row *below* the pixel; a
+    above (for "vertical", the three pixels in the columns to the right and to the left). A
+    convolution flips the mask, so its Rq row meets the row *below* the pixel; a
     correlation would swap the two sums and flip the sign of the K term, i.e. the hue of every
     edge colour (a red-over-green edge turns blue here, yellow under correlation). With the
     default scale a uniform colour maps to its grey, an edge between two greys stays grey

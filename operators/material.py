@@ -1,10 +1,10 @@
-"""The relief's material: the full-resolution photo on the top, a darker, greyer copy on walls and base.
+"""The relief's material: the full-resolution photo on the top, soil-coloured walls and base.
 
 Front corners have UVs in [0, 1]^2; walls and base have ``u = x + 1`` (see cliff_terrain.mesh). The
 texture repeats, so ``u > 1`` samples the photo at the same ground position, and a ``U > 1`` test
-(Separate XYZ -> Math) drives a Hue/Saturation/Value node that darkens and desaturates it there: the
-sides read as soil in a section, not as a stretched copy of the top. Used by the build operator and
-the render script.
+(Separate XYZ -> Math) mixes in a soil colour and darkens and desaturates the result there: the
+sides read as soil in a section, not as the border pixels stretched down. Used by the build
+operator and the render script.
 """
 
 import bpy
@@ -12,17 +12,20 @@ import numpy as np
 
 from .mesh_data import UV_NAME
 
-# Walls and base: the photo's colours at this saturation and brightness.
-BACK_SATURATION = 0.35
-BACK_VALUE = 0.45
+# Walls and base: this much soil colour mixed into the photo, then this saturation and brightness.
+SOIL_COLOUR = (0.20, 0.13, 0.08, 1.0)
+SOIL_MIX = 0.6
+BACK_SATURATION = 0.6
+BACK_VALUE = 0.6
 
 
 def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
     """Return ``(image, created)``: the photo as a Blender image, reusing one already loaded.
 
     Blender reads the file at full resolution. It ignores EXIF orientation, so an oriented photo (or
-    one Blender cannot read, or whose size differs from `metadata`) is made from `fallback_rgb`
-    (the core's decoded RGB array, rows from the top) and packed into the .blend instead.
+    one Blender cannot read, or whose size differs from `metadata`) is made from decoded pixels
+    instead - `fallback_rgb` if it is the full-resolution photo, else the core decodes the file
+    again at full resolution - and packed into the .blend.
 
     Parameters
     ----------
@@ -31,9 +34,9 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
     metadata : cliff_terrain.image_io.ImageMetadata, optional
         The core's metadata (``width``, ``height``, ``orientation``) to check Blender's reading with.
     fallback_rgb : (rows, cols, 3) uint8 array, optional
-        Pixels to use when the file itself cannot serve as the texture.
+        The core's decoded, oriented pixels (rows from the top), used when at full resolution.
     name : str, optional
-        Name of an image made from `fallback_rgb`.
+        Name of an image made from decoded pixels.
 
     Returns
     -------
@@ -42,6 +45,7 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
         True if this call added the image to ``bpy.data.images`` (so a failed build removes it).
     """
     orientation = getattr(metadata, "orientation", 1) or 1
+    expected = None if metadata is None else (metadata.width, metadata.height)
     if orientation == 1:
         n_before = len(bpy.data.images)
         try:
@@ -50,13 +54,18 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
             image = None
         if image is not None:
             created = len(bpy.data.images) > n_before
-            expected = None if metadata is None else (metadata.width, metadata.height)
             if expected is None or tuple(image.size) == expected:
                 return image, created
             if created:
                 bpy.data.images.remove(image)
-    if fallback_rgb is None:
-        raise RuntimeError(f"Blender cannot use {path!r} as a texture and no decoded pixels were given")
+    full_size = fallback_rgb is not None and (
+        expected is None or (fallback_rgb.shape[1], fallback_rgb.shape[0]) == expected
+    )
+    if not full_size:
+        # Rare (rotated or unusual files): decode again, oriented and at full resolution.
+        from ..cliff_terrain.image_io import load_image
+
+        fallback_rgb, _ = load_image(path)
     return image_from_array(name or bpy.path.basename(path), fallback_rgb), True
 
 
@@ -116,6 +125,13 @@ def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
         is_back.operation = "GREATER_THAN"
         is_back.inputs[1].default_value = 1.0
         is_back.label = "U > 1: walls and base"
+        soil_amount = nodes.new("ShaderNodeMath")
+        soil_amount.operation = "MULTIPLY"
+        soil_amount.inputs[1].default_value = SOIL_MIX
+        soil = nodes.new("ShaderNodeMix")
+        soil.data_type = "RGBA"
+        soil.label = "Soil on walls and base"
+        _input(soil, "B_Color").default_value = SOIL_COLOUR
         shade = nodes.new("ShaderNodeHueSaturation")
         shade.label = "Walls and base"
         _input(shade, "Saturation").default_value = BACK_SATURATION
@@ -126,13 +142,25 @@ def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
         links.new(uv.outputs["UV"], split.inputs["Vector"])
         links.new(split.outputs["X"], is_back.inputs[0])
         links.new(is_back.outputs["Value"], _input(shade, "Fac"))
-        links.new(tex.outputs["Color"], _input(shade, "Color"))
+        links.new(is_back.outputs["Value"], soil_amount.inputs[0])
+        links.new(soil_amount.outputs["Value"], _input(soil, "Factor_Float"))
+        links.new(tex.outputs["Color"], _input(soil, "A_Color"))
+        links.new(_output(soil, "Result_Color"), _input(shade, "Color"))
         links.new(shade.outputs["Color"], _input(bsdf, "Base Color"))
         links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
 
-        for node, x, y in ((uv, -1000, 0), (tex, -700, 150), (split, -700, -200), (is_back, -500, -200)):
-            node.location = (x, y)
-        for node, x, y in ((shade, -250, 100), (bsdf, 0, 100), (out, 300, 100)):
+        layout = (
+            (uv, -1200, 0),
+            (tex, -900, 200),
+            (split, -900, -200),
+            (is_back, -700, -200),
+            (soil_amount, -500, -200),
+            (soil, -450, 150),
+            (shade, -250, 100),
+            (bsdf, 0, 100),
+            (out, 300, 100),
+        )
+        for node, x, y in layout:
             node.location = (x, y)
         nodes.active = tex
     except BaseException:
@@ -147,3 +175,10 @@ def _input(node, identifier):
         if socket.identifier == identifier:
             return socket
     raise KeyError(f"{node.bl_idname} has no input {identifier!r}")
+
+
+def _output(node, identifier):
+    for socket in node.outputs:
+        if socket.identifier == identifier:
+            return socket
+    raise KeyError(f"{node.bl_idname} has no output {identifier!r}")

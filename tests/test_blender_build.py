@@ -93,11 +93,38 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
 
 
-def test_build_fails_clearly_for_a_platform_the_manifest_lacks(tool, tmp_path):
-    with pytest.raises(SystemExit) as exc:
-        tool.main(["--platform", "linux-arm64", "--output-dir", str(tmp_path)])
-    assert exc.value.code == 2  # argparse: not one of the known platforms
-    assert not list(tmp_path.iterdir())
+def test_zip_check_names_a_wheel_the_builder_left_out(tool, tmp_path):
+    archive_path = tmp_path / "cliff_terrain-0.0.0-linux_x64.zip"
+    with zipfile.ZipFile(archive_path, "w") as archive:
+        archive.writestr("blender_manifest.toml", 'id = "cliff_terrain"\n')
+        for name in (
+            "__init__.py",
+            "cliff_terrain/__init__.py",
+            "operators/__init__.py",
+            "panels/__init__.py",
+        ):
+            archive.writestr(name, "")
+        archive.writestr("wheels/kept-1.0-py3-none-any.whl", "")
+    expected = ["kept-1.0-py3-none-any.whl", "dropped-2.0-cp311-cp311-manylinux_2_17_x86_64.whl"]
+    with pytest.raises(tool.BuildError, match=r"left out 1 wheel.*dropped-2\.0"):
+        tool.check_zip(archive_path, expected, "cliff_terrain")
+    assert tool.check_zip(archive_path, expected[:1], "cliff_terrain") == 6
+
+
+def test_a_numpy_wheel_in_the_wheels_folder_stops_the_build(tool, linux_zip, tmp_path, capsys):
+    # The cached linux wheels (the linux_zip build filled the cache), plus a stray numpy wheel.
+    cache = ROOT / "wheels"
+    wheels = tmp_path / "wheels"
+    wheels.mkdir()
+    for path in [cache / "index.json", *cache.glob("*.whl")]:
+        (wheels / path.name).symlink_to(path)
+    (wheels / "numpy-1.26.4-cp311-cp311-manylinux_2_17_x86_64.whl").write_bytes(b"")
+    code = tool.main(
+        ["--platform", "linux-x64", "--wheels-dir", str(wheels), "--output-dir", str(tmp_path / "out")]
+    )
+    assert code == 1
+    assert "numpy-1.26.4" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 INSTALL_AND_RUN = r"""
@@ -125,8 +152,7 @@ out.update(
     n_vertices=len(mesh.vertices),
     n_faces=len(mesh.polygons),
     z_max=float(co[2::3].max()),
-    uv_min=float(uv.min()),
-    uv_max=float(uv.max()),
+    uvs=uv.reshape(-1, 2).tolist(),
     material=obj.active_material.name,
     texture_size=list(tex[0].image.size) if tex else None,
     record=obj["cliff_terrain"].to_dict(),
@@ -193,7 +219,12 @@ def test_installed_zip_builds_a_relief_with_its_own_wheels(linux_zip, tmp_path):
     # Metres (GeoTIFF pixel scale, no rescaling); corner heights average pixels, so <= the peak.
     assert 0.0 < out["z_max"] <= ref.max_height
     assert out["z_max"] == pytest.approx(float(ref.mesh.vertices[:, 2].max()), rel=1e-6)
-    assert out["uv_min"] >= 0.0 and out["uv_max"] <= 2.0
+    # The same UVs as the core's: front in [0, 1], walls and base beyond u = 1.
+    uvs = np.array(out["uvs"], dtype=np.float32)
+    np.testing.assert_array_equal(uvs, ref.mesh.uvs)
+    n_front = 4 * ref.mesh.n_front_faces
+    assert uvs[:n_front].min() >= 0.0 and uvs[:n_front].max() <= 1.0
+    assert n_front < len(uvs) and uvs[n_front:, 0].min() >= 1.0
     assert out["name"] == MAIZE.stem and out["material"] == MAIZE.stem
     meta = load_image(str(MAIZE))[1]
     assert out["texture_size"] == [meta.width, meta.height]  # the photo at full resolution

@@ -11,6 +11,7 @@ import importlib
 import importlib.util
 import sys
 import tomllib
+import types
 from pathlib import Path
 
 import numpy as np
@@ -263,15 +264,44 @@ def test_material_uses_full_resolution_photo_and_darkens_the_back(addon, scene):
     (uv_map,) = by_type["ShaderNodeUVMap"]
     assert uv_map.uv_map == "UVMap"
     assert source(tex, "Vector") == (uv_map, "UV")
+    # Walls and base: a soil colour mixed in where U > 1, then darker and greyer there.
     (shade,) = by_type["ShaderNodeHueSaturation"]
-    assert source(shade, "Color") == (tex, "Color")
+    (soil,) = by_type["ShaderNodeMix"]
+    assert source(shade, "Color") == (soil, "Result_Color")
+    assert source(soil, "A_Color") == (tex, "Color")
     assert shade.inputs["Saturation"].default_value < 1.0 and shade.inputs["Value"].default_value < 1.0
     is_back, _ = source(shade, "Fac")
     assert is_back.operation == "GREATER_THAN" and is_back.inputs[1].default_value == 1.0
+    amount, _ = source(soil, "Factor_Float")
+    assert amount.operation == "MULTIPLY" and source(amount, "Value") == (is_back, "Value")
     split, socket = source(is_back, "Value")
     assert socket == "X" and source(split, "Vector") == (uv_map, "UV")
     (bsdf,) = by_type["ShaderNodeBsdfPrincipled"]
     assert source(bsdf, "Base Color") == (shade, "Color")
+
+
+@needs_uav
+def test_exif_rotated_photo_is_textured_from_the_decoded_pixels(addon, core, scene, tmp_path):
+    # Blender ignores EXIF orientation, so the texture must come from the core's oriented pixels.
+    from PIL import Image
+
+    rotated = tmp_path / "rotated.jpg"
+    with Image.open(BROCCOLI) as photo:
+        exif = Image.Exif()
+        exif[0x0112] = 6  # stored landscape, shown rotated 90 degrees clockwise
+        photo.crop((0, 0, 300, 200)).save(rotated, quality=95, exif=exif)
+    rgb, meta = core.load_image(str(rotated))
+    assert (meta.orientation, meta.width, meta.height) == (6, 200, 300)
+
+    obj = build(filepath=rotated, max_size=50)
+    image = obj.active_material.node_tree.nodes.active.image
+    assert image.packed_file is not None  # saved with the .blend, not re-read from the file
+    assert tuple(image.size) == (200, 300)
+    pixels = np.empty(300 * 200 * 4, dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(300, 200, 4)[::-1]  # Blender's rows run bottom-up
+    np.testing.assert_array_equal(np.round(pixels[..., :3] * 255).astype(np.uint8), rgb)
+    assert obj["cliff_terrain"]["image_width"] == 200
 
 
 @needs_uav
@@ -428,6 +458,92 @@ def test_register_unregister_cycles_leave_nothing(addon):
         "UI",
         "Cliff Terrain",
     )
+
+
+class LayoutRecorder:
+    """Records what a panel's draw() asks of its layout (Blender draws no UI headless).
+
+    Blender draws a wrong property name as a warning label instead of raising, so the names a panel
+    uses are checked here against the real RNA.
+    """
+
+    def __init__(self, log, parent=None):
+        self.log, self.parent = log, parent
+        self.enabled = True
+
+    def is_enabled(self):
+        return self.enabled and (self.parent is None or self.parent.is_enabled())
+
+    def _child(self, *args, **kwargs):
+        return LayoutRecorder(self.log, self)
+
+    column = row = box = split = _child
+
+    def separator(self, **kwargs):
+        pass
+
+    def prop(self, data, name, **kwargs):
+        self.log.append(("prop", data, name, self.is_enabled()))
+
+    def operator(self, idname, **kwargs):
+        self.log.append(("operator", idname, None, self.is_enabled()))
+
+    def label(self, text="", **kwargs):
+        self.log.append(("label", text, None, self.is_enabled()))
+
+
+def draw_panel(context):
+    log = []
+    panel = types.SimpleNamespace(layout=LayoutRecorder(log))
+    bpy.types.CLIFF_TERRAIN_PT_sidebar.draw(panel, context)
+    return log
+
+
+def test_panel_draws_real_settings_and_greys_out_build_without_a_photo(addon, scene, tmp_path):
+    log = draw_panel(bpy.context)
+    drawn = [(data, name) for kind, data, name, _ in log if kind == "prop"]
+    assert drawn and all(data == scene.cliff_terrain for data, _ in drawn)
+    names = {name for _, name in drawn}
+    assert names <= set(scene.cliff_terrain.bl_rna.properties.keys())
+    assert {"filepath", "segmentation", "profile", "max_size", "exaggeration", "gsd", "two_sided"} <= names
+    builds = [
+        enabled
+        for kind, idname, _, enabled in log
+        if kind == "operator" and idname == "cliff_terrain.build_relief"
+    ]
+    assert builds == [False]  # no photo chosen
+    scene.cliff_terrain.filepath = str(tmp_path / "missing.jpg")
+    assert [
+        e for k, i, _, e in draw_panel(bpy.context) if k == "operator" and i.endswith("build_relief")
+    ] == [False]
+    photo = tmp_path / "photo.jpg"
+    photo.write_bytes(b"")
+    scene.cliff_terrain.filepath = str(photo)
+    assert [
+        e for k, i, _, e in draw_panel(bpy.context) if k == "operator" and i.endswith("build_relief")
+    ] == [True]
+    # The render operators are not registered yet, so no button for them.
+    assert not [i for k, i, _, _ in log if k == "operator" and i != "cliff_terrain.build_relief"]
+
+
+@needs_uav
+def test_panel_shows_the_active_relief_and_results(addon, scene):
+    obj = build(filepath=BROCCOLI, max_size=40)
+    labels = [text for kind, text, _, _ in draw_panel(bpy.context) if kind == "label"]
+    assert obj.name in labels
+    assert any(f"{obj['cliff_terrain']['regions']} regions" in text for text in labels)
+    assert not any("PSNR" in text for text in labels)
+    scene.cliff_terrain.psnr, scene.cliff_terrain.ssim = 27.5, 0.91
+    labels = [text for kind, text, _, _ in draw_panel(bpy.context) if kind == "label"]
+    assert "PSNR 27.50 dB" in labels and "SSIM 0.910" in labels
+
+
+def test_build_needs_object_mode(addon, scene):
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.ops.object.mode_set(mode="EDIT")
+    with pytest.raises(RuntimeError, match="poll"):
+        bpy.ops.cliff_terrain.build_relief(filepath=str(BROCCOLI))
+    bpy.ops.object.mode_set(mode="OBJECT")
 
 
 def test_settings_match_the_brief_and_the_core(addon, core, scene):
