@@ -40,6 +40,11 @@ class MeshArrays:
         The first faces are the front (textured) quads.
     grid_shape : tuple of int
         (rows, cols) of the height grid the front was built from.
+    edges : (n_edges, 2) int32, optional
+        Each undirected edge once (Blender's ``.edge_verts``).
+    corner_edges : (n_corners,) int32, optional
+        The edge from each corner to the next corner of its face (Blender's ``.corner_edge``).
+        With both, Blender need not derive the edges itself (its slowest step for big grids).
     """
 
     vertices: np.ndarray
@@ -48,6 +53,8 @@ class MeshArrays:
     uvs: np.ndarray
     n_front_faces: int
     grid_shape: tuple[int, int]
+    edges: np.ndarray | None = None
+    corner_edges: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
@@ -162,6 +169,25 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
         quad_uvs[..., k, 0] = u[None, dc[k] : dc[k] + cols]
         quad_uvs[..., k, 1] = v[dr[k] : dr[k] + rows, None]
 
+    # Edges of the grid: horizontal ones (r, c)-(r, c+1) first, then vertical (r, c)-(r+1, c).
+    n_h, n_v = vr * cols, rows * vc
+    n_edges = n_h + n_v + (2 * n_ring if two_sided else 0)
+    edges = np.empty((n_edges, 2), dtype=np.int32)
+    eh = edges[:n_h].reshape(vr, cols, 2)
+    eh[..., 0] = row_start[:, None] + col[None, :-1]
+    eh[..., 1] = eh[..., 0] + 1
+    ev = edges[n_h : n_h + n_v].reshape(rows, vc, 2)
+    ev[..., 0] = row_start[:-1, None] + col[None, :]
+    ev[..., 1] = ev[..., 0] + vc
+    corner_edges = np.empty(n_corners, dtype=np.int32)
+    quad_edges = corner_edges[: 4 * n_front].reshape(rows, cols, 4)
+    h_index = (np.arange(vr, dtype=np.int32) * cols)[:, None] + col[None, :-1]  # (vr, cols)
+    v_index = n_h + (np.arange(rows, dtype=np.int32) * vc)[:, None] + col[None, :]  # (rows, vc)
+    quad_edges[..., 0] = h_index[1:]  # bottom-left -> bottom-right
+    quad_edges[..., 1] = v_index[:, 1:]  # bottom-right -> top-right
+    quad_edges[..., 2] = h_index[:-1]  # top-right -> top-left
+    quad_edges[..., 3] = v_index[:, :-1]  # top-left -> bottom-left
+
     if not two_sided:
         return MeshArrays(
             vertices=vertices,
@@ -170,6 +196,8 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
             uvs=uvs,
             n_front_faces=n_front,
             grid_shape=(rows, cols),
+            edges=edges,
+            corner_edges=corner_edges,
         )
 
     # Border ring of the front grid, counter-clockwise seen from above, starting bottom-left.
@@ -199,6 +227,22 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
     uvs[4 * n_front :, 0] = np.maximum(u[front_vertex % vc], np.float32(0.5 / cols)) + 1.0
     uvs[4 * n_front :, 1] = v[front_vertex // vc]
 
+    # New edges: the vertical wall edges top_i-base_i, then the base ring base_i-base_i+1.
+    wall_edge = n_h + n_v + np.arange(n_ring, dtype=np.int32)
+    base_edge = wall_edge + n_ring
+    edges[wall_edge, 0], edges[wall_edge, 1] = ring, base_idx
+    edges[base_edge, 0], edges[base_edge, 1] = base_idx, base_idx[nxt]
+    # The grid edge between consecutive ring vertices: horizontal on a row, else vertical.
+    a, b = ring, ring[nxt]
+    lo = np.minimum(a, b)
+    same_row = (a // vc) == (b // vc)
+    ring_edge = np.where(same_row, (lo // vc) * cols + lo % vc, n_h + lo).astype(np.int32)
+    wall_edges = corner_edges[4 * n_front : 4 * n_front + 4 * n_ring].reshape(n_ring, 4)
+    wall_edges[:, 0], wall_edges[:, 1] = wall_edge, base_edge
+    wall_edges[:, 2], wall_edges[:, 3] = wall_edge[nxt], ring_edge
+    # Base n-gon corner j is base vertex n-1-j; its next corner is base vertex n-2-j.
+    corner_edges[4 * n_front + 4 * n_ring :] = base_edge[np.roll(np.arange(n_ring), 1)][::-1]
+
     face_sizes = np.full(n_front + n_ring + 1, 4, dtype=np.int32)
     face_sizes[-1] = n_ring
     return MeshArrays(
@@ -208,6 +252,8 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
         uvs=uvs,
         n_front_faces=n_front,
         grid_shape=(rows, cols),
+        edges=edges,
+        corner_edges=corner_edges,
     )
 
 

@@ -2,7 +2,9 @@
 
 The generic attribute API is the fast route (``position``, ``.corner_vert``, a FLOAT2 corner attribute
 for the UVs, then ``Mesh.update``): about 1.7 s for 2.7 M vertices and 10.7 M corners, where
-``vertices.foreach_set("co")`` + ``loops.foreach_set`` + ``validate`` takes about 6 s. The same calls
+``vertices.foreach_set("co")`` + ``loops.foreach_set`` + ``validate`` takes about 6 s. Most of that
+1.7 s is ``update(calc_edges=True)`` deriving the edges; when the core gives them (``edges``,
+``corner_edges``: ``.edge_verts`` and ``.corner_edge``) the transfer takes about 0.3 s. The same calls
 work on Blender 4.2 and 5.0 (face sizes follow from ``loop_start``; a FLOAT2 corner attribute is a UV
 map). Used by the build operator and the render script.
 """
@@ -61,6 +63,22 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
         mesh.attributes[".corner_vert"].data.foreach_set("value", corner_verts)
         mesh.polygons.add(n_faces)
         mesh.polygons.foreach_set("loop_start", face_offsets)
+        edges, corner_edges = mesh_arrays.edges, mesh_arrays.corner_edges
+        if edges is not None and corner_edges is not None:
+            # The core knows the grid's edges; deriving them is most of update()'s time.
+            edges = np.ascontiguousarray(edges, dtype=np.int32)
+            corner_edges = np.ascontiguousarray(corner_edges, dtype=np.int32)
+            if edges.shape[1:] != (2,) or corner_edges.shape != (n_corners,):
+                raise ValueError("`edges` must have shape (n, 2) and `corner_edges` one entry per corner")
+            if edges.size and (int(edges.min()) < 0 or int(edges.max()) >= n_vertices):
+                raise ValueError(f"`edges` must index the {n_vertices} vertices")
+            if n_corners and (int(corner_edges.min()) < 0 or int(corner_edges.max()) >= edges.shape[0]):
+                raise ValueError(f"`corner_edges` must index the {edges.shape[0]} edges")
+            mesh.edges.add(edges.shape[0])
+            mesh.attributes[".edge_verts"].data.foreach_set("value", edges.ravel())
+            mesh.attributes[".corner_edge"].data.foreach_set("value", corner_edges)
+        else:
+            edges = None
         uv = mesh.attributes.new(uv_name, "FLOAT2", "CORNER")
         uv.data.foreach_set("vector", uvs.ravel())
         uv_layer = mesh.uv_layers[uv_name]
@@ -72,7 +90,7 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
             sharp = np.zeros(n_faces, dtype=bool)
             sharp[n_front:] = True
             mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
-        mesh.update(calc_edges=True)
+        mesh.update(calc_edges=edges is None)
     except BaseException:
         bpy.data.meshes.remove(mesh)
         raise

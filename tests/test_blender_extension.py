@@ -7,6 +7,7 @@ every test starts from ``read_factory_settings(use_empty=True)`` (registered cla
 The installed-zip path is covered by test_blender_build.py.
 """
 
+import dataclasses
 import importlib
 import importlib.util
 import sys
@@ -127,6 +128,19 @@ def test_mesh_from_arrays_reproduces_grid_mesh(addon, core, scene):
     sharp = np.empty(len(mesh.polygons), dtype=bool)
     mesh.attributes["sharp_face"].data.foreach_get("value", sharp)
     assert not sharp[: arrays.n_front_faces].any() and sharp[arrays.n_front_faces :].all()
+    # The core's edges are the ones Blender derives itself when it is not given any.
+    derived = mesh_data.mesh_from_arrays(
+        "derived", dataclasses.replace(arrays, edges=None, corner_edges=None)
+    )
+    assert sorted(map(tuple, np.sort(mesh_edges(mesh), 1).tolist())) == sorted(
+        map(tuple, np.sort(mesh_edges(derived), 1).tolist())
+    )
+
+
+def mesh_edges(mesh):
+    out = np.empty(len(mesh.edges) * 2, dtype=np.int32)
+    mesh.edges.foreach_get("vertices", out)
+    return out.reshape(-1, 2)
 
 
 def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene):

@@ -102,3 +102,19 @@ def test_affine_rejects_bad_arguments():
         affine_matrix(rotation=(1, 2))
     with pytest.raises(CliffTerrainError, match=r"`vertices` must have shape \(n, 3\)"):
         apply_transform(np.zeros((2, 2)), np.eye(4))
+
+
+@pytest.mark.parametrize("two_sided", [False, True])
+def test_edges_are_each_pair_of_consecutive_corners_once(two_sided):
+    mesh = grid_mesh(np.random.default_rng(3).uniform(0, 2, (6, 8)), two_sided=two_sided)
+    cv = mesh.corner_verts
+    nxt = np.arange(1, cv.size + 1)
+    nxt[mesh.face_offsets + mesh.face_sizes - 1] = mesh.face_offsets
+    pairs = np.sort(np.column_stack([cv, cv[nxt]]), axis=1)
+    # Derived independently: the distinct undirected corner pairs.
+    expected = np.unique(pairs, axis=0)
+    got = np.sort(mesh.edges, axis=1)
+    assert len(got) == len(expected)
+    np.testing.assert_array_equal(np.unique(got, axis=0), expected)
+    # corner_edges points every corner at the edge to the next corner.
+    np.testing.assert_array_equal(got[mesh.corner_edges], pairs)

@@ -137,3 +137,41 @@ def test_segment_rejects_bad_arguments():
         vegetation_index(img, index="ndvi")
     with pytest.raises(CliffTerrainError, match=r"`image` must have shape \(rows, cols, 3\), got \(10, 10\)"):
         segment(np.zeros((10, 10), np.uint8))
+
+
+def test_cleaning_matches_scipy_and_skimage():
+    # The OpenCV speck removal and hole filling give exactly what bwareaopen + imfill
+    # (scikit-image remove_small_objects, SciPy binary_fill_holes) give.
+    from scipy import ndimage as ndi
+    from skimage import morphology
+
+    from cliff_terrain.segmentation import _clean
+
+    rng = np.random.default_rng(0)
+    for i in range(12):
+        mask = rng.random((60, 80)) > 0.55
+        if i % 2:
+            mask = ndi.binary_opening(mask)
+        expected = ndi.binary_fill_holes(morphology.remove_small_objects(mask, min_size=5, connectivity=2))
+        np.testing.assert_array_equal(_clean(mask, 5), expected)
+
+
+def test_colour_edges_are_the_distance_from_the_grey_axis():
+    from cliff_terrain.segmentation import colour_edges
+
+    rng = np.random.default_rng(1)
+    f = rng.normal(size=(9, 11, 3)).astype(np.float32)
+    grey = f.mean(axis=2, keepdims=True)
+    np.testing.assert_allclose(colour_edges(f), np.linalg.norm(f - grey, axis=2), rtol=1e-5, atol=1e-6)
+
+
+def test_inner_boundaries_match_scikit_image():
+    from skimage.segmentation import find_boundaries
+
+    from cliff_terrain.segmentation import inner_boundaries
+
+    image, _ = synthetic_field(shape=(240, 360), seed=5)
+    labels = segment(image).labels
+    labels[100:140, 100:200] = labels.max() + 1  # touching regions too
+    expected = find_boundaries(labels, mode="inner", connectivity=1) & (labels > 0)
+    np.testing.assert_array_equal(inner_boundaries(labels), expected)
