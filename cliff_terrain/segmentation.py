@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy import ndimage as ndi
-from skimage import filters, measure, morphology, segmentation
+from skimage import filters, measure, segmentation
 
 from ._validate import check_choice, check_int, check_rgb
 from .errors import CliffTerrainError
