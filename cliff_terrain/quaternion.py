@@ -25,6 +25,11 @@ DEFAULT_SCALE = 1 / np.sqrt(6)
 # repeated, so the colour difference across the border is zero and the border stays grey.
 _BORDER = cv2.BORDER_REFLECT_101
 
+# sepFilter2D kernels: a sum of three pixels along one axis, nothing along the other. (It runs
+# 2-3x faster than boxFilter from uint8 or float32 to float32.)
+_THREE = np.ones(3, np.float32)
+_ONE = np.ones(1, np.float32)
+
 _N = 1.0 / np.sqrt(3.0)
 _GREY_PROJECTION = np.full((3, 3), 1.0 / 3.0)  # J = n n^T, n the unit grey axis
 _GREY_CROSS = np.array([[0.0, -_N, _N], [_N, 0.0, -_N], [-_N, _N, 0.0]])  # K p = n x p
@@ -145,8 +150,6 @@ def quaternion_filter(image, *, scale=DEFAULT_SCALE, orientation="horizontal"):
 
     gain = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
     below, above = (m.astype(np.float32) for m in colour_matrices(scale, gain=gain))
-    if image.dtype not in (np.dtype(np.uint8), np.dtype(np.float32), np.dtype(np.float64)):
-        image = image.astype(np.float32)  # float16, longdouble, non-native byte order
     image = np.ascontiguousarray(image)
 
     rows, cols = image.shape[:2]
@@ -178,6 +181,18 @@ def _usable_cores():
         return os.cpu_count() or 1
 
 
+_FILTER_DTYPES = (np.dtype(np.uint8), np.dtype(np.float32))
+
+
+def _as_filter_input(rows, staging):
+    """`rows` as sepFilter2D takes them: uint8 or native float32 as they are, other floats copied."""
+    if staging is None:
+        return rows
+    staged = staging[: len(rows)]
+    np.copyto(staged, rows, casting="same_kind")  # float64, float16, longdouble, other byte order
+    return staged
+
+
 def _reflect(index, size):
     """OpenCV's BORDER_REFLECT_101 for an index at most one step outside [0, size)."""
     if size == 1:
@@ -194,17 +209,14 @@ def _horizontal_strips(image, out, below, above, start, stop, strip):
     rows, cols = image.shape[:2]
     box = np.empty((strip + 2, cols, 3), np.float32)  # box[i] is the sum for image row r0 - 1 + i
     partial = np.empty((strip, cols, 3), np.float32)  # the conj(R) taps, added last
+    staging = None if image.dtype in _FILTER_DTYPES else np.empty((strip + 2, cols, 3), np.float32)
     for r0 in range(start, stop, strip):
         r1 = min(r0 + strip, stop)
         m = r1 - r0
         lo, hi = max(r0 - 1, 0), min(r1 + 1, rows)
-        cv2.boxFilter(
-            image[lo:hi],
-            cv2.CV_32F,
-            (3, 1),
-            dst=box[lo - r0 + 1 : hi - r0 + 1],
-            normalize=False,
-            borderType=_BORDER,
+        source = _as_filter_input(image[lo:hi], staging)
+        cv2.sepFilter2D(
+            source, cv2.CV_32F, _THREE, _ONE, dst=box[lo - r0 + 1 : hi - r0 + 1], borderType=_BORDER
         )
         if r0 == 0:
             box[0] = box[_reflect(-1, rows) + 1]
@@ -221,6 +233,7 @@ def _vertical_strips(image, out, below, above, start, stop, strip):
     rows, cols = image.shape[:2]
     box = np.empty((strip + 2, cols, 3), np.float32)
     partial = np.empty((strip, cols, 3), np.float32)  # the conj(R) taps, added last
+    staging = None if image.dtype in _FILTER_DTYPES else np.empty((strip + 2, cols, 3), np.float32)
     right, left = _reflect(cols, cols), _reflect(-1, cols)
     for r0 in range(start, stop, strip):
         r1 = min(r0 + strip, stop)
@@ -228,9 +241,8 @@ def _vertical_strips(image, out, below, above, start, stop, strip):
         lo, hi = max(r0 - 1, 0), min(r1 + 1, rows)
         # The halo rows make the column sums of rows r0..r1-1 exact; OpenCV reflects only at the
         # image's own top and bottom, where lo == 0 or hi == rows.
-        cv2.boxFilter(
-            image[lo:hi], cv2.CV_32F, (1, 3), dst=box[: hi - lo], normalize=False, borderType=_BORDER
-        )
+        source = _as_filter_input(image[lo:hi], staging)
+        cv2.sepFilter2D(source, cv2.CV_32F, _ONE, _THREE, dst=box[: hi - lo], borderType=_BORDER)
         sums = box[r0 - lo : r0 - lo + m]
         target, other = out[r0:r1], partial[:m]
         if cols > 1:

@@ -64,7 +64,7 @@ def test_uint8_matches_quaternion_convolution(rng, shape, orientation):
     np.testing.assert_allclose(out, reference(image, orientation=orientation), rtol=0, atol=1e-5)
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.float16])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.float16, np.dtype(">f8")])
 @pytest.mark.parametrize("orientation", ["horizontal", "vertical"])
 def test_float_taken_as_is_with_other_scale(rng, dtype, orientation):
     # Values beyond [0, 1] and negative ones: float input is not rescaled.
