@@ -132,12 +132,32 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
         raise CliffTerrainError(f"`heights` must be a non-empty 2-D array, got shape {heights.shape}")
     if not np.all(np.isfinite(heights)):
         raise CliffTerrainError("`heights` must be finite, got NaN or infinity")
-    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
-    rows, cols = heights.shape
-    if base_depth is None:
-        base_depth = 0.02 * max(rows, cols) * pixel_size
-    base_depth = check_float("base_depth", base_depth, minimum=0.0, strict_minimum=True)
+    topology = grid_topology(heights.shape, two_sided=two_sided)
+    return place_vertices(topology, heights, pixel_size=pixel_size, base_depth=base_depth)
 
+
+def grid_topology(shape, *, two_sided=True):
+    """Everything of :func:`grid_mesh` that does not depend on the heights.
+
+    Faces, corners, UVs and edges depend on the grid's shape only, so they can be built (for
+    example in a thread) while the heights are still being computed; :func:`place_vertices`
+    then adds the positions.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (rows, cols) of the height grid.
+    two_sided : bool, optional
+        As in :func:`grid_mesh`.
+
+    Returns
+    -------
+    MeshArrays
+        With ``vertices`` allocated but not yet filled.
+    """
+    if not (isinstance(shape, tuple | list) and len(shape) == 2) or min(shape) < 1:
+        raise CliffTerrainError(f"`shape` must be (rows, cols) with both >= 1, got {shape!r}")
+    rows, cols = (int(n) for n in shape)
     # Everything is written in place into arrays of the final size: at 12 M vertices the
     # intermediate stacks, gathers and concatenations would double the time and the memory.
     vr, vc = rows + 1, cols + 1
@@ -147,12 +167,6 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
     n_corners = 4 * n_front + (5 * n_ring if two_sided else 0)
 
     # Front grid: vertex (r, c) has index r * (cols + 1) + c.
-    vertices = np.empty((n_vertices, 3), dtype=np.float32)
-    front = vertices[: vr * vc].reshape(vr, vc, 3)
-    front[..., 0] = (np.arange(vc, dtype=np.float32) * np.float32(pixel_size))[None, :]
-    front[..., 1] = ((rows - np.arange(vr, dtype=np.float32)) * np.float32(pixel_size))[:, None]
-    front[..., 2] = corner_heights(heights)
-
     # Counter-clockwise seen from above (+z): bottom-left, bottom-right, top-right, top-left,
     # i.e. corner k of pixel (r, c) is vertex (r + dr[k], c + dc[k]).
     dr, dc = (1, 1, 0, 0), (0, 1, 1, 0)
@@ -188,6 +202,7 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
     quad_edges[..., 2] = h_index[:-1]  # top-right -> top-left
     quad_edges[..., 3] = v_index[:, :-1]  # top-left -> bottom-left
 
+    vertices = np.empty((n_vertices, 3), dtype=np.float32)
     if not two_sided:
         return MeshArrays(
             vertices=vertices,
@@ -200,19 +215,8 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
             corner_edges=corner_edges,
         )
 
-    # Border ring of the front grid, counter-clockwise seen from above, starting bottom-left.
-    idx = np.arange(vr * vc, dtype=np.int32).reshape(vr, vc)
-    ring = np.concatenate(
-        [
-            idx[-1, :-1],  # bottom row, left to right
-            idx[:0:-1, -1],  # right column, bottom to top
-            idx[0, :0:-1],  # top row, right to left
-            idx[:-1, 0],  # left column, top to bottom
-        ]
-    )
+    ring = border_ring(rows, cols)
     base_idx = np.arange(vr * vc, n_vertices, dtype=np.int32)
-    vertices[vr * vc :] = vertices[ring]
-    vertices[vr * vc :, 2] = -base_depth
     nxt = np.roll(np.arange(n_ring), -1)
     # Walls face outwards: top_i, base_i, base_i+1, top_i+1; the base is one n-gon, clockwise
     # from above so that its normal points down.
@@ -255,6 +259,59 @@ def grid_mesh(heights, *, pixel_size=1.0, two_sided=True, base_depth=None):
         edges=edges,
         corner_edges=corner_edges,
     )
+
+
+def border_ring(rows, cols):
+    """Indices of the front grid's border vertices, counter-clockwise from above, from bottom-left."""
+    vc = cols + 1
+    top, bottom = np.arange(vc, dtype=np.int32), rows * vc + np.arange(vc, dtype=np.int32)
+    left = np.arange(rows + 1, dtype=np.int32) * vc
+    right = left + cols
+    return np.concatenate(
+        [
+            bottom[:-1],  # bottom row, left to right
+            right[:0:-1],  # right column, bottom to top
+            top[:0:-1],  # top row, right to left
+            left[:-1],  # left column, top to bottom
+        ]
+    )
+
+
+def place_vertices(topology, heights, *, pixel_size=1.0, base_depth=None):
+    """Fill the vertex positions of a :func:`grid_topology` from `heights` (in place).
+
+    Parameters
+    ----------
+    topology : MeshArrays
+        From :func:`grid_topology` for ``heights.shape``.
+    heights, pixel_size, base_depth
+        As in :func:`grid_mesh`.
+
+    Returns
+    -------
+    MeshArrays
+        `topology`, with its vertices set.
+    """
+    heights = np.asarray(heights)
+    rows, cols = topology.grid_shape
+    if heights.shape != (rows, cols):
+        raise CliffTerrainError(
+            f"`heights` must have the topology's shape {(rows, cols)}, got {heights.shape}"
+        )
+    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    if base_depth is None:
+        base_depth = 0.02 * max(rows, cols) * pixel_size
+    base_depth = check_float("base_depth", base_depth, minimum=0.0, strict_minimum=True)
+    vr, vc = rows + 1, cols + 1
+    vertices = topology.vertices
+    front = vertices[: vr * vc].reshape(vr, vc, 3)
+    front[..., 0] = (np.arange(vc, dtype=np.float32) * np.float32(pixel_size))[None, :]
+    front[..., 1] = ((rows - np.arange(vr, dtype=np.float32)) * np.float32(pixel_size))[:, None]
+    front[..., 2] = corner_heights(heights)
+    if vertices.shape[0] > vr * vc:
+        vertices[vr * vc :] = vertices[border_ring(rows, cols)]
+        vertices[vr * vc :, 2] = -base_depth
+    return topology
 
 
 def affine_matrix(*, rotation=None, translation=None, scale=None):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -13,7 +14,7 @@ from ._validate import check_choice, check_float, check_int, check_rgb
 from .errors import CliffTerrainError
 from .heights import PROFILES, inflate
 from .image_io import ImageMetadata, load_image
-from .mesh import MeshArrays, grid_mesh
+from .mesh import MeshArrays, grid_topology, place_vertices
 from .quaternion import quaternion_filter
 from .segmentation import METHODS, distance_map, segment
 
@@ -157,25 +158,16 @@ def build_relief(
     clock.start("resize", 0.1)
     working = resize_longest(image, max_size)
 
-    clock.start("filter", 0.2)
-    filtered = quaternion_filter(working)
-
-    clock.start("segment", 0.35)
-    valid = None
-    if metadata.valid_mask is not None:  # an orthophoto's no-data area stays flat
-        valid = (
-            cv2.resize(
-                metadata.valid_mask.astype(np.uint8), working.shape[1::-1], interpolation=cv2.INTER_NEAREST
-            )
-            > 0
+    # The mesh's faces, UVs and edges depend on the grid's shape only: build them in a thread
+    # while the image work runs (numpy and OpenCV release the GIL; 2 cores do both at once).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        topology = pool.submit(grid_topology, working.shape[:2], two_sided=bool(two_sided))
+        filtered, seg, distance, heights_px, valid = _image_stages(
+            working, metadata, segmentation, profile, exaggeration, clock
         )
-    seg = segment(working, method=segmentation, filtered=filtered, valid=valid)
+        clock.start("mesh", 0.8)
+        mesh_arrays = topology.result()
 
-    clock.start("heights", 0.6)
-    distance = distance_map(seg.labels)
-    heights_px = inflate(seg.labels, profile=profile, exaggeration=exaggeration, distance=distance)
-
-    clock.start("mesh", 0.8)
     rows, cols = working.shape[:2]
     if metadata.gsd_m_per_px:
         units = "m"
@@ -184,7 +176,7 @@ def build_relief(
     else:
         units, pixel_size = "px", 1.0
     heights = heights_px * np.float32(pixel_size) if units == "m" else heights_px
-    mesh = grid_mesh(heights, pixel_size=pixel_size, two_sided=bool(two_sided))
+    mesh = place_vertices(mesh_arrays, heights, pixel_size=pixel_size)
     clock.start(None, 1.0)
 
     return Relief(
@@ -203,6 +195,24 @@ def build_relief(
         params=params,
         timings=timings,
     )
+
+
+def _image_stages(working, metadata, segmentation, profile, exaggeration, clock):
+    """Filter, segment and inflate the working image."""
+    clock.start("filter", 0.2)
+    filtered = quaternion_filter(working)
+
+    clock.start("segment", 0.35)
+    valid = None
+    if metadata.valid_mask is not None:  # an orthophoto's no-data area stays flat
+        size = working.shape[1::-1]
+        valid = cv2.resize(metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    seg = segment(working, method=segmentation, filtered=filtered, valid=valid)
+
+    clock.start("heights", 0.6)
+    distance = distance_map(seg.labels)
+    heights_px = inflate(seg.labels, profile=profile, exaggeration=exaggeration, distance=distance)
+    return filtered, seg, distance, heights_px, valid
 
 
 class _Stages:
