@@ -362,8 +362,9 @@ def split_regions(mask, distance, *, edges=None):
         return components.astype(np.int32)
     # Only components holding two or more markers need a watershed: one call floods them all
     # (the mask keeps the others out), the rest keep their component label.
-    marker_component = label_max(components, markers)[1:].astype(np.int64)
-    split = np.bincount(marker_component, minlength=n + 1) > 1
+    marker_component = np.zeros(n_markers + 1, dtype=np.int64)
+    marker_component[markers[peaks]] = components[peaks]  # every marker lies in one component
+    split = np.bincount(marker_component[1:], minlength=n + 1) > 1
     split[0] = False
     flood_mask = split[components]
     landscape = -smooth
