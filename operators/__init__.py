@@ -3,10 +3,10 @@
 ``mesh_data`` and ``material`` hold no classes to register; the render script reuses them.
 """
 
-from . import build, properties
+from . import build, properties, render
 
 # The settings first: the build operator and the panel read them.
-_MODULES = (properties, build)
+_MODULES = (properties, build, render)
 
 
 def register():

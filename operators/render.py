@@ -1,0 +1,167 @@
+"""The Render Views and Evaluate operators: figures and the paper's Table 4 metrics of the active relief.
+
+Both work on the active object when it is a relief built by Cliff Terrain (it carries the
+``cliff_terrain`` record: the photo, the grid size). They add the view rig (collection ``Cliff Terrain
+Views``: top, side and perspective cameras and the calibrated sun; the scene's world becomes the
+calibrated sky) and leave it, so the views can be rendered again by hand; the scene's camera and
+render settings are put back as they were. Rendering blocks Blender until it is done.
+
+Error policy as in the build operator: a bad photo or setting is reported as an ERROR and the
+operator returns CANCELLED; anything else is a bug, its traceback goes to the console.
+"""
+
+import json
+import os
+import tempfile
+import time
+import traceback
+
+import bpy
+from bpy.props import EnumProperty, IntProperty
+
+from . import views
+
+ENGINES = (
+    ("CYCLES", "Cycles", "Path traced, with the calibrated sun and sky (colours stay the photo's)"),
+    ("WORKBENCH", "Workbench", "Fast: the texture as it is with cavity shading (needs a GPU context)"),
+    ("EEVEE", "EEVEE", "Rasterised with the calibrated sun and sky (slow to start without a GPU)"),
+)
+
+
+def active_relief(context):
+    """The active object if it is a relief built by Cliff Terrain, else None."""
+    obj = context.active_object
+    if obj is None or obj.type != "MESH" or "cliff_terrain" not in obj:
+        return None
+    return obj
+
+
+def grid_longest_side(obj):
+    record = obj["cliff_terrain"]
+    return max(int(record["grid_rows"]), int(record["grid_cols"]))
+
+
+class _ViewSettings:
+    """Settings shared by both operators (a mixin: Blender collects annotations from bases)."""
+
+    engine: EnumProperty(
+        name="Engine", description="Engine of the lit views", items=ENGINES, default="CYCLES"
+    )
+    resolution: IntProperty(
+        name="Resolution",
+        description="Longest side of each view in pixels (0 = the relief's grid, one pixel per cell)",
+        min=0,
+        max=16384,
+        default=0,
+    )
+    samples: IntProperty(
+        name="Samples",
+        description="Samples per pixel of the lit views",
+        min=1,
+        max=4096,
+        default=views.SAMPLES,
+    )
+
+    @classmethod
+    def poll(cls, context):
+        if active_relief(context) is None:
+            cls.poll_message_set("The active object must be a relief built by Cliff Terrain")
+            return False
+        return context.mode == "OBJECT"
+
+    def run(self, context, out_dir, view_names):
+        """Render `view_names` of the active relief into `out_dir` and compare its top views with the photo."""
+        obj = active_relief(context)
+        scene = context.scene
+        engine = views.choose_engine(self.engine, log=lambda message: self.report({"WARNING"}, message))
+        with views.KeptRenderSettings(scene):
+            rig = views.make_rig(context, obj, resolution=self.resolution or grid_longest_side(obj))
+            paths, seconds = views.render_views(
+                context, rig, out_dir, views=view_names, engine=engine, samples=self.samples
+            )
+            start = time.perf_counter()
+            metrics = views.evaluate_relief(obj, rig, paths["xy"], paths["xy_flat"])
+            seconds["metrics"] = time.perf_counter() - start
+        metrics.update(engine=engine, samples=self.samples, light=rig.light, timings_s=seconds)
+        settings = scene.cliff_terrain
+        settings.psnr = metrics["psnr_xy"] if metrics["psnr_xy"] != float("inf") else 999.0
+        settings.ssim = metrics["ssim_xy"]
+        return metrics
+
+    def execute(self, context):
+        from ..cliff_terrain import CliffTerrainError
+
+        try:
+            return self.run_operator(context)
+        except (CliffTerrainError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        except Exception as exc:
+            traceback.print_exc()
+            self.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
+            return {"CANCELLED"}
+
+    def summary(self, metrics):
+        return (
+            f"lit top view PSNR {metrics['psnr_xy']:.2f} dB, SSIM {metrics['ssim_xy']:.4f}; "
+            f"flat PSNR {metrics['psnr_xy_flat']:.2f} dB, SSIM {metrics['ssim_xy_flat']:.4f}"
+        )
+
+
+class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
+    """Render the active relief's top (lit and flat), side, perspective and height views into the
+    output folder, with metrics.json (PSNR and SSIM of the top views against the photo)"""
+
+    bl_idname = "cliff_terrain.render_views"
+    bl_label = "Render Views"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def run_operator(self, context):
+        obj = active_relief(context)
+        folder = bpy.path.abspath(context.scene.cliff_terrain.output_dir) or "."
+        out_dir = os.path.join(folder, bpy.path.clean_name(obj.name))
+        os.makedirs(out_dir, exist_ok=True)  # views are replaced, as F12 replaces its result
+        metrics = self.run(context, out_dir, tuple(views.VIEW_FILES))
+        with open(os.path.join(out_dir, "metrics.json"), "w", encoding="utf-8") as stream:
+            json.dump(_plain(metrics), stream, indent=2)
+        self.report(
+            {"INFO"}, f"Rendered {len(views.VIEW_FILES)} views into {out_dir}: {self.summary(metrics)}"
+        )
+        return {"FINISHED"}
+
+
+class CLIFF_TERRAIN_OT_evaluate(_ViewSettings, bpy.types.Operator):
+    """Render the active relief's top views and compare them with the photo (PSNR and SSIM, as the
+    paper's Table 4); the result is shown in the panel"""
+
+    bl_idname = "cliff_terrain.evaluate"
+    bl_label = "Evaluate"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def run_operator(self, context):
+        with tempfile.TemporaryDirectory(prefix="cliff_terrain_evaluate_") as out_dir:
+            metrics = self.run(context, out_dir, ("xy_flat", "xy"))
+        self.report({"INFO"}, self.summary(metrics))
+        return {"FINISHED"}
+
+
+def _plain(value):
+    """JSON-friendly copy (an infinite PSNR of identical images becomes null)."""
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, float) and value in (float("inf"), float("-inf")):
+        return None
+    return value
+
+
+CLASSES = (CLIFF_TERRAIN_OT_render_views, CLIFF_TERRAIN_OT_evaluate)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
