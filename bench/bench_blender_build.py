@@ -18,15 +18,15 @@ from __future__ import annotations
 import argparse
 import gc
 import importlib.util
-import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 import cv2
 import numpy as np
+from machine_info import machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 UAV = ROOT.parent / "shared" / "data" / "uav"
@@ -34,19 +34,6 @@ REAL_IMAGE = UAV / "caliterra" / "IMG_9370.jpg"  # a real 4000x3000 UAV frame
 ADDON = "cliff_terrain_addon"
 SIZE = (3500, 2300)  # cols, rows
 GOAL = 5.0
-
-
-def machine():
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return {"cpu": model, "cores": os.cpu_count(), "loadavg_1min": load}
 
 
 def write_photo(path, cols, rows):

@@ -12,16 +12,16 @@ the same image in the same process; the figures that matter are the ratio and th
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
 import tracemalloc
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 import cv2
 import numpy as np
 import quaternion
+from machine_info import machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
@@ -62,23 +62,6 @@ def peer_filter(image, scale=DEFAULT_SCALE):
             np.add(acc[:n], product, out=acc[:n])
     vectors = quaternion.as_vector_part(acc).reshape(rows, width, 3)
     return vectors[:, :cols].astype(np.float32)
-
-
-def machine():
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:
-        usable = os.cpu_count()
-    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
-    return {"cpu": model, "cores": os.cpu_count(), "usable_cores": usable, "loadavg_1min": load[0]}
 
 
 def load_image(rows, cols):

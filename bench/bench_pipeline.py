@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine_info import describe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_IMAGE = ROOT.parent / "shared" / "data" / "uav" / "caliterra" / "IMG_9370.jpg"  # 4000x3000 frame
@@ -56,18 +57,6 @@ def _run(case, image, repeat):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def machine():
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--image", type=Path, default=REAL_IMAGE)
@@ -76,12 +65,12 @@ def main(argv=None):
     if not args.image.is_file():
         print(f"bench_pipeline: image not found: {args.image} (../shared is absent?)", file=sys.stderr)
         return {}
-    print(f"machine: {machine()}")
+    print(f"machine: {describe()}")
     decode = _run("decode", args.image, args.repeat)
     print(
         f"peer  full Pillow decode            {decode['best_s']:7.3f} s  peak RSS {decode['peak_rss_bytes'] / 2**20:6.0f} MiB"
     )
-    results = {"machine": machine(), "image": args.image.name, "decode_s": decode["best_s"]}
+    results = {"machine": describe(), "image": args.image.name, "decode_s": decode["best_s"]}
     for size in (1000, 4000):
         r = _run(str(size), args.image, args.repeat if size == 1000 else 1)
         to_heights = sum(v for k, v in r["timings"].items() if k != "mesh")
