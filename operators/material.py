@@ -107,11 +107,8 @@ def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
     """
     material = bpy.data.materials.new(name)
     try:
-        if bpy.app.version < (5, 0, 0):
-            material.use_nodes = True  # always on (and deprecated) from Blender 5.0
-        tree = material.node_tree
+        tree = empty_node_tree(material)
         nodes, links = tree.nodes, tree.links
-        nodes.clear()
         out = nodes.new("ShaderNodeOutputMaterial")
         bsdf = nodes.new("ShaderNodeBsdfPrincipled")
         uv = nodes.new("ShaderNodeUVMap")
@@ -167,6 +164,15 @@ def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
         bpy.data.materials.remove(material)
         raise
     return material
+
+
+def empty_node_tree(material):
+    """The material's node tree, switched on and emptied, ready for new nodes."""
+    if bpy.app.version < (5, 0, 0):
+        material.use_nodes = True  # always on (and deprecated) from Blender 5.0
+    tree = material.node_tree
+    tree.nodes.clear()
+    return tree
 
 
 def _input(node, identifier):

@@ -44,6 +44,8 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
+from .material import empty_node_tree
+
 # Views in the order they are rendered (Cycles keeps its scene data between them).
 VIEW_FILES = {
     "xy_flat": "xy_flat.png",
@@ -422,10 +424,7 @@ def make_matte(material):
 def flat_material(image, uv_name="UVMap"):
     """A material that emits the photo as it is: the flat top view (no shading at all)."""
     material = bpy.data.materials.get("Cliff Terrain Flat") or bpy.data.materials.new("Cliff Terrain Flat")
-    if bpy.app.version < (5, 0, 0):
-        material.use_nodes = True
-    tree = material.node_tree
-    tree.nodes.clear()
+    tree = empty_node_tree(material)
     uv = tree.nodes.new("ShaderNodeUVMap")
     uv.uv_map = uv_name
     tex = tree.nodes.new("ShaderNodeTexImage")
@@ -450,10 +449,7 @@ def height_material():
     material = bpy.data.materials.get("Cliff Terrain Height") or bpy.data.materials.new(
         "Cliff Terrain Height"
     )
-    if bpy.app.version < (5, 0, 0):
-        material.use_nodes = True
-    tree = material.node_tree
-    tree.nodes.clear()
+    tree = empty_node_tree(material)
     colour = tree.nodes.new("ShaderNodeVertexColor")
     colour.layer_name = HEIGHT_ATTRIBUTE
     bsdf = tree.nodes.new("ShaderNodeBsdfDiffuse")
