@@ -69,13 +69,18 @@ def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None):
 
 def circular_profile(labels, distance):
     """H = sqrt(Dmax^2 - (Dmax - D)^2) per region (Dmax = the region's largest distance)."""
-    dmax = label_max(distance, labels)
-    dmax[0] = 0.0
-    dm = dmax[labels]
-    d = np.minimum(distance.astype(np.float32), dm)
+    labels = np.asarray(labels)
+    # On the region pixels only: ground, most of a field, stays 0.
+    inside = np.flatnonzero(labels.ravel())
+    lab = labels.ravel()[inside]
+    d = np.asarray(distance, dtype=np.float32).ravel()[inside]
+    dm = label_max(d, lab)[lab]
+    np.minimum(d, dm, out=d)
     h = np.sqrt(np.maximum(dm * dm - (dm - d) ** 2, 0.0))
     h[d <= 0] = 0.0
-    return h.astype(np.float32)
+    out = np.zeros(labels.shape, dtype=np.float32)
+    out.ravel()[inside] = h
+    return out
 
 
 def poisson_profile(mask):

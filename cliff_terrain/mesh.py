@@ -169,38 +169,49 @@ def grid_topology(shape, *, two_sided=True):
     # Front grid: vertex (r, c) has index r * (cols + 1) + c.
     # Counter-clockwise seen from above (+z): bottom-left, bottom-right, top-right, top-left,
     # i.e. corner k of pixel (r, c) is vertex (r + dr[k], c + dc[k]).
-    dr, dc = (1, 1, 0, 0), (0, 1, 1, 0)
+    # Every per-corner array is a row part plus a column part, written by one broadcast add in
+    # memory order (four strided writes per array would take twice as long).
+    dr, dc = np.array([1, 1, 0, 0], np.int32), np.array([0, 1, 1, 0], np.int32)
     corner_verts = np.empty(n_corners, dtype=np.int32)
     uvs = np.empty((n_corners, 2), dtype=np.float32)
-    quads = corner_verts[: 4 * n_front].reshape(rows, cols, 4)
-    quad_uvs = uvs[: 4 * n_front].reshape(rows, cols, 4, 2)
     row_start = np.arange(vr, dtype=np.int32) * vc
     col = np.arange(vc, dtype=np.int32)
+    np.add(
+        row_start[:rows, None, None],
+        (col[:cols, None] + dr * vc + dc)[None],
+        out=corner_verts[: 4 * n_front].reshape(rows, cols, 4),
+    )
     u = np.arange(vc, dtype=np.float32) / np.float32(cols)
     v = (rows - np.arange(vr, dtype=np.float32)) / np.float32(rows)
-    for k in range(4):
-        quads[..., k] = row_start[dr[k] : dr[k] + rows, None] + col[None, dc[k] : dc[k] + cols]
-        quad_uvs[..., k, 0] = u[None, dc[k] : dc[k] + cols]
-        quad_uvs[..., k, 1] = v[dr[k] : dr[k] + rows, None]
+    u_part = np.zeros((cols, 4, 2), dtype=np.float32)
+    u_part[..., 0] = u[col[:cols, None] + dc]
+    v_part = np.zeros((rows, 4, 2), dtype=np.float32)
+    v_part[..., 1] = v[np.arange(rows)[:, None] + dr]
+    # Adding 0.0 is exact: the same floats as u[c + dc], v[r + dr].
+    np.add(v_part[:, None], u_part[None], out=uvs[: 4 * n_front].reshape(rows, cols, 4, 2))
 
     # Edges of the grid: horizontal ones (r, c)-(r, c+1) first, then vertical (r, c)-(r+1, c).
     n_h, n_v = vr * cols, rows * vc
     n_edges = n_h + n_v + (2 * n_ring if two_sided else 0)
     edges = np.empty((n_edges, 2), dtype=np.int32)
-    eh = edges[:n_h].reshape(vr, cols, 2)
-    eh[..., 0] = row_start[:, None] + col[None, :-1]
-    eh[..., 1] = eh[..., 0] + 1
-    ev = edges[n_h : n_h + n_v].reshape(rows, vc, 2)
-    ev[..., 0] = row_start[:-1, None] + col[None, :]
-    ev[..., 1] = ev[..., 0] + vc
+    np.add(
+        row_start[:, None, None],
+        np.stack([col[:-1], col[:-1] + 1], axis=1)[None],
+        out=edges[:n_h].reshape(vr, cols, 2),
+    )
+    np.add(
+        row_start[:-1, None, None],
+        np.stack([col, col + vc], axis=1)[None],
+        out=edges[n_h : n_h + n_v].reshape(rows, vc, 2),
+    )
+    # Horizontal edge (r, c) has index r * cols + c, vertical edge (r, c) n_h + r * vc + c. A
+    # quad's sides: bottom (horizontal, row r + 1), right (vertical, column c + 1), top
+    # (horizontal, row r), left (vertical, column c).
     corner_edges = np.empty(n_corners, dtype=np.int32)
-    quad_edges = corner_edges[: 4 * n_front].reshape(rows, cols, 4)
-    h_index = (np.arange(vr, dtype=np.int32) * cols)[:, None] + col[None, :-1]  # (vr, cols)
-    v_index = n_h + (np.arange(rows, dtype=np.int32) * vc)[:, None] + col[None, :]  # (rows, vc)
-    quad_edges[..., 0] = h_index[1:]  # bottom-left -> bottom-right
-    quad_edges[..., 1] = v_index[:, 1:]  # bottom-right -> top-right
-    quad_edges[..., 2] = h_index[:-1]  # top-right -> top-left
-    quad_edges[..., 3] = v_index[:, :-1]  # top-left -> bottom-left
+    r = np.arange(rows, dtype=np.int32)
+    edge_row = np.stack([(r + 1) * cols, n_h + r * vc, r * cols, n_h + r * vc], axis=1)
+    edge_col = col[:cols, None] + np.array([0, 1, 0, 0], np.int32)
+    np.add(edge_row[:, None, :], edge_col[None], out=corner_edges[: 4 * n_front].reshape(rows, cols, 4))
 
     vertices = np.empty((n_vertices, 3), dtype=np.float32)
     if not two_sided:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import queue
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -90,6 +91,7 @@ def build_relief(
     gsd=None,
     two_sided=True,
     progress=None,
+    on_topology=None,
 ):
     """Turn one UAV photo into a relief: filter, segment, inflate, mesh.
 
@@ -115,7 +117,15 @@ def build_relief(
     two_sided : bool, optional
         Close the relief into a watertight solid with a base (back UVs have u > 1).
     progress : callable, optional
-        ``progress(fraction, stage)`` is called as each stage starts, fraction in [0, 1].
+        ``progress(fraction, stage)`` is called as each stage starts, fraction in [0, 1], always
+        in the calling thread (a GUI may update itself from it).
+    on_topology : callable, optional
+        ``on_topology(mesh)`` is called in the calling thread with the mesh's faces, corners, UVs
+        and edges (a :class:`~cliff_terrain.mesh.MeshArrays` whose vertices are not placed yet)
+        as soon as the grid's shape is known, while filter, segmentation and heights run in a
+        worker thread. A caller can copy the topology elsewhere (the Blender add-on fills its
+        mesh) in parallel; the same object, with its vertices placed, is ``Relief.mesh``.
+        Whatever it raises propagates once the worker has finished.
 
     Returns
     -------
@@ -138,6 +148,8 @@ def build_relief(
         raise CliffTerrainError(f"`two_sided` must be True or False, got {two_sided!r}")
     if progress is not None and not callable(progress):
         raise CliffTerrainError(f"`progress` must be callable or None, got {progress!r}")
+    if on_topology is not None and not callable(on_topology):
+        raise CliffTerrainError(f"`on_topology` must be callable or None, got {on_topology!r}")
     params = {
         "max_size": max_size,
         "segmentation": segmentation,
@@ -157,16 +169,30 @@ def build_relief(
 
     clock.start("resize", 0.1)
     working = resize_longest(image, max_size)
+    clock.start(None, None)
 
-    # The mesh's faces, UVs and edges depend on the grid's shape only: build them in a thread
-    # while the image work runs (numpy and OpenCV release the GIL; 2 cores do both at once).
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        topology = pool.submit(grid_topology, working.shape[:2], two_sided=bool(two_sided))
-        filtered, seg, distance, heights_px, valid = _image_stages(
-            working, metadata, segmentation, profile, exaggeration, clock
+    # Filter, segmentation and heights run in a worker thread (numpy, OpenCV and the watershed
+    # release the GIL) while this thread builds the mesh's faces, UVs and edges, which depend on
+    # the grid's shape only, and hands them to `on_topology`. Progress is relayed to this thread.
+    events = queue.SimpleQueue()
+    worker_clock = _Stages(lambda fraction, stage: events.put((fraction, stage)), timings)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain") as pool:
+        image_stages = pool.submit(
+            _image_stages, working, metadata, segmentation, profile, exaggeration, worker_clock
         )
-        clock.start("mesh", 0.8)
-        mesh_arrays = topology.result()
+        image_stages.add_done_callback(lambda _: events.put(None))
+        started = time.perf_counter()
+        try:
+            mesh_arrays = grid_topology(working.shape[:2], two_sided=bool(two_sided))
+            if on_topology is not None:
+                on_topology(mesh_arrays)
+        finally:
+            timings["topology"] = time.perf_counter() - started
+            for event in iter(events.get, None):
+                if progress is not None:
+                    progress(*event)
+        filtered, seg, distance, heights_px = image_stages.result()
+    clock.start("mesh", 0.8)
 
     rows, cols = working.shape[:2]
     if metadata.gsd_m_per_px:
@@ -198,7 +224,7 @@ def build_relief(
 
 
 def _image_stages(working, metadata, segmentation, profile, exaggeration, clock):
-    """Filter, segment and inflate the working image."""
+    """Filter, segment and inflate the working image (in the worker thread)."""
     clock.start("filter", 0.2)
     filtered = quaternion_filter(working)
 
@@ -212,11 +238,16 @@ def _image_stages(working, metadata, segmentation, profile, exaggeration, clock)
     clock.start("heights", 0.6)
     distance = distance_map(seg.labels)
     heights_px = inflate(seg.labels, profile=profile, exaggeration=exaggeration, distance=distance)
-    return filtered, seg, distance, heights_px, valid
+    clock.start(None, None)
+    return filtered, seg, distance, heights_px
 
 
 class _Stages:
-    """Times the stages and reports progress as each one starts."""
+    """Times the stages and reports progress as each one starts.
+
+    ``start(None, None)`` closes the last stage without reporting (a worker's stages end where
+    the caller's next one starts).
+    """
 
     def __init__(self, progress, timings):
         self.progress = progress
@@ -229,7 +260,7 @@ class _Stages:
         if self.stage is not None:
             self.timings[self.stage] = now - self.t0
         self.stage, self.t0 = stage, now
-        if self.progress is not None:
+        if self.progress is not None and fraction is not None:
             self.progress(fraction, stage or "done")
 
 

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage as ndi
 from skimage import filters, measure, segmentation
 
 from ._validate import check_choice, check_int, check_rgb
@@ -345,9 +344,9 @@ def split_regions(mask, distance, *, edges=None):
         Labels 1..n, 0 on flat ground.
     """
     mask = np.asarray(mask, dtype=bool)
-    components, n = ndi.label(mask)
+    components, n = _label4(mask)
     if n == 0:
-        return components.astype(np.int32)
+        return components
     dmax = label_max(distance, components)[1:]
     # Markers: pixels within a pixel of the largest distance around them (a grey dilation over
     # about a typical region's radius), so a necked blob splits at the neck while the flat ridge
@@ -357,43 +356,62 @@ def split_regions(mask, distance, *, edges=None):
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     local_max = cv2.dilate(smooth, kernel)
     peaks = mask & (smooth >= local_max - 1.0) & (smooth >= 1.0)
-    markers, n_markers = ndi.label(peaks)
+    markers, n_markers = _label4(peaks)
     if n_markers <= n:  # nothing to split
-        return components.astype(np.int32)
+        return components
     # Only components holding two or more markers need a watershed: one call floods them all
-    # (the mask keeps the others out), the rest keep their component label.
+    # (the mask keeps the others out), the rest keep their component.
     marker_component = np.zeros(n_markers + 1, dtype=np.int64)
     marker_component[markers[peaks]] = components[peaks]  # every marker lies in one component
     split = np.bincount(marker_component[1:], minlength=n + 1) > 1
     split[0] = False
     flood_mask = split[components]
+    markers[~flood_mask] = 0
     landscape = -smooth
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
         edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(e[mask][::7], 99)) + 1e-6)
         landscape = landscape + edge_scale * e
-    flooded = segmentation.watershed(landscape, np.where(flood_mask, markers, 0), mask=flood_mask)
-    labels = np.where(flood_mask, flooded + n, components).astype(np.int32)
-    return _relabel(labels)
+    flooded = segmentation.watershed(landscape, markers, mask=flood_mask)
+    # Number the result 1..n without gaps: the components left whole first, in their order, then
+    # the watershed's basins in marker order (each basin holds at least its marker).
+    whole = ~split
+    whole[0] = False
+    component_label = np.zeros(n + 1, dtype=np.int32)
+    component_label[whole] = np.arange(1, int(whole.sum()) + 1, dtype=np.int32)
+    basin = split[marker_component]
+    basin[0] = False
+    basin_label = np.zeros(n_markers + 1, dtype=np.int32)
+    basin_label[basin] = np.arange(1, int(basin.sum()) + 1, dtype=np.int32) + int(whole.sum())
+    # Outside the flooded area `flooded` is 0; inside it the component's own label is 0.
+    labels = component_label[components]
+    labels += basin_label[flooded]
+    return labels
+
+
+def _label4(mask):
+    """4-connected components of `mask` -> (int32 labels 0..n, n), numbered in raster order.
+
+    The same labels as ``scipy.ndimage.label`` with its default structure, several times faster.
+    """
+    count, labels = cv2.connectedComponents(
+        np.ascontiguousarray(mask, dtype=np.uint8), connectivity=4, ltype=cv2.CV_32S
+    )
+    return labels, count - 1
 
 
 def label_max(values, labels):
-    """Largest value of each label: ``out[k] = max(values[labels == k])``, 0 for empty labels.
+    """Largest value of each region: ``out[k] = max(values[labels == k])`` for k >= 1.
 
-    ``np.maximum.at`` is some 40x faster than ``scipy.ndimage.maximum`` (which sorts).
+    For values >= 0 (distances). ``out[0]`` (ground, not a region) and labels without pixels
+    are 0. Ground is skipped: on a field it is most of the pixels. ``np.maximum.at`` is some
+    40x faster than ``scipy.ndimage.maximum`` (which sorts).
     """
+    labels = np.asarray(labels).ravel()
     out = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.float32)
-    np.maximum.at(out, labels.ravel(), np.asarray(values, dtype=np.float32).ravel())
+    inside = np.flatnonzero(labels)
+    np.maximum.at(out, labels[inside], np.asarray(values, dtype=np.float32).ravel()[inside])
     return out
-
-
-def _relabel(labels):
-    """Number the labels 1..n without gaps (a lookup table: no sort of the whole image)."""
-    present = np.bincount(labels.ravel()) > 0
-    present[0] = False
-    lut = np.zeros(present.size, dtype=np.int32)
-    lut[present] = np.arange(1, int(present.sum()) + 1, dtype=np.int32)
-    return lut[labels]
 
 
 def trace_boundaries(labels):

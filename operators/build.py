@@ -19,7 +19,7 @@ from pathlib import Path
 import bpy
 
 from .material import load_photo, relief_material
-from .mesh_data import mesh_from_arrays
+from .mesh_data import mesh_from_arrays, mesh_topology, set_positions
 from .properties import PARAMETER_NAMES, ReliefParameters
 
 # Without a known ground sampling distance the relief is scaled so its longest side is this many
@@ -77,9 +77,13 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 def on_progress(fraction, stage):
                     progress(PIPELINE_SHARE * fraction, stage)
 
-                relief = build_relief(path, progress=on_progress, **params)
+                def on_topology(mesh_arrays):
+                    # Faces, edges and UVs go into Blender while the core computes the heights.
+                    created.append(mesh_topology(relief_name(path), mesh_arrays))
+
+                relief = build_relief(path, progress=on_progress, on_topology=on_topology, **params)
                 progress(PIPELINE_SHARE, "building the mesh")
-                obj = build_relief_object(context, relief, path, params, created=created)
+                obj = build_relief_object(context, relief, path, params, created=created, mesh=created[0])
                 progress(1.0, "done")
         except CliffTerrainError as exc:
             _remove(created)
@@ -110,16 +114,25 @@ def relief_scale(relief):
     return NORMALISED_SIZE / (max(rows, cols) * float(relief.pixel_size))
 
 
-def build_relief_object(context, relief, path, params, *, created):
+def relief_name(path):
+    """Name of the relief object (and its mesh, material and image): the photo's file name."""
+    return Path(path).stem or "relief"
+
+
+def build_relief_object(context, relief, path, params, *, created, mesh=None):
     """Make the relief's mesh, material and object, linked to the active collection.
 
     Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
-    all if a later step fails.
+    all if a later step fails. `mesh`, if given, is the relief's mesh from :func:`mesh_topology`
+    (already in `created`) and only needs its vertices placed.
     """
-    name = Path(path).stem or "relief"
+    name = relief_name(path)
     scale = relief_scale(relief)
-    mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
-    created.append(mesh)
+    if mesh is None:
+        mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
+        created.append(mesh)
+    else:
+        set_positions(mesh, relief.mesh.vertices, scale=scale)
     image, image_created = load_photo(path, metadata=relief.metadata, fallback_rgb=relief.image, name=name)
     if image_created:
         created.append(image)

@@ -6,7 +6,8 @@ for the UVs, then ``Mesh.update``): about 1.7 s for 2.7 M vertices and 10.7 M co
 1.7 s is ``update(calc_edges=True)`` deriving the edges; when the core gives them (``edges``,
 ``corner_edges``: ``.edge_verts`` and ``.corner_edge``) the transfer takes about 0.3 s. The same calls
 work on Blender 4.2 and 5.0 (face sizes follow from ``loop_start``; a FLOAT2 corner attribute is a UV
-map). Used by the build operator and the render script.
+map). Used by the build operator (in two steps: :func:`mesh_topology` while the core computes the
+heights, then :func:`set_positions`) and the render script.
 """
 
 import bpy
@@ -36,49 +37,63 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
         ``n_front_faces`` faces smooth-shaded and the walls and base flat-shaded. Nothing is left
         behind if this raises.
     """
-    vertices = np.ascontiguousarray(mesh_arrays.vertices, dtype=np.float32)
+    mesh = mesh_topology(name, mesh_arrays, uv_name=uv_name)
+    try:
+        set_positions(mesh, mesh_arrays.vertices, scale=scale)
+    except BaseException:
+        bpy.data.meshes.remove(mesh)
+        raise
+    return mesh
+
+
+def mesh_topology(name, mesh_arrays, *, uv_name=UV_NAME):
+    """A new mesh with the faces, edges and UVs of `mesh_arrays`; its vertices are not placed yet.
+
+    The build operator calls this while the core still computes the heights (see
+    ``build_relief(on_topology=...)``), then :func:`set_positions`. Parameters as in
+    :func:`mesh_from_arrays`; only the shape of ``mesh_arrays.vertices`` is used.
+    """
+    n_vertices = mesh_arrays.vertices.shape[0]
     corner_verts = np.ascontiguousarray(mesh_arrays.corner_verts, dtype=np.int32)
     face_sizes = np.ascontiguousarray(mesh_arrays.face_sizes, dtype=np.int32)
     uvs = np.ascontiguousarray(mesh_arrays.uvs, dtype=np.float32)
-    n_vertices, n_corners, n_faces = vertices.shape[0], corner_verts.shape[0], face_sizes.shape[0]
+    n_corners, n_faces = corner_verts.shape[0], face_sizes.shape[0]
     # Blender trusts these indices; a bad one would corrupt memory, not raise.
-    if vertices.ndim != 2 or vertices.shape[1] != 3:
-        raise ValueError(f"`vertices` must have shape (n, 3), got {vertices.shape}")
+    if mesh_arrays.vertices.ndim != 2 or mesh_arrays.vertices.shape[1] != 3:
+        raise ValueError(f"`vertices` must have shape (n, 3), got {mesh_arrays.vertices.shape}")
     if int(face_sizes.sum()) != n_corners or (n_faces and int(face_sizes.min()) < 3):
         raise ValueError("`face_sizes` must be >= 3 and add up to the number of corners")
     if n_corners and (int(corner_verts.min()) < 0 or int(corner_verts.max()) >= n_vertices):
         raise ValueError(f"`corner_verts` must index the {n_vertices} vertices")
     if uvs.shape != (n_corners, 2):
         raise ValueError(f"`uvs` must have shape ({n_corners}, 2), got {uvs.shape}")
-    if scale != 1.0:
-        vertices = vertices * np.float32(scale)
+    edges, corner_edges = mesh_arrays.edges, mesh_arrays.corner_edges
+    if edges is not None and corner_edges is not None:
+        edges = np.ascontiguousarray(edges, dtype=np.int32)
+        corner_edges = np.ascontiguousarray(corner_edges, dtype=np.int32)
+        if edges.shape[1:] != (2,) or corner_edges.shape != (n_corners,):
+            raise ValueError("`edges` must have shape (n, 2) and `corner_edges` one entry per corner")
+        if edges.size and (int(edges.min()) < 0 or int(edges.max()) >= n_vertices):
+            raise ValueError(f"`edges` must index the {n_vertices} vertices")
+        if n_corners and (int(corner_edges.min()) < 0 or int(corner_edges.max()) >= edges.shape[0]):
+            raise ValueError(f"`corner_edges` must index the {edges.shape[0]} edges")
+    else:
+        edges = corner_edges = None
     face_offsets = np.zeros(n_faces, dtype=np.int32)
     np.cumsum(face_sizes[:-1], out=face_offsets[1:])
 
     mesh = bpy.data.meshes.new(name)
     try:
         mesh.vertices.add(n_vertices)
-        mesh.attributes["position"].data.foreach_set("vector", vertices.ravel())
         mesh.loops.add(n_corners)
         mesh.attributes[".corner_vert"].data.foreach_set("value", corner_verts)
         mesh.polygons.add(n_faces)
         mesh.polygons.foreach_set("loop_start", face_offsets)
-        edges, corner_edges = mesh_arrays.edges, mesh_arrays.corner_edges
-        if edges is not None and corner_edges is not None:
+        if edges is not None:
             # The core knows the grid's edges; deriving them is most of update()'s time.
-            edges = np.ascontiguousarray(edges, dtype=np.int32)
-            corner_edges = np.ascontiguousarray(corner_edges, dtype=np.int32)
-            if edges.shape[1:] != (2,) or corner_edges.shape != (n_corners,):
-                raise ValueError("`edges` must have shape (n, 2) and `corner_edges` one entry per corner")
-            if edges.size and (int(edges.min()) < 0 or int(edges.max()) >= n_vertices):
-                raise ValueError(f"`edges` must index the {n_vertices} vertices")
-            if n_corners and (int(corner_edges.min()) < 0 or int(corner_edges.max()) >= edges.shape[0]):
-                raise ValueError(f"`corner_edges` must index the {edges.shape[0]} edges")
             mesh.edges.add(edges.shape[0])
             mesh.attributes[".edge_verts"].data.foreach_set("value", edges.ravel())
             mesh.attributes[".corner_edge"].data.foreach_set("value", corner_edges)
-        else:
-            edges = None
         uv = mesh.attributes.new(uv_name, "FLOAT2", "CORNER")
         uv.data.foreach_set("vector", uvs.ravel())
         uv_layer = mesh.uv_layers[uv_name]
@@ -90,8 +105,20 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
             sharp = np.zeros(n_faces, dtype=bool)
             sharp[n_front:] = True
             mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
-        mesh.update(calc_edges=edges is None)
+        if edges is None:
+            mesh.update(calc_edges=True)
     except BaseException:
         bpy.data.meshes.remove(mesh)
         raise
     return mesh
+
+
+def set_positions(mesh, vertices, *, scale=1.0):
+    """Write (n, 3) `vertices` times `scale` into `mesh`'s positions, then update it."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float32)
+    if vertices.shape != (len(mesh.vertices), 3):
+        raise ValueError(f"`vertices` must have shape ({len(mesh.vertices)}, 3), got {vertices.shape}")
+    if scale != 1.0:
+        vertices = vertices * np.float32(scale)
+    mesh.attributes["position"].data.foreach_set("vector", vertices.ravel())
+    mesh.update()

@@ -43,8 +43,56 @@ def test_stages_are_consistent(field):
     assert stages == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
     fractions = [f for f, _ in seen]
     assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] == 1.0
-    assert set(relief.timings) == {"load", "resize", "filter", "segment", "heights", "mesh"}
+    assert set(relief.timings) == {"load", "resize", "filter", "segment", "heights", "topology", "mesh"}
     assert relief.params["max_size"] == 450 and relief.units == "px"
+
+
+def test_topology_and_progress_reach_the_calling_thread_while_the_worker_runs(field):
+    import threading
+
+    image, _ = field
+    caller = threading.get_ident()
+    calls = []
+
+    def on_topology(mesh):
+        # The worker filters and segments meanwhile; the grid is known, the heights are not.
+        calls.append(("topology", threading.get_ident(), mesh.grid_shape, mesh.n_vertices))
+
+    def progress(fraction, stage):
+        calls.append((stage, threading.get_ident()))
+
+    relief = build_relief(image, max_size=450, progress=progress, on_topology=on_topology)
+    assert {call[1] for call in calls} == {caller}
+    topology = [call for call in calls if call[0] == "topology"]
+    assert topology == [("topology", caller, (300, 450), relief.mesh.n_vertices)]
+    # Without a callback the result is the same, array for array.
+    plain = build_relief(image, max_size=450)
+    for name in ("labels", "heights"):
+        np.testing.assert_array_equal(getattr(relief, name), getattr(plain, name))
+    np.testing.assert_array_equal(relief.mesh.vertices, plain.mesh.vertices)
+
+
+def test_errors_of_the_topology_callback_and_of_the_worker_propagate(field, monkeypatch):
+    import cliff_terrain.pipeline as pipeline
+
+    image, _ = field
+
+    def broken(mesh):
+        raise RuntimeError("the caller's mesh failed")
+
+    with pytest.raises(RuntimeError, match="the caller's mesh failed"):
+        build_relief(image, max_size=300, on_topology=broken)
+
+    def failing_segment(*args, **kwargs):
+        raise CliffTerrainError("segmentation failed in the worker")
+
+    monkeypatch.setattr(pipeline, "segment", failing_segment)
+    seen, stages = [], []
+    with pytest.raises(CliffTerrainError, match="segmentation failed in the worker"):
+        build_relief(image, max_size=300, on_topology=seen.append, progress=lambda f, s: stages.append(s))
+    # The topology was handed over before the worker failed; progress stopped at the failing stage.
+    assert len(seen) == 1 and seen[0].grid_shape == (200, 300)
+    assert stages == ["load", "resize", "filter", "segment"]
 
 
 def test_gsd_gives_metres(field):
@@ -98,6 +146,7 @@ def test_orthophoto_with_georeference_is_in_metres():
         ({"gsd": 0}, r"`gsd` must be > 0.0, got 0.0"),
         ({"two_sided": "yes"}, "`two_sided` must be True or False, got 'yes'"),
         ({"progress": 3}, "`progress` must be callable or None, got 3"),
+        ({"on_topology": "mesh"}, "`on_topology` must be callable or None, got 'mesh'"),
     ],
 )
 def test_bad_settings_name_the_parameter(kwargs, match):
