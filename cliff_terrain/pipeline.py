@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import queue
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -176,15 +177,21 @@ def build_relief(
     # the grid's shape only, and hands them to `on_topology`. Progress is relayed to this thread.
     events = queue.SimpleQueue()
     worker_clock = _Stages(lambda fraction, stage: events.put((fraction, stage)), timings)
+    # Set when the worker enters its long GIL-free stretch (the watershed, else the heights).
+    gil_free = threading.Event()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain") as pool:
         image_stages = pool.submit(
-            _image_stages, working, metadata, segmentation, profile, exaggeration, worker_clock
+            _image_stages, working, metadata, segmentation, profile, exaggeration, worker_clock, gil_free
         )
-        image_stages.add_done_callback(lambda _: events.put(None))
+        image_stages.add_done_callback(lambda _: (gil_free.set(), events.put(None)))
         started = time.perf_counter()
         try:
             mesh_arrays = grid_topology(working.shape[:2], two_sided=bool(two_sided))
             if on_topology is not None:
+                # A callback that holds the GIL for long (Blender's bulk calls do) stalls the
+                # worker at each of its many short numpy steps; started while the worker is
+                # inside the watershed, it stalls it the least.
+                gil_free.wait()
                 on_topology(mesh_arrays)
         finally:
             timings["topology"] = time.perf_counter() - started
@@ -223,7 +230,7 @@ def build_relief(
     )
 
 
-def _image_stages(working, metadata, segmentation, profile, exaggeration, clock):
+def _image_stages(working, metadata, segmentation, profile, exaggeration, clock, gil_free):
     """Filter, segment and inflate the working image (in the worker thread)."""
     clock.start("filter", 0.2)
     filtered = quaternion_filter(working)
@@ -233,7 +240,8 @@ def _image_stages(working, metadata, segmentation, profile, exaggeration, clock)
     if metadata.valid_mask is not None:  # an orthophoto's no-data area stays flat
         size = working.shape[1::-1]
         valid = cv2.resize(metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
-    seg = segment(working, method=segmentation, filtered=filtered, valid=valid)
+    seg = segment(working, method=segmentation, filtered=filtered, valid=valid, on_watershed=gil_free.set)
+    gil_free.set()
 
     clock.start("heights", 0.6)
     distance = distance_map(seg.labels)

@@ -101,22 +101,36 @@ def vegetation_index(image, *, index="auto"):
     """
     image = check_rgb("image", image)
     check_choice("index", index, INDICES)
-    # Contiguous float32 planes: every step below is one fast pass over the pixels.
-    red, green, blue = (np.ascontiguousarray(image[..., k], dtype=np.float32) for k in range(3))
-    inv_total = 1.0 / (red + green + blue + 1e-6)
+    # Contiguous float32 planes, and every step below one pass written in place: fresh arrays
+    # for the temporaries would cost as much again (allocation and page faults).
+    red, green, blue = (plane.astype(np.float32) for plane in cv2.split(np.ascontiguousarray(image)))
+    inv_total = red + green
+    inv_total += blue
+    inv_total += np.float32(1e-6)
+    np.divide(np.float32(1.0), inv_total, out=inv_total)
     # ExG = 2g - r - b = 3 G / (R + G + B) - 1 on chromatic coordinates.
-    exg = 3.0 * green * inv_total - 1.0
+    exg = green * np.float32(3.0)
+    exg *= inv_total
+    exg -= np.float32(1.0)
     if index == "auto":
         index = "nir" if _looks_false_colour_nir(image, exg) else "green"
-    if index == "green":
-        vi = exg
-        vi += (green - red) / (green + red + 1e-6)
-        # Plants are never clearly bluer than green; tarps, panels and water often are.
-        blue_excess = (blue - green) * inv_total - 0.02
-        np.maximum(blue_excess, 0.0, out=blue_excess)
-        vi -= 4.0 * blue_excess
-        return vi, "green"
-    return (red - blue) / (red + blue + 1e-6), "nir"
+    if index == "nir":
+        return (red - blue) / (red + blue + np.float32(1e-6)), "nir"
+    vi = exg
+    ngrdi = green - red
+    red += green
+    red += np.float32(1e-6)
+    ngrdi /= red
+    vi += ngrdi
+    # Plants are never clearly bluer than green; tarps, panels and water often are.
+    blue_excess = blue
+    blue_excess -= green
+    blue_excess *= inv_total
+    blue_excess -= np.float32(0.02)
+    np.maximum(blue_excess, np.float32(0.0), out=blue_excess)
+    blue_excess *= np.float32(4.0)
+    vi -= blue_excess
+    return vi, "green"
 
 
 def _looks_false_colour_nir(rgb, exg):
@@ -133,7 +147,16 @@ def _looks_false_colour_nir(rgb, exg):
     return float(np.percentile(exg_s, 99)) < 0.02 and green_weakest > 0.5
 
 
-def segment(image, *, method="vegetation", filtered=None, index="auto", min_region=None, valid=None):
+def segment(
+    image,
+    *,
+    method="vegetation",
+    filtered=None,
+    index="auto",
+    min_region=None,
+    valid=None,
+    on_watershed=None,
+):
     """Find the regions that rise: binarize, label, fill holes, trace boundaries, split by watershed.
 
     Parameters
@@ -153,6 +176,8 @@ def segment(image, *, method="vegetation", filtered=None, index="auto", min_regi
     valid : (rows, cols) bool array, optional
         Pixels that hold data (an orthophoto's alpha); the others stay flat and do not count
         for the threshold.
+    on_watershed : callable, optional
+        Called with no argument just before the watershed (see :func:`split_regions`).
 
     Returns
     -------
@@ -196,7 +221,7 @@ def segment(image, *, method="vegetation", filtered=None, index="auto", min_regi
     mask = _clean(mask, min_region)
     distance = distance_map(mask)
     edges = colour_edges(filtered) if (filtered is not None and method == "vegetation") else None
-    labels = split_regions(mask, distance, edges=edges)
+    labels = split_regions(mask, distance, edges=edges, on_watershed=on_watershed)
     boundaries = inner_boundaries(labels)
     return Segmentation(
         mask=mask, labels=labels, boundaries=boundaries, threshold=threshold, index=index_name
@@ -237,7 +262,7 @@ def _clean(mask, min_region):
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         keep = stats[:, cv2.CC_STAT_AREA] >= min_region
         keep[0] = False
-        mask = keep[labels].astype(np.uint8)
+        mask = keep.astype(np.uint8)[labels]
     # Holes: background that cannot be reached from the frame (flood the padded background).
     padded = np.pad(mask, 1)
     flood = padded.copy()
@@ -327,7 +352,7 @@ def colour_edges(filtered):
     return np.sqrt(cv2.transform(chroma * chroma, np.ones((1, 3), np.float32)))
 
 
-def split_regions(mask, distance, *, edges=None):
+def split_regions(mask, distance, *, edges=None, on_watershed=None):
     """Label `mask`, splitting touching blobs by a marker-controlled watershed of the distance map.
 
     Parameters
@@ -337,6 +362,10 @@ def split_regions(mask, distance, *, edges=None):
         Distance map of `mask`.
     edges : (rows, cols) float array, optional
         Colour-edge strength added to the watershed landscape (scaled to the distance range).
+    on_watershed : callable, optional
+        Called with no argument just before the watershed runs, if one is needed. It is the
+        longest step and releases the GIL: :func:`~cliff_terrain.pipeline.build_relief` starts
+        its caller's GIL-holding work then.
 
     Returns
     -------
@@ -370,8 +399,12 @@ def split_regions(mask, distance, *, edges=None):
     landscape = -smooth
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
-        edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(e[mask][::7], 99)) + 1e-6)
-        landscape = landscape + edge_scale * e
+        # The edge strength's 99th percentile over the mask, from every 7th pixel.
+        sample = e.ravel()[::7][mask.ravel()[::7]]
+        edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
+        landscape += np.float32(edge_scale) * e
+    if on_watershed is not None:
+        on_watershed()
     flooded = segmentation.watershed(landscape, markers, mask=flood_mask)
     # Number the result 1..n without gaps: the components left whole first, in their order, then
     # the watershed's basins in marker order (each basin holds at least its marker).

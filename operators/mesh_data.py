@@ -63,7 +63,7 @@ def mesh_topology(name, mesh_arrays, *, uv_name=UV_NAME):
         raise ValueError(f"`vertices` must have shape (n, 3), got {mesh_arrays.vertices.shape}")
     if int(face_sizes.sum()) != n_corners or (n_faces and int(face_sizes.min()) < 3):
         raise ValueError("`face_sizes` must be >= 3 and add up to the number of corners")
-    if n_corners and (int(corner_verts.min()) < 0 or int(corner_verts.max()) >= n_vertices):
+    if not _indices_below(corner_verts, n_vertices):
         raise ValueError(f"`corner_verts` must index the {n_vertices} vertices")
     if uvs.shape != (n_corners, 2):
         raise ValueError(f"`uvs` must have shape ({n_corners}, 2), got {uvs.shape}")
@@ -73,9 +73,9 @@ def mesh_topology(name, mesh_arrays, *, uv_name=UV_NAME):
         corner_edges = np.ascontiguousarray(corner_edges, dtype=np.int32)
         if edges.shape[1:] != (2,) or corner_edges.shape != (n_corners,):
             raise ValueError("`edges` must have shape (n, 2) and `corner_edges` one entry per corner")
-        if edges.size and (int(edges.min()) < 0 or int(edges.max()) >= n_vertices):
+        if not _indices_below(edges, n_vertices):
             raise ValueError(f"`edges` must index the {n_vertices} vertices")
-        if n_corners and (int(corner_edges.min()) < 0 or int(corner_edges.max()) >= edges.shape[0]):
+        if not _indices_below(corner_edges, edges.shape[0]):
             raise ValueError(f"`corner_edges` must index the {edges.shape[0]} edges")
     else:
         edges = corner_edges = None
@@ -111,6 +111,11 @@ def mesh_topology(name, mesh_arrays, *, uv_name=UV_NAME):
         bpy.data.meshes.remove(mesh)
         raise
     return mesh
+
+
+def _indices_below(indices, n):
+    """True if every int32 in `indices` is in [0, n): one pass, as negatives read as uint32 are huge."""
+    return indices.size == 0 or int(indices.view(np.uint32).max()) < n
 
 
 def set_positions(mesh, vertices, *, scale=1.0):
