@@ -124,9 +124,12 @@ def build_relief(
         ``on_topology(mesh)`` is called in the calling thread with the mesh's faces, corners, UVs
         and edges (a :class:`~cliff_terrain.mesh.MeshArrays` whose vertices are not placed yet)
         as soon as the grid's shape is known, while filter, segmentation and heights run in a
-        worker thread. A caller can copy the topology elsewhere (the Blender add-on fills its
-        mesh) in parallel; the same object, with its vertices placed, is ``Relief.mesh``.
-        Whatever it raises propagates once the worker has finished.
+        worker thread, so that a caller can copy the topology elsewhere in parallel (the Blender
+        add-on fills its mesh). The same object, with its vertices placed, is ``Relief.mesh``.
+        If it returns a callable, that is called (in the calling thread, with no argument) once
+        the worker is inside its longest step that releases the GIL, the watershed: work that
+        holds the GIL for long, as Blender's bulk calls do, stalls the worker least there.
+        Whatever either raises propagates once the worker has finished.
 
     Returns
     -------
@@ -187,12 +190,14 @@ def build_relief(
         started = time.perf_counter()
         try:
             mesh_arrays = grid_topology(working.shape[:2], two_sided=bool(two_sided))
-            if on_topology is not None:
-                # A callback that holds the GIL for long (Blender's bulk calls do) stalls the
-                # worker at each of its many short numpy steps; started while the worker is
-                # inside the watershed, it stalls it the least.
+            then = on_topology(mesh_arrays) if on_topology is not None else None
+            if then is not None:
+                if not callable(then):
+                    raise CliffTerrainError(f"`on_topology` must return a callable or None, got {then!r}")
+                # Work that holds the GIL stalls the worker at each of its many short numpy
+                # steps; while the worker is inside the watershed it stalls it the least.
                 gil_free.wait()
-                on_topology(mesh_arrays)
+                then()
         finally:
             timings["topology"] = time.perf_counter() - started
             for event in iter(events.get, None):

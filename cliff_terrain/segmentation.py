@@ -27,6 +27,12 @@ import cv2
 import numpy as np
 from skimage import filters, measure, segmentation
 
+try:  # scikit-image's flooding kernel, for _flood (pinned version; the public function otherwise)
+    from skimage.morphology._util import _offsets_to_raveled_neighbors, _validate_connectivity
+    from skimage.segmentation._watershed_cy import watershed_raveled as _watershed_raveled
+except ImportError:  # pragma: no cover
+    _watershed_raveled = None
+
 from ._validate import check_choice, check_int, check_rgb
 from .errors import CliffTerrainError
 
@@ -396,16 +402,16 @@ def split_regions(mask, distance, *, edges=None, on_watershed=None):
     split[0] = False
     flood_mask = split[components]
     markers[~flood_mask] = 0
-    landscape = -smooth
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
         # The edge strength's 99th percentile over the mask, from every 7th pixel.
         sample = e.ravel()[::7][mask.ravel()[::7]]
         edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
-        landscape += np.float32(edge_scale) * e
-    if on_watershed is not None:
-        on_watershed()
-    flooded = segmentation.watershed(landscape, markers, mask=flood_mask)
+        landscape = np.multiply(e, np.float32(edge_scale))
+        landscape -= smooth
+    else:
+        landscape = np.negative(smooth)
+    flooded = _flood(landscape, markers, flood_mask, on_watershed=on_watershed)
     # Number the result 1..n without gaps: the components left whole first, in their order, then
     # the watershed's basins in marker order (each basin holds at least its marker).
     whole = ~split
@@ -420,6 +426,40 @@ def split_regions(mask, distance, *, edges=None, on_watershed=None):
     labels = component_label[components]
     labels += basin_label[flooded]
     return labels
+
+
+def _flood(landscape, markers, mask, *, on_watershed=None):
+    """``skimage.segmentation.watershed(landscape, markers, mask=mask)``, 4-connected.
+
+    The same preparation and the same flooding kernel as scikit-image's, called in two steps so
+    that `on_watershed` runs after the preparation (numpy steps that need the GIL) and just
+    before the kernel (which releases it). Falls back to the public function if scikit-image's
+    internals move.
+    """
+    if _watershed_raveled is None:
+        if on_watershed is not None:
+            on_watershed()
+        return segmentation.watershed(landscape, markers, mask=mask)
+    # As scikit-image's wrapper: float64 image, int8 mask and int32 markers (inside the mask),
+    # padded by a pixel of zeros so that the kernel never steps past the border.
+    rows, cols = mask.shape
+    image = np.zeros((rows + 2, cols + 2), dtype=np.float64)
+    image[1:-1, 1:-1] = landscape
+    flat_mask = np.zeros((rows + 2, cols + 2), dtype=np.int8)
+    flat_mask[1:-1, 1:-1] = mask
+    flat_mask = flat_mask.ravel()
+    output = np.zeros((rows + 2, cols + 2), dtype=np.int32)
+    np.multiply(markers, mask, out=output[1:-1, 1:-1], casting="unsafe")
+    footprint, offset = _validate_connectivity(2, 1, None)
+    neighbours = _offsets_to_raveled_neighbors(image.shape, footprint, center=offset)
+    marker_locations = np.flatnonzero(output)
+    strides = np.array(image.strides, dtype=np.intp) // image.itemsize
+    if on_watershed is not None:
+        on_watershed()
+    _watershed_raveled(
+        image.ravel(), marker_locations, neighbours, flat_mask, strides, 0.0, output.ravel(), False
+    )
+    return output[1:-1, 1:-1]
 
 
 def _label4(mask):

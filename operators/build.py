@@ -19,7 +19,7 @@ from pathlib import Path
 import bpy
 
 from .material import load_photo, relief_material
-from .mesh_data import mesh_from_arrays, mesh_topology, set_positions
+from .mesh_data import checked_topology, mesh_from_arrays, set_positions, topology_mesh
 from .properties import PARAMETER_NAMES, ReliefParameters
 
 # Without a known ground sampling distance the relief is scaled so its longest side is this many
@@ -78,8 +78,11 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                     progress(PIPELINE_SHARE * fraction, stage)
 
                 def on_topology(mesh_arrays):
-                    # Faces, edges and UVs go into Blender while the core computes the heights.
-                    created.append(mesh_topology(relief_name(path), mesh_arrays))
+                    # Faces, edges and UVs go into Blender while the core computes the heights:
+                    # checked now, copied into a new mesh when the core's worker no longer
+                    # needs the GIL that Blender's calls hold.
+                    topology = checked_topology(mesh_arrays)
+                    return lambda: created.append(topology_mesh(relief_name(path), topology))
 
                 relief = build_relief(path, progress=on_progress, on_topology=on_topology, **params)
                 progress(PIPELINE_SHARE, "building the mesh")
@@ -123,7 +126,7 @@ def build_relief_object(context, relief, path, params, *, created, mesh=None):
     """Make the relief's mesh, material and object, linked to the active collection.
 
     Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
-    all if a later step fails. `mesh`, if given, is the relief's mesh from :func:`mesh_topology`
+    all if a later step fails. `mesh`, if given, is the relief's mesh from :func:`topology_mesh`
     (already in `created`) and only needs its vertices placed.
     """
     name = relief_name(path)

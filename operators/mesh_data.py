@@ -6,12 +6,15 @@ for the UVs, then ``Mesh.update``): about 1.7 s for 2.7 M vertices and 10.7 M co
 1.7 s is ``update(calc_edges=True)`` deriving the edges; when the core gives them (``edges``,
 ``corner_edges``: ``.edge_verts`` and ``.corner_edge``) the transfer takes about 0.3 s. The same calls
 work on Blender 4.2 and 5.0 (face sizes follow from ``loop_start``; a FLOAT2 corner attribute is a UV
-map). Used by the build operator (in two steps: :func:`mesh_topology` while the core computes the
-heights, then :func:`set_positions`) and the render script.
+map). Used by the build operator (in steps: :func:`checked_topology` and :func:`topology_mesh` while
+the core computes the heights, then :func:`set_positions`) and the render script.
 """
+
+from typing import NamedTuple
 
 import bpy
 import numpy as np
+from mathutils import Matrix
 
 UV_NAME = "UVMap"
 
@@ -37,7 +40,7 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
         ``n_front_faces`` faces smooth-shaded and the walls and base flat-shaded. Nothing is left
         behind if this raises.
     """
-    mesh = mesh_topology(name, mesh_arrays, uv_name=uv_name)
+    mesh = topology_mesh(name, checked_topology(mesh_arrays), uv_name=uv_name)
     try:
         set_positions(mesh, mesh_arrays.vertices, scale=scale)
     except BaseException:
@@ -46,19 +49,28 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
     return mesh
 
 
-def mesh_topology(name, mesh_arrays, *, uv_name=UV_NAME):
-    """A new mesh with the faces, edges and UVs of `mesh_arrays`; its vertices are not placed yet.
+class Topology(NamedTuple):
+    """Checked, contiguous arrays of a mesh's faces, edges and UVs (from :func:`checked_topology`)."""
 
-    The build operator calls this while the core still computes the heights (see
-    ``build_relief(on_topology=...)``), then :func:`set_positions`. Parameters as in
-    :func:`mesh_from_arrays`; only the shape of ``mesh_arrays.vertices`` is used.
+    n_vertices: int
+    corner_verts: np.ndarray
+    face_offsets: np.ndarray
+    uvs: np.ndarray
+    n_front_faces: int
+    edges: np.ndarray | None
+    corner_edges: np.ndarray | None
+
+
+def checked_topology(mesh_arrays):
+    """Check the indices of `mesh_arrays` and lay them out for Blender (numpy only, no bpy).
+
+    Blender trusts these indices: a bad one would corrupt memory, not raise. Raises ValueError.
     """
     n_vertices = mesh_arrays.vertices.shape[0]
     corner_verts = np.ascontiguousarray(mesh_arrays.corner_verts, dtype=np.int32)
     face_sizes = np.ascontiguousarray(mesh_arrays.face_sizes, dtype=np.int32)
     uvs = np.ascontiguousarray(mesh_arrays.uvs, dtype=np.float32)
     n_corners, n_faces = corner_verts.shape[0], face_sizes.shape[0]
-    # Blender trusts these indices; a bad one would corrupt memory, not raise.
     if mesh_arrays.vertices.ndim != 2 or mesh_arrays.vertices.shape[1] != 3:
         raise ValueError(f"`vertices` must have shape (n, 3), got {mesh_arrays.vertices.shape}")
     if int(face_sizes.sum()) != n_corners or (n_faces and int(face_sizes.min()) < 3):
@@ -81,31 +93,41 @@ def mesh_topology(name, mesh_arrays, *, uv_name=UV_NAME):
         edges = corner_edges = None
     face_offsets = np.zeros(n_faces, dtype=np.int32)
     np.cumsum(face_sizes[:-1], out=face_offsets[1:])
+    return Topology(
+        n_vertices, corner_verts, face_offsets, uvs, int(mesh_arrays.n_front_faces), edges, corner_edges
+    )
 
+
+def topology_mesh(name, topology, *, uv_name=UV_NAME):
+    """A new mesh with the faces, edges and UVs of a :class:`Topology`; vertices not placed yet.
+
+    The build operator calls this while the core still computes the heights (see
+    ``build_relief(on_topology=...)``), then :func:`set_positions`.
+    """
+    n_faces = topology.face_offsets.shape[0]
     mesh = bpy.data.meshes.new(name)
     try:
-        mesh.vertices.add(n_vertices)
-        mesh.loops.add(n_corners)
-        mesh.attributes[".corner_vert"].data.foreach_set("value", corner_verts)
+        mesh.vertices.add(topology.n_vertices)
+        mesh.loops.add(topology.corner_verts.shape[0])
+        mesh.attributes[".corner_vert"].data.foreach_set("value", topology.corner_verts)
         mesh.polygons.add(n_faces)
-        mesh.polygons.foreach_set("loop_start", face_offsets)
-        if edges is not None:
+        mesh.polygons.foreach_set("loop_start", topology.face_offsets)
+        if topology.edges is not None:
             # The core knows the grid's edges; deriving them is most of update()'s time.
-            mesh.edges.add(edges.shape[0])
-            mesh.attributes[".edge_verts"].data.foreach_set("value", edges.ravel())
-            mesh.attributes[".corner_edge"].data.foreach_set("value", corner_edges)
+            mesh.edges.add(topology.edges.shape[0])
+            mesh.attributes[".edge_verts"].data.foreach_set("value", topology.edges.ravel())
+            mesh.attributes[".corner_edge"].data.foreach_set("value", topology.corner_edges)
         uv = mesh.attributes.new(uv_name, "FLOAT2", "CORNER")
-        uv.data.foreach_set("vector", uvs.ravel())
+        uv.data.foreach_set("vector", topology.uvs.ravel())
         uv_layer = mesh.uv_layers[uv_name]
         mesh.uv_layers.active = uv_layer
         uv_layer.active_render = True
-        n_front = int(mesh_arrays.n_front_faces)
-        if n_front < n_faces:
+        if topology.n_front_faces < n_faces:
             # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
             sharp = np.zeros(n_faces, dtype=bool)
-            sharp[n_front:] = True
+            sharp[topology.n_front_faces :] = True
             mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
-        if edges is None:
+        if topology.edges is None:
             mesh.update(calc_edges=True)
     except BaseException:
         bpy.data.meshes.remove(mesh)
@@ -123,7 +145,9 @@ def set_positions(mesh, vertices, *, scale=1.0):
     vertices = np.ascontiguousarray(vertices, dtype=np.float32)
     if vertices.shape != (len(mesh.vertices), 3):
         raise ValueError(f"`vertices` must have shape ({len(mesh.vertices)}, 3), got {vertices.shape}")
-    if scale != 1.0:
-        vertices = vertices * np.float32(scale)
     mesh.attributes["position"].data.foreach_set("vector", vertices.ravel())
+    if scale != 1.0:
+        # Scaled in Blender's own array: a scaled copy here would be 32 MB of fresh memory at 2.7 M
+        # vertices, and the first touch of fresh memory is slow.
+        mesh.transform(Matrix.Scale(scale, 4))
     mesh.update()

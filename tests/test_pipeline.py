@@ -72,6 +72,39 @@ def test_topology_and_progress_reach_the_calling_thread_while_the_worker_runs(fi
     np.testing.assert_array_equal(relief.mesh.vertices, plain.mesh.vertices)
 
 
+def test_the_callable_on_topology_returns_runs_while_the_worker_is_in_the_watershed(field, monkeypatch):
+    import threading
+
+    import cliff_terrain.segmentation as segmentation
+
+    # Two touching plants: their blob needs the watershed.
+    rows, cols = np.mgrid[:120, :200]
+    image = np.full((120, 200, 3), (120, 90, 60), np.uint8)
+    plants = ((rows - 60) ** 2 + (cols - 70) ** 2 < 35**2) | ((rows - 60) ** 2 + (cols - 130) ** 2 < 35**2)
+    image[plants] = (40, 160, 40)
+    kernel = segmentation._watershed_raveled
+    assert kernel is not None, "scikit-image's watershed kernel moved: _flood falls back"
+    in_kernel, then_ran = threading.Event(), threading.Event()
+    seen = {}
+
+    def watched_kernel(*args):
+        in_kernel.set()
+        # The caller's work must come now, while the worker is here (not after it finished).
+        seen["then_ran_during_kernel"] = then_ran.wait(timeout=30)
+        return kernel(*args)
+
+    def then():
+        seen["kernel_started_first"] = in_kernel.is_set()
+        then_ran.set()
+
+    monkeypatch.setattr(segmentation, "_watershed_raveled", watched_kernel)
+    relief = build_relief(image, on_topology=lambda mesh: then)
+    assert seen == {"kernel_started_first": True, "then_ran_during_kernel": True}
+    assert relief.n_regions == 2
+    with pytest.raises(CliffTerrainError, match="`on_topology` must return a callable or None, got 5"):
+        build_relief(field[0], max_size=300, on_topology=lambda mesh: 5)
+
+
 def test_errors_of_the_topology_callback_and_of_the_worker_propagate(field, monkeypatch):
     import cliff_terrain.pipeline as pipeline
 
