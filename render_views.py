@@ -37,6 +37,12 @@ OUTPUTS = (*RENDERS, *MAPS, "scene.blend", "metrics.json")
 # The paper's Table 4 (its lit top view against the photo).
 PAPER_TABLE4 = {"psnr": 17.73, "ssim": 0.8713}
 
+# Longest side of a rendered view (as operators.views.MAX_RESOLUTION; the arguments are checked
+# before bpy, and so operators.views, can be imported).
+MAX_RESOLUTION = 16384
+# Default views are enlarged until their shorter side has this many pixels (operators.views).
+MIN_VIEW_SIDE = 16
+
 _START = time.perf_counter()
 # Inside Blender (blender -b -P) bpy is loaded before this script runs; with the bpy wheel it is not.
 INSIDE_BLENDER = "bpy" in sys.modules
@@ -117,8 +123,11 @@ def build_parser():
     )
     render.add_argument(
         "--resolution",
-        type=_number(int, minimum=16, maximum=16384),
-        help="longest side of the rendered views in pixels (default: the processing grid's)",
+        type=_number(int, minimum=16, maximum=MAX_RESOLUTION),
+        help=(
+            "longest side of the rendered views in pixels (default: the processing grid's, enlarged "
+            f"until the shorter side has {MIN_VIEW_SIDE})"
+        ),
     )
     render.add_argument(
         "--samples",
@@ -286,6 +295,11 @@ def run(args):
     )
 
     try:
+        resolution = views.view_resolution(args.resolution, rows, cols, name="--resolution")
+    except core.CliffTerrainError as exc:
+        raise InputError(str(exc)) from None
+
+    try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create the output folder {out}: {exc.strerror}") from None
@@ -297,7 +311,6 @@ def run(args):
     log(f"relief object {obj.name}: {len(obj.data.vertices)} vertices, {len(obj.data.polygons)} faces")
 
     engine = views.choose_engine(args.engine, log=log)
-    resolution = args.resolution or max(rows, cols)
     rig = views.make_rig(
         context,
         obj,

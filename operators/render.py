@@ -36,11 +36,6 @@ def active_relief(context):
     return obj
 
 
-def grid_longest_side(obj):
-    record = obj["cliff_terrain"]
-    return max(int(record["grid_rows"]), int(record["grid_cols"]))
-
-
 class _ViewSettings:
     """Settings shared by both operators (a mixin: Blender collects annotations from bases)."""
 
@@ -75,7 +70,11 @@ class _ViewSettings:
         scene = context.scene
         engine = views.choose_engine(self.engine, log=lambda message: self.report({"WARNING"}, message))
         with views.KeptRenderSettings(scene):
-            rig = views.make_rig(context, obj, resolution=self.resolution or grid_longest_side(obj))
+            record = obj["cliff_terrain"]
+            resolution = views.view_resolution(
+                self.resolution, int(record["grid_rows"]), int(record["grid_cols"]), name="Resolution"
+            )
+            rig = views.make_rig(context, obj, resolution=resolution)
             paths, seconds = views.render_views(
                 context, rig, out_dir, views=view_names, engine=engine, samples=self.samples
             )

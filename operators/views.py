@@ -78,6 +78,13 @@ MARGIN = 0.04
 SLOPED_DEG = 15.0
 LEVEL_DEG = 2.0
 
+# Longest side of a rendered view.
+MAX_RESOLUTION = 16384
+# The top views are compared with the photo by SSIM, whose 7x7 window needs 7 pixels on each side;
+# by default a tiny or thin photo's views are enlarged until their shorter side has MIN_VIEW_SIDE
+# pixels (a 2x2 photo would otherwise render 2x2 views that cannot be compared).
+SSIM_MIN_SIDE = 7
+MIN_VIEW_SIDE = 16
 RIG_COLLECTION = "Cliff Terrain Views"
 WORLD_NAME = "Cliff Terrain Sky"
 HEIGHT_ATTRIBUTE = "Cliff Terrain Height"
@@ -826,6 +833,38 @@ def linear_to_srgb(linear):
     return np.round(255.0 * srgb).astype(np.uint8)
 
 
+def view_resolution(requested, rows, cols, *, name="resolution"):
+    """Longest side of the views of a `rows` x `cols` grid: `requested`, or by default one view pixel
+    per grid cell, enlarged (up to MAX_RESOLUTION) until the shorter side has MIN_VIEW_SIDE pixels.
+
+    The shorter side is ``max(1, round(resolution * shorter / longer))``, as :func:`frame_size`
+    makes it. A resolution that leaves it under SSIM_MIN_SIDE is refused with a CliffTerrainError
+    naming the setting (`name`) and the resolution needed: the top views could not be compared
+    with the photo. `requested` of None or 0 means the default.
+    """
+    from ..cliff_terrain import CliffTerrainError
+
+    longest, shortest = max(rows, cols), min(rows, cols)
+    if requested:
+        resolution = int(requested)
+    else:
+        resolution = min(MAX_RESOLUTION, max(longest, -(-MIN_VIEW_SIDE * longest // shortest)))
+    across = max(1, round(resolution * shortest / longest))
+    if across < SSIM_MIN_SIDE:
+        views = f"{across} pixel{'' if across == 1 else 's'} across the {cols} x {rows} grid"
+        needed = -(-SSIM_MIN_SIDE * longest // shortest)
+        if requested and needed <= MAX_RESOLUTION:
+            raise CliffTerrainError(
+                f"{name} {requested} makes the top views {views}; comparing them with the photo "
+                f"needs at least {SSIM_MIN_SIDE}: use {name} {needed} or more"
+            )
+        raise CliffTerrainError(
+            f"the photo is too thin to render: even {MAX_RESOLUTION} pixels long, the top views are "
+            f"{views}; comparing them with the photo needs at least {SSIM_MIN_SIDE}"
+        )
+    return resolution
+
+
 def reference_image(path, size):
     """The photo as the top views are compared with it, at the render size.
 
@@ -851,7 +890,8 @@ def reference_image(path, size):
 
     from ..cliff_terrain import load_image
 
-    rgb, meta = load_image(path, max_size=4 * max(size))
+    # (load_image's smallest max_size is 16: views of tiny photos are enlarged, not the photo.)
+    rgb, meta = load_image(path, max_size=max(16, 4 * max(size)))
     how = "decoded at full resolution" if meta.reduction == 1 else f"decoded reduced by {meta.reduction}"
     if (rgb.shape[1], rgb.shape[0]) != tuple(size):
         rgb = linear_to_srgb(cv2.resize(srgb_to_linear(rgb), tuple(size), interpolation=cv2.INTER_AREA))

@@ -1,7 +1,12 @@
-"""Shared fixtures: where the real UAV images live, and small helpers to reach them."""
+"""Shared fixtures: where the real UAV images live, small helpers to reach them, and the extension
+loaded into Blender (bpy wheel) for the Blender tests.
+
+Nothing here imports bpy at module level: the core tests run without it.
+"""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -27,6 +32,67 @@ def shared_uav() -> Path:
     if not SHARED_UAV.is_dir():
         pytest.skip(f"shared UAV images not found at {SHARED_UAV} (../shared is absent)")
     return SHARED_UAV
+
+
+# ---- the extension inside Blender (bpy wheel, in this process) ----
+
+# The repository root is imported under this name, as render_views.py does: bpy keeps its state for
+# the whole process, so every test module shares this one registered copy through sys.modules.
+ADDON = "cliff_terrain_addon"
+
+
+def load_addon():
+    """Import the repository root as a package, the way Blender imports an extension."""
+    if ADDON in sys.modules:
+        return sys.modules[ADDON]
+    spec = importlib.util.spec_from_file_location(
+        ADDON, REPO / "__init__.py", submodule_search_locations=[str(REPO)]
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[ADDON] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[ADDON]
+        raise
+    return module
+
+
+@pytest.fixture(scope="module")
+def addon():
+    """The extension, registered for the module's tests (unregistered after, if registered here)."""
+    bpy = pytest.importorskip("bpy")
+    module = load_addon()
+    registered_here = not hasattr(bpy.types.Scene, "cliff_terrain")
+    if registered_here:
+        module.register()
+    yield module
+    if registered_here and hasattr(bpy.types.Scene, "cliff_terrain"):
+        module.unregister()
+
+
+@pytest.fixture
+def scene(addon):
+    """An empty scene with factory settings (registered classes survive the reset)."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+def _datablock_counts():
+    import bpy
+
+    return {
+        kind: len(getattr(bpy.data, kind))
+        for kind in ("objects", "meshes", "materials", "images", "textures")
+    }
+
+
+@pytest.fixture
+def datablock_counts(addon):
+    """``datablock_counts()``: how many objects, meshes, materials, images and textures exist."""
+    return _datablock_counts
 
 
 def pytest_sessionfinish(session, exitstatus):

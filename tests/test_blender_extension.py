@@ -2,15 +2,15 @@
 the numpy-to-Blender mesh transfer, material, safety on errors, undo, and registration cycles.
 
 The repository root is loaded as a package (``cliff_terrain_addon``) and registered, as Blender
-would load the installed extension. bpy can be imported once per process and keeps its state, so
-every test starts from ``read_factory_settings(use_empty=True)`` (registered classes survive it).
+would load the installed extension (the ``addon``, ``scene`` and ``datablock_counts`` fixtures are
+in conftest.py). bpy can be imported once per process and keeps its state, so every test starts
+from ``read_factory_settings(use_empty=True)`` (registered classes survive it).
 The installed-zip path is covered by test_blender_build.py.
 """
 
 import dataclasses
 import importlib
 import importlib.util
-import sys
 import tomllib
 import types
 from pathlib import Path
@@ -25,56 +25,15 @@ ROOT = Path(__file__).resolve().parents[1]
 UAV = ROOT.parent / "shared" / "data" / "uav"
 BROCCOLI = UAV / "broccoli" / "01_clip_raw_test.jpg"  # 1500x1500, no EXIF: normalised units
 MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # 261x284 GeoTIFF, 2.2 cm/px: metres
-ADDON = "cliff_terrain_addon"
+ADDON = "cliff_terrain_addon"  # the package name conftest.load_addon registers
 
 needs_uav = pytest.mark.skipif(not UAV.is_dir(), reason=f"real UAV images not found at {UAV}")
-
-
-def load_addon():
-    """Import the repository root as a package, the way Blender imports an extension."""
-    if ADDON in sys.modules:
-        return sys.modules[ADDON]
-    spec = importlib.util.spec_from_file_location(
-        ADDON, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[ADDON] = module
-    try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        del sys.modules[ADDON]
-        raise
-    return module
-
-
-@pytest.fixture(scope="module")
-def addon():
-    module = load_addon()
-    registered_here = not hasattr(bpy.types.Scene, "cliff_terrain")
-    if registered_here:
-        module.register()
-    yield module
-    if registered_here and hasattr(bpy.types.Scene, "cliff_terrain"):
-        module.unregister()
-
-
-@pytest.fixture
-def scene(addon):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    return bpy.context.scene
 
 
 @pytest.fixture(scope="module")
 def core(addon):
     """The core package as the add-on imports it (``cliff_terrain_addon.cliff_terrain``)."""
     return importlib.import_module(f"{ADDON}.cliff_terrain")
-
-
-def datablock_counts():
-    return {
-        kind: len(getattr(bpy.data, kind))
-        for kind in ("objects", "meshes", "materials", "images", "textures")
-    }
 
 
 def vertex_positions(mesh):
@@ -143,7 +102,7 @@ def mesh_edges(mesh):
     return out.reshape(-1, 2)
 
 
-def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene):
+def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene, datablock_counts):
     mesh_data = importlib.import_module(f"{ADDON}.operators.mesh_data")
     arrays = core.grid_mesh(np.zeros((3, 4)), two_sided=False)
     mesh = mesh_data.mesh_from_arrays("flat", arrays)
@@ -377,7 +336,7 @@ def test_parameters_not_given_come_from_the_scene_settings(addon, scene):
 # ---- safety ----
 
 
-def test_missing_file_is_reported_and_changes_nothing(addon, scene, tmp_path):
+def test_missing_file_is_reported_and_changes_nothing(addon, scene, tmp_path, datablock_counts):
     before = datablock_counts()
     missing = tmp_path / "no_such_photo.jpg"
     with pytest.raises(RuntimeError, match=r"(?s)Error: .*no_such_photo\.jpg"):
@@ -385,7 +344,7 @@ def test_missing_file_is_reported_and_changes_nothing(addon, scene, tmp_path):
     assert datablock_counts() == before
 
 
-def test_bad_setting_is_reported_with_the_core_message(addon, scene, tmp_path):
+def test_bad_setting_is_reported_with_the_core_message(addon, scene, tmp_path, datablock_counts):
     # A file that exists but is no image.
     junk = tmp_path / "notes.jpg"
     junk.write_text("not a photo")
@@ -396,7 +355,9 @@ def test_bad_setting_is_reported_with_the_core_message(addon, scene, tmp_path):
 
 
 @needs_uav
-def test_failure_after_the_object_exists_removes_every_new_datablock(addon, scene, monkeypatch):
+def test_failure_after_the_object_exists_removes_every_new_datablock(
+    addon, scene, monkeypatch, datablock_counts
+):
     build_module = importlib.import_module(f"{ADDON}.operators.build")
 
     def fail(*args):

@@ -382,3 +382,42 @@ def test_blender_command_line_takes_the_arguments_after_the_double_dash(field, t
     assert json.loads((views / "metrics.json").read_text())["render_size"] == [64, 48]
     # Without "--" Blender's own arguments are not taken for the script's.
     check_error(run("-c", AS_BLENDER, str(SCRIPT)), "IMAGE")
+
+
+TINY_RELIEFS = textwrap.dedent(
+    r"""
+    import importlib, json, sys
+    sys.path.insert(0, sys.argv[1])
+    import render_views as rv
+    bpy, addon, core = rv.start_blender()
+    render = importlib.import_module(rv.PACKAGE + ".operators.render")
+    if not hasattr(bpy.types, "CLIFF_TERRAIN_OT_evaluate"):
+        render.register()
+    scene = bpy.context.scene
+    out = {}
+    bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2])
+    out["evaluate"] = sorted(bpy.ops.cliff_terrain.evaluate(samples=1))
+    out["ssim"] = scene.cliff_terrain.ssim
+    bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[3])
+    try:
+        bpy.ops.cliff_terrain.evaluate(samples=1, resolution=16)
+    except RuntimeError as exc:
+        out["refused"] = str(exc)
+    print("RESULT " + json.dumps(out), flush=True)
+    rv.leave(0)
+    """
+)
+
+
+def test_evaluate_enlarges_the_views_of_a_tiny_relief_and_refuses_too_small_a_resolution(tmp_path):
+    tiny, strip = tmp_path / "tiny.png", tmp_path / "strip.png"
+    Image.fromarray(np.full((2, 2, 3), (40, 160, 40), np.uint8)).save(tiny)
+    Image.fromarray(np.full((2, 64, 3), (120, 90, 60), np.uint8)).save(strip)
+    proc = run("-c", TINY_RELIEFS, str(ROOT), str(tiny), str(strip))
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    result = json.loads(proc.stdout.split("RESULT ", 1)[1].splitlines()[0])
+    # A 2 x 2 relief: its views are enlarged to 16 x 16, so SSIM can compare them with the photo.
+    assert result["evaluate"] == ["FINISHED"] and 0.0 < result["ssim"] <= 1.0
+    # A 2 x 64 strip at 16 pixels would be 1 pixel across: refused, naming the setting and the fix.
+    assert "Resolution 16 makes the top views 1 pixel across the 64 x 2 grid" in result["refused"]
+    assert "use Resolution 224 or more" in result["refused"]
