@@ -73,7 +73,8 @@ def main(argv=None):
     results = {"machine": describe(), "image": args.image.name, "decode_s": decode["best_s"]}
     for size in (1000, 4000):
         r = _run(str(size), args.image, args.repeat if size == 1000 else 1)
-        to_heights = sum(v for k, v in r["timings"].items() if k != "mesh")
+        # The mesh topology is built beside the image stages (another thread): not on the way to heights.
+        to_heights = sum(v for k, v in r["timings"].items() if k not in ("topology", "mesh"))
         ratio = r["best_s"] / decode["best_s"]
         print(
             f"build_relief max_size={size:<5}         {r['best_s']:7.3f} s  peak RSS {r['peak_rss_bytes'] / 2**20:6.0f} MiB"
