@@ -14,6 +14,20 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+# Every file render_views.py writes (its own OUTPUTS, spelled out here as the specification).
+RENDER_VIEWS_OUTPUTS = (
+    "xy.png",
+    "xy_flat.png",
+    "xz.png",
+    "view3d.png",
+    "mesh.png",
+    "filtered.png",
+    "mask.png",
+    "distance.png",
+    "height.tif",
+    "scene.blend",
+    "metrics.json",
+)
 # CI clones the repo beside ../shared; the images are never copied into the project.
 SHARED_UAV = REPO.parent / "shared" / "data" / "uav"
 

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 import pytest
 import tifffile
+from conftest import RENDER_VIEWS_OUTPUTS
 from PIL import Image
 
 from cliff_terrain import synthetic_field
@@ -39,19 +40,6 @@ bpy = pytest.importorskip("bpy")
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "render_views.py"
-OUTPUTS = (
-    "xy.png",
-    "xy_flat.png",
-    "xz.png",
-    "view3d.png",
-    "mesh.png",
-    "filtered.png",
-    "mask.png",
-    "distance.png",
-    "height.tif",
-    "scene.blend",
-    "metrics.json",
-)
 # Every case is built with this processing size (it only matters for the 100 MP photo).
 MAX_SIZE = 500
 
@@ -503,7 +491,7 @@ def test_render_views(case, tmp_path, shared_folder):
 
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "Traceback" not in proc.stderr
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
+    assert sorted(p.name for p in out.iterdir()) == sorted(RENDER_VIEWS_OUTPUTS)
     metrics = json.loads((out / "metrics.json").read_text())
     expect = case.expect
     rows, cols = expect.grid

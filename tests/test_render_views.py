@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import tifffile
+from conftest import RENDER_VIEWS_OUTPUTS
 from PIL import Image
 
 from cliff_terrain import synthetic_field
@@ -29,19 +30,6 @@ SCRIPT = ROOT / "render_views.py"
 UAV = ROOT.parent / "shared" / "data" / "uav"
 MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # 261 x 284 RGBA GeoTIFF (transparent no-data corners), 2.2 cm/px
 
-OUTPUTS = (
-    "xy.png",
-    "xy_flat.png",
-    "xz.png",
-    "view3d.png",
-    "mesh.png",
-    "filtered.png",
-    "mask.png",
-    "distance.png",
-    "height.tif",
-    "scene.blend",
-    "metrics.json",
-)
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -103,7 +91,7 @@ def maize(tmp_path_factory):
 def test_every_output_is_written_beside_the_photo_by_default(field):
     photo, out, image, _, proc = field
     assert out == photo.parent / "field_relief"
-    for name in OUTPUTS:
+    for name in RENDER_VIEWS_OUTPUTS:
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     # Progress is printed per stage, Blender's own per-sample lines are not.
     for stage in ("starting Blender", "pipeline: segment", "rendering xy_flat", "rendering mesh", "done"):
@@ -200,11 +188,11 @@ def test_real_orthophoto_in_metres(maize):
 def test_existing_outputs_are_never_overwritten(field):
     photo, out, _, _, _ = field
     before = {name: (out / name).read_bytes() for name in ("xy.png", "metrics.json", "height.tif")}
-    stamps = {name: (out / name).stat().st_mtime_ns for name in OUTPUTS}
+    stamps = {name: (out / name).stat().st_mtime_ns for name in RENDER_VIEWS_OUTPUTS}
     proc = run(str(SCRIPT), str(photo), "--exaggeration", "3")
     check_error(proc, str(out / "xy.png"), "--overwrite")
     assert proc.stdout == ""  # refused before any work, Blender not even started
-    assert {name: (out / name).stat().st_mtime_ns for name in OUTPUTS} == stamps
+    assert {name: (out / name).stat().st_mtime_ns for name in RENDER_VIEWS_OUTPUTS} == stamps
     assert {name: (out / name).read_bytes() for name in before} == before
 
 
@@ -306,7 +294,8 @@ def test_blender_without_the_extension_libraries_says_how_to_install_them(tmp_pa
     assert not (tmp_path / "p_relief").exists()
 
 
-OPERATORS = textwrap.dedent(
+# Start Blender as render_views.py does (argv[1] is the repository), with the view operators.
+OPERATORS_HEAD = textwrap.dedent(
     r"""
     import importlib, json, sys
     sys.path.insert(0, sys.argv[1])
@@ -316,6 +305,11 @@ OPERATORS = textwrap.dedent(
     if not hasattr(bpy.types, "CLIFF_TERRAIN_OT_evaluate"):
         render.register()
     scene = bpy.context.scene
+    """
+)
+
+OPERATORS = OPERATORS_HEAD + textwrap.dedent(
+    r"""
     out = {"poll_empty": bpy.ops.cliff_terrain.evaluate.poll()}
     bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2])
     scene.cliff_terrain.output_dir = sys.argv[3]
@@ -378,22 +372,14 @@ def test_blender_command_line_takes_the_arguments_after_the_double_dash(field, t
     views = tmp_path / "views"
     proc = run("-c", AS_BLENDER, str(SCRIPT), "--", str(photo), "--out", str(views), "--resolution", "64")
     assert proc.returncode == 0, proc.stderr
-    assert sorted(p.name for p in views.iterdir()) == sorted(OUTPUTS)
+    assert sorted(p.name for p in views.iterdir()) == sorted(RENDER_VIEWS_OUTPUTS)
     assert json.loads((views / "metrics.json").read_text())["render_size"] == [64, 48]
     # Without "--" Blender's own arguments are not taken for the script's.
     check_error(run("-c", AS_BLENDER, str(SCRIPT)), "IMAGE")
 
 
-TINY_RELIEFS = textwrap.dedent(
+TINY_RELIEFS = OPERATORS_HEAD + textwrap.dedent(
     r"""
-    import importlib, json, sys
-    sys.path.insert(0, sys.argv[1])
-    import render_views as rv
-    bpy, addon, core = rv.start_blender()
-    render = importlib.import_module(rv.PACKAGE + ".operators.render")
-    if not hasattr(bpy.types, "CLIFF_TERRAIN_OT_evaluate"):
-        render.register()
-    scene = bpy.context.scene
     out = {}
     bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2])
     out["evaluate"] = sorted(bpy.ops.cliff_terrain.evaluate(samples=1))
