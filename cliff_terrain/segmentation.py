@@ -401,7 +401,6 @@ def split_regions(mask, distance, *, edges=None, on_watershed=None):
     split = np.bincount(marker_component[1:], minlength=n + 1) > 1
     split[0] = False
     flood_mask = split[components]
-    markers[~flood_mask] = 0
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
         # The edge strength's 99th percentile over the mask, from every 7th pixel.
