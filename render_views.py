@@ -37,10 +37,10 @@ OUTPUTS = (*RENDERS, *MAPS, "scene.blend", "metrics.json")
 # The paper's Table 4 (its lit top view against the photo).
 PAPER_TABLE4 = {"psnr": 17.73, "ssim": 0.8713}
 
-# Longest side of a rendered view (as operators.views.MAX_RESOLUTION; the arguments are checked
-# before bpy, and so operators.views, can be imported).
+# operators.views.MAX_RESOLUTION and MIN_VIEW_SIDE, repeated here because the arguments are checked
+# before bpy (and with it operators.views) is imported: the longest side of a rendered view, and
+# the shorter side that default views are enlarged to.
 MAX_RESOLUTION = 16384
-# Default views are enlarged until their shorter side has this many pixels (operators.views).
 MIN_VIEW_SIDE = 16
 
 _START = time.perf_counter()

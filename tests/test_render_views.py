@@ -380,7 +380,8 @@ def test_blender_command_line_takes_the_arguments_after_the_double_dash(field, t
 
 TINY_RELIEFS = OPERATORS_HEAD + textwrap.dedent(
     r"""
-    out = {}
+    views = importlib.import_module(rv.PACKAGE + ".operators.views")
+    out = {"same_limits": (rv.MAX_RESOLUTION, rv.MIN_VIEW_SIDE) == (views.MAX_RESOLUTION, views.MIN_VIEW_SIDE)}
     bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2])
     out["evaluate"] = sorted(bpy.ops.cliff_terrain.evaluate(samples=1))
     out["ssim"] = scene.cliff_terrain.ssim
@@ -402,6 +403,7 @@ def test_evaluate_enlarges_the_views_of_a_tiny_relief_and_refuses_too_small_a_re
     proc = run("-c", TINY_RELIEFS, str(ROOT), str(tiny), str(strip))
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     result = json.loads(proc.stdout.split("RESULT ", 1)[1].splitlines()[0])
+    assert result["same_limits"] is True  # the script's argument limits are the operators'
     # A 2 x 2 relief: its views are enlarged to 16 x 16, so SSIM can compare them with the photo.
     assert result["evaluate"] == ["FINISHED"] and 0.0 < result["ssim"] <= 1.0
     # A 2 x 64 strip at 16 pixels would be 1 pixel across: refused, naming the setting and the fix.
