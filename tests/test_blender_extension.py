@@ -213,6 +213,9 @@ def test_build_in_metres_from_geotiff(addon, core, scene):
     assert len(obj.data.vertices) == (rows + 1) * (cols + 1)
     uvs = corner_uvs(obj.data)
     assert uvs.min() >= 0.0 and uvs.max() <= 1.0
+    # A TIFF is one Blender may read differently: checked (so decoded) at build time.
+    image = obj.material_slots[0].material.node_tree.nodes.active.image
+    assert image.has_data and tuple(image.size) == (meta.width, meta.height)
 
 
 @needs_uav
@@ -225,7 +228,10 @@ def test_material_uses_full_resolution_photo_and_darkens_the_back(addon, scene):
         by_type.setdefault(node.bl_idname, []).append(node)
     (tex,) = by_type["ShaderNodeTexImage"]
     assert Path(bpy.path.abspath(tex.image.filepath)) == BROCCOLI
+    # A JPEG is left to load when shown (the core read it already); then it is the whole photo.
+    assert not tex.image.has_data
     assert tuple(tex.image.size) == (1500, 1500)  # the photo, not the 48 px grid
+    assert tex.image.has_data
     assert tex.extension == "REPEAT" and tree.nodes.active == tex
 
     def source(node, socket_id):
