@@ -46,7 +46,7 @@ class _ViewSettings:
         name="Resolution",
         description="Longest side of each view in pixels (0 = the relief's grid, one pixel per cell)",
         min=0,
-        max=16384,
+        max=views.MAX_RESOLUTION,
         default=0,
     )
     samples: IntProperty(
