@@ -2,7 +2,9 @@
 
 Decisions (each documented where it applies):
 
-* **Formats**: JPEG, PNG, TIFF (GeoTIFF included), WebP and BMP, read with Pillow. Greyscale, palette,
+* **Formats**: JPEG, PNG, TIFF (GeoTIFF included), WebP and BMP, read with Pillow; the pixels of a
+  colour or greyscale JPEG are decoded by OpenCV, in one call that releases the GIL, with the same
+  libjpeg-turbo settings (the same pixels as Pillow's, bit for bit). Greyscale, palette,
   CMYK, YCbCr and 16-bit images become RGB; 16-bit greyscale is scaled by 255/65535 (rounded), 16-bit
   colour is reduced by Pillow to its high byte (the two differ by at most 1). Colour profiles (ICC)
   are not applied.
@@ -22,8 +24,9 @@ Decisions (each documented where it applies):
   end-of-image marker) cannot be detected and gives a blotchy or partly grey image.
 * **Memory guard**: the image is decoded only when its decoded size is at most `max_pixels`
   (:data:`MAX_PIXELS` = 150 megapixels by default, about 0.45 GB as RGB). Decoding peaks at about
-  7 bytes per pixel (8 with alpha; rows are copied out of Pillow in bands), so about 1.1 GB at the
-  limit; ``np.asarray(Image.open(path))`` alone peaks at 10. A JPEG with `max_size` is decoded
+  3 bytes per pixel plus the file for a colour JPEG, 7 for other images (8 with alpha; rows are
+  copied out of Pillow in bands), so about 1.1 GB at the limit; ``np.asarray(Image.open(path))``
+  alone peaks at 10. A JPEG with `max_size` is decoded
   reduced by 2, 4 or 8 (libjpeg scales while decoding, so a 100 MP photo never exists at full size
   in memory); anything else beyond the limit raises :class:`ImageTooLargeError`. Pillow's own
   decompression-bomb check is replaced by this one.
@@ -43,6 +46,7 @@ import stat
 import warnings
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from PIL import Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
@@ -62,6 +66,13 @@ SUPPORTED_FORMATS = ("JPEG", "PNG", "TIFF", "WEBP", "BMP")
 
 _JPEG_FORMATS = ("JPEG", "MPO")
 _JPEG_REDUCTIONS = (8, 4, 2)
+# OpenCV's flags for a colour decode reduced by libjpeg while decoding (RGB order is added).
+_CV2_REDUCED = {
+    1: cv2.IMREAD_COLOR,
+    2: cv2.IMREAD_REDUCED_COLOR_2,
+    4: cv2.IMREAD_REDUCED_COLOR_4,
+    8: cv2.IMREAD_REDUCED_COLOR_8,
+}
 # A flat grey JPEG with optimised Huffman tables stores about 250 pixels per byte; a header claiming
 # 16 times more than that for the file's size describes data that is not there (a patched header or
 # a cut file that libjpeg would silently fill with grey).
@@ -190,28 +201,10 @@ def load_image(path, *, max_size=None, gsd=None, height_above_ground=None, max_p
     >>> rgb.shape, meta.reduction, (meta.width, meta.height)  # doctest: +SKIP
     ((750, 1000, 3), 4, (4000, 3000))
     """
-    name, max_size, gsd, height_above_ground, max_pixels = _check_arguments(
-        path, max_size, gsd, height_above_ground, max_pixels
-    )
-    with _reading(name):
-        im = _open(name)
-        try:
-            info = _header(im, name, max_size, max_pixels)
-            _refuse_non_photo(im, name)
-            rgb, alpha = _decode(im, name)
-        finally:
-            im.close()
-    valid = None
-    if alpha is not None:
-        valid = _composite_over_black(rgb, alpha)
-    rgb = _orient(rgb, info["orientation"])
-    if valid is not None:
-        valid = np.ascontiguousarray(_orient(valid, info["orientation"]))
-    rgb = np.ascontiguousarray(rgb)
-    info["decoded_height"], info["decoded_width"] = rgb.shape[:2]
-    info["valid_fraction"] = 1.0 if valid is None else float(np.count_nonzero(valid)) / valid.size
-    info["valid_mask"] = None if valid is None or valid.all() else valid
-    return rgb, _metadata(name, info, gsd, height_above_ground)
+    with open_image(
+        path, max_size=max_size, gsd=gsd, height_above_ground=height_above_ground, max_pixels=max_pixels
+    ) as image:
+        return image.decode()
 
 
 def read_metadata(path, *, max_size=None, gsd=None, height_above_ground=None, max_pixels=MAX_PIXELS):
@@ -228,6 +221,32 @@ def read_metadata(path, *, max_size=None, gsd=None, height_above_ground=None, ma
     >>> meta.camera_model, round(meta.gsd_m_per_px, 4)  # doctest: +SKIP
     ('Canon PowerShot SX260 HS', 0.0344)
     """
+    with open_image(
+        path, max_size=max_size, gsd=gsd, height_above_ground=height_above_ground, max_pixels=max_pixels
+    ) as image:
+        return image.metadata
+
+
+def open_image(path, *, max_size=None, gsd=None, height_above_ground=None, max_pixels=MAX_PIXELS):
+    """Open a photo and check its header; :meth:`OpenImage.decode` reads the pixels later.
+
+    :func:`load_image` in two steps, so that a caller learns the decoded size (and any error the
+    header shows) at once, and can decode elsewhere, for example in a worker thread while it
+    prepares for an image of that size. Parameters and errors are those of :func:`load_image`;
+    errors of the pixel data itself come from :meth:`OpenImage.decode`.
+
+    Returns
+    -------
+    OpenImage
+        Holds the file open until decoded or closed; use it as a context manager.
+
+    Examples
+    --------
+    >>> with open_image("IMG_9370.jpg", max_size=1000) as image:  # doctest: +SKIP
+    ...     print(image.shape)
+    ...     rgb, meta = image.decode()
+    (750, 1000)
+    """
     name, max_size, gsd, height_above_ground, max_pixels = _check_arguments(
         path, max_size, gsd, height_above_ground, max_pixels
     )
@@ -236,12 +255,78 @@ def read_metadata(path, *, max_size=None, gsd=None, height_above_ground=None, ma
         try:
             info = _header(im, name, max_size, max_pixels)
             _refuse_non_photo(im, name)
-        finally:
+            return OpenImage(name, im, info, gsd, height_above_ground)
+        except BaseException:
             im.close()
-    info["decoded_width"], info["decoded_height"] = _oriented(im.size, info["orientation"])
-    info["valid_fraction"] = None
-    info["valid_mask"] = None
-    return _metadata(name, info, gsd, height_above_ground)
+            raise
+
+
+class OpenImage:
+    """A photo whose header has been read and checked, its pixels not yet decoded (see :func:`open_image`).
+
+    Attributes
+    ----------
+    shape : tuple of int
+        (rows, cols) of the array :meth:`decode` returns: after EXIF orientation and any JPEG
+        reduction.
+    metadata : ImageMetadata
+        What the header tells, as :func:`read_metadata` returns it.
+    """
+
+    def __init__(self, name, im, info, gsd, height_above_ground):
+        self._name, self._im, self._info = name, im, info
+        self._gsd, self._height_above_ground = gsd, height_above_ground
+        width, height = _oriented(im.size, info["orientation"])
+        self.shape = (height, width)
+        # Read now, so that decode() is one call that releases the GIL from start to end.
+        self._jpeg_data = _jpeg_data(im, name)
+
+    @property
+    def metadata(self):
+        info = dict(self._info, decoded_width=self.shape[1], decoded_height=self.shape[0])
+        info["valid_fraction"] = None
+        info["valid_mask"] = None
+        return _metadata(self._name, info, self._gsd, self._height_above_ground)
+
+    def decode(self):
+        """Decode the pixels (once) and close the file: ``(rgb, metadata)`` as :func:`load_image` returns."""
+        if self._im is None:
+            raise CliffTerrainError(f"image {self._name!r} was already decoded or closed")
+        with _reading(self._name):
+            try:
+                rgb, alpha = None, None
+                if self._jpeg_data is not None:
+                    stored_shape = (self._im.size[1], self._im.size[0])
+                    rgb = _decode_jpeg_at_once(self._jpeg_data, stored_shape, self._info["reduction"])
+                if rgb is None:
+                    rgb, alpha = _decode(self._im, self._name)
+            finally:
+                self.close()
+        info = dict(self._info)
+        valid = None
+        if alpha is not None:
+            valid = _composite_over_black(rgb, alpha)
+        rgb = _orient(rgb, info["orientation"])
+        if valid is not None:
+            valid = np.ascontiguousarray(_orient(valid, info["orientation"]))
+        rgb = np.ascontiguousarray(rgb)
+        info["decoded_height"], info["decoded_width"] = rgb.shape[:2]
+        info["valid_fraction"] = 1.0 if valid is None else float(np.count_nonzero(valid)) / valid.size
+        info["valid_mask"] = None if valid is None or valid.all() else valid
+        return rgb, _metadata(self._name, info, self._gsd, self._height_above_ground)
+
+    def close(self):
+        """Close the file (decoding is then no longer possible); closing twice is harmless."""
+        if self._im is not None:
+            self._im.close()
+            self._im = self._jpeg_data = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
 
 
 def _check_arguments(path, max_size, gsd, height_above_ground, max_pixels):
@@ -462,6 +547,32 @@ def _decode(im, name):
     return rgb, alpha
 
 
+def _jpeg_data(im, name):
+    """The bytes of a colour or greyscale JPEG, for :func:`_decode_jpeg_at_once`; else None."""
+    if im.format not in _JPEG_FORMATS or im.mode not in ("RGB", "L"):
+        return None  # CMYK: Pillow's conversion to RGB
+    with open(name, "rb") as file:
+        return file.read()
+
+
+def _decode_jpeg_at_once(data, shape, reduction):
+    """A JPEG's pixels as (rows, cols, 3) uint8 RGB in stored orientation, or None.
+
+    OpenCV decodes the whole file in one call that releases the GIL, where Pillow returns to
+    Python every 64 KiB of data and every band of rows: a thread decoding a photo keeps going
+    while another holds the GIL (as Blender's bulk calls do). Both bundle libjpeg-turbo with the
+    same settings, so the pixels are Pillow's, bit for bit, at every reduction (tested). None, and
+    Pillow decodes instead (and words any error), when OpenCV cannot decode the data (a truncated
+    file: its decoder stops rather than filling with grey) or its size disagrees with the
+    (rows, cols) `shape` Pillow read from the header.
+    """
+    flags = _CV2_REDUCED[reduction] | cv2.IMREAD_COLOR_RGB | cv2.IMREAD_IGNORE_ORIENTATION
+    rgb = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    if rgb is None or rgb.shape != (*shape, 3):
+        return None
+    return rgb
+
+
 def _bands(im):
     """Yield (first row, ndarray of a band of rows) covering `im`."""
     width, height = im.size
@@ -559,4 +670,4 @@ def _metadata(name, info, gsd, height_above_ground):
     )
 
 
-__all__ = ["MAX_PIXELS", "ImageMetadata", "load_image", "read_metadata"]
+__all__ = ["MAX_PIXELS", "ImageMetadata", "OpenImage", "load_image", "open_image", "read_metadata"]

@@ -15,6 +15,7 @@ Conventions shared with the Blender side and the renderers:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -83,6 +84,51 @@ class MeshArrays:
         keys = np.minimum(a, b) * self.n_vertices + np.maximum(a, b)
         _, counts = np.unique(keys, return_counts=True)
         return counts
+
+
+class MeshSizes(NamedTuple):
+    """How many vertices, edges, faces and corners a :func:`grid_topology` mesh has."""
+
+    n_vertices: int
+    n_edges: int
+    n_faces: int
+    n_corners: int
+    n_front_faces: int
+
+
+def grid_sizes(shape, *, two_sided=True):
+    """The sizes of the mesh :func:`grid_topology` builds for a grid, without building it.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (rows, cols) of the height grid.
+    two_sided : bool, optional
+        As in :func:`grid_mesh`.
+
+    Returns
+    -------
+    MeshSizes
+
+    Examples
+    --------
+    >>> grid_sizes((2, 3), two_sided=False)
+    MeshSizes(n_vertices=12, n_edges=17, n_faces=6, n_corners=24, n_front_faces=6)
+    """
+    if not (isinstance(shape, tuple | list) and len(shape) == 2) or min(shape) < 1:
+        raise CliffTerrainError(f"`shape` must be (rows, cols) with both >= 1, got {shape!r}")
+    rows, cols = (int(n) for n in shape)
+    n_front = rows * cols
+    # Two-sided: a wall quad under each border edge of the front, and one n-gon as the base.
+    n_ring = 2 * (rows + cols) if two_sided else 0
+    grid_edges = (rows + 1) * cols + rows * (cols + 1)
+    return MeshSizes(
+        n_vertices=(rows + 1) * (cols + 1) + n_ring,
+        n_edges=grid_edges + 2 * n_ring,
+        n_faces=n_front + (n_ring + 1 if two_sided else 0),
+        n_corners=4 * n_front + 5 * n_ring,
+        n_front_faces=n_front,
+    )
 
 
 def corner_heights(heights):
@@ -160,16 +206,14 @@ def grid_topology(shape, *, two_sided=True):
     MeshArrays
         With ``vertices`` allocated but not yet filled.
     """
-    if not (isinstance(shape, tuple | list) and len(shape) == 2) or min(shape) < 1:
-        raise CliffTerrainError(f"`shape` must be (rows, cols) with both >= 1, got {shape!r}")
+    sizes = grid_sizes(shape, two_sided=two_sided)
     rows, cols = (int(n) for n in shape)
     # Everything is written in place into arrays of the final size: at 12 M vertices the
     # intermediate stacks, gathers and concatenations would double the time and the memory.
     vr, vc = rows + 1, cols + 1
-    n_front = rows * cols
+    n_front = sizes.n_front_faces
     n_ring = 2 * (rows + cols) if two_sided else 0
-    n_vertices = vr * vc + n_ring
-    n_corners = 4 * n_front + (5 * n_ring if two_sided else 0)
+    n_vertices, n_corners = sizes.n_vertices, sizes.n_corners
 
     # Front grid: vertex (r, c) has index r * (cols + 1) + c.
     # Counter-clockwise seen from above (+z): bottom-left, bottom-right, top-right, top-left,
@@ -197,8 +241,7 @@ def grid_topology(shape, *, two_sided=True):
 
     # Edges of the grid: horizontal ones (r, c)-(r, c+1) first, then vertical (r, c)-(r+1, c).
     n_h, n_v = vr * cols, rows * vc
-    n_edges = n_h + n_v + (2 * n_ring if two_sided else 0)
-    edges = np.empty((n_edges, 2), dtype=np.int32)
+    edges = np.empty((sizes.n_edges, 2), dtype=np.int32)
     np.add(
         row_start[:, None, None],
         np.stack([col[:-1], col[:-1] + 1], axis=1)[None],

@@ -8,6 +8,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -15,13 +16,40 @@ import numpy as np
 from ._validate import check_choice, check_float, check_int, check_rgb
 from .errors import CliffTerrainError
 from .heights import PROFILES, inflate
-from .image_io import ImageMetadata, load_image
-from .mesh import MeshArrays, grid_topology, place_vertices
+from .image_io import ImageMetadata, OpenImage, open_image
+from .mesh import MeshArrays, MeshSizes, grid_sizes, grid_topology, place_vertices
 from .quaternion import quaternion_filter
 from .segmentation import METHODS, distance_map, segment
 
 MIN_SIZE = 16
 MAX_SIZE = 16384
+
+
+class MeshSink(Protocol):
+    """What :func:`build_relief` hands the mesh to, step by step (its `mesh_sink`).
+
+    Every method is called in the thread that called :func:`build_relief`, once, in this order,
+    each at the moment the worker thread least needs the GIL: work that holds the GIL for long
+    (Blender's bulk calls do) stalls the worker at each of its steps that need it.
+    """
+
+    def allocate(self, sizes: MeshSizes) -> None:
+        """The mesh's sizes, as soon as the grid's shape is known (the photo's header is read).
+
+        The worker is decoding and resizing the photo, in few long calls that release the GIL:
+        the time to allocate.
+        """
+
+    def prepare(self, mesh: MeshArrays) -> None:
+        """Faces, corners, UVs and edges (the vertices are not placed yet).
+
+        The worker is running many short numpy steps: work here should release the GIL too
+        (numpy checks, layouts), not hold it.
+        """
+
+    def fill(self) -> None:
+        """The worker is inside the watershed, one long call that releases the GIL: the time
+        to copy what `prepare` was given."""
 
 
 @dataclass
@@ -92,7 +120,7 @@ def build_relief(
     gsd=None,
     two_sided=True,
     progress=None,
-    on_topology=None,
+    mesh_sink=None,
 ):
     """Turn one UAV photo into a relief: filter, segment, inflate, mesh.
 
@@ -120,16 +148,13 @@ def build_relief(
     progress : callable, optional
         ``progress(fraction, stage)`` is called as each stage starts, fraction in [0, 1], always
         in the calling thread (a GUI may update itself from it).
-    on_topology : callable, optional
-        ``on_topology(mesh)`` is called in the calling thread with the mesh's faces, corners, UVs
-        and edges (a :class:`~cliff_terrain.mesh.MeshArrays` whose vertices are not placed yet)
-        as soon as the grid's shape is known, while filter, segmentation and heights run in a
-        worker thread, so that a caller can copy the topology elsewhere in parallel (the Blender
-        add-on fills its mesh). The same object, with its vertices placed, is ``Relief.mesh``.
-        If it returns a callable, that is called (in the calling thread, with no argument) once
-        the worker is inside its longest step that releases the GIL, the watershed: work that
-        holds the GIL for long, as Blender's bulk calls do, stalls the worker least there.
-        Whatever either raises propagates once the worker has finished.
+    mesh_sink : MeshSink, optional
+        Receives the mesh step by step, in the calling thread, while decoding, filter,
+        segmentation and heights run in a worker thread, so that a caller can fill a mesh of its
+        own in parallel (the Blender add-on does). Each step comes when the worker least needs
+        the GIL, which work such as Blender's bulk calls holds throughout: see
+        :class:`MeshSink`. The mesh it is given, with its vertices placed, is ``Relief.mesh``.
+        Whatever it raises propagates once the worker has finished.
 
     Returns
     -------
@@ -152,8 +177,12 @@ def build_relief(
         raise CliffTerrainError(f"`two_sided` must be True or False, got {two_sided!r}")
     if progress is not None and not callable(progress):
         raise CliffTerrainError(f"`progress` must be callable or None, got {progress!r}")
-    if on_topology is not None and not callable(on_topology):
-        raise CliffTerrainError(f"`on_topology` must be callable or None, got {on_topology!r}")
+    if mesh_sink is not None and not all(
+        callable(getattr(mesh_sink, step, None)) for step in ("allocate", "prepare", "fill")
+    ):
+        raise CliffTerrainError(
+            f"`mesh_sink` must have methods allocate, prepare and fill, or be None, got {mesh_sink!r}"
+        )
     params = {
         "max_size": max_size,
         "segmentation": segmentation,
@@ -163,47 +192,66 @@ def build_relief(
         "two_sided": bool(two_sided),
     }
     timings = {}
-    clock = _Stages(progress, timings)
-
-    clock.start("load", 0.0)
+    if progress is not None:
+        progress(0.0, "load")
     if isinstance(image_or_path, str | os.PathLike):
-        image, metadata = load_image(image_or_path, max_size=max_size, gsd=gsd)
+        # The header now (its errors at once, and the grid's shape), the pixels in the worker.
+        source = open_image(image_or_path, max_size=max_size, gsd=gsd)
+        source_shape = source.shape
     else:
-        image, metadata = _from_array(image_or_path, gsd)
+        source = _from_array(image_or_path, gsd)
+        source_shape = source[0].shape[:2]
+    grid_shape = resized_shape(source_shape, max_size)
 
-    clock.start("resize", 0.1)
-    working = resize_longest(image, max_size)
-    clock.start(None, None)
-
-    # Filter, segmentation and heights run in a worker thread (numpy, OpenCV and the watershed
-    # release the GIL) while this thread builds the mesh's faces, UVs and edges, which depend on
-    # the grid's shape only, and hands them to `on_topology`. Progress is relayed to this thread.
+    # Decoding, resizing, filter, segmentation and heights run in a worker thread while this
+    # thread builds the mesh's faces, UVs and edges, which depend on the grid's shape only, and
+    # hands them to `mesh_sink` step by step. Progress is relayed to this thread.
     events = queue.SimpleQueue()
-    worker_clock = _Stages(lambda fraction, stage: events.put((fraction, stage)), timings)
+
+    worker_done = False
+
+    def relay(*, wait):
+        """Pass the worker's progress on; with `wait`, until the worker has finished."""
+        nonlocal worker_done
+        while not worker_done:
+            try:
+                event = events.get(block=wait)
+            except queue.Empty:
+                return
+            if event is None:
+                worker_done = True
+            elif progress is not None:
+                progress(*event)
+
+    worker_clock = _Stages(lambda fraction, stage: events.put((fraction, stage)), timings, stage="load")
     # Set when the worker enters its long GIL-free stretch (the watershed, else the heights).
     gil_free = threading.Event()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain") as pool:
         image_stages = pool.submit(
-            _image_stages, working, metadata, segmentation, profile, exaggeration, worker_clock, gil_free
+            _image_stages, source, max_size, segmentation, profile, exaggeration, worker_clock, gil_free
         )
         image_stages.add_done_callback(lambda _: (gil_free.set(), events.put(None)))
         started = time.perf_counter()
         try:
-            mesh_arrays = grid_topology(working.shape[:2], two_sided=bool(two_sided))
-            then = on_topology(mesh_arrays) if on_topology is not None else None
-            if then is not None:
-                if not callable(then):
-                    raise CliffTerrainError(f"`on_topology` must return a callable or None, got {then!r}")
+            if mesh_sink is not None:
+                # The worker is decoding and resizing the photo, in calls that release the GIL.
+                mesh_sink.allocate(grid_sizes(grid_shape, two_sided=bool(two_sided)))
+                relay(wait=False)
+            mesh_arrays = grid_topology(grid_shape, two_sided=bool(two_sided))
+            if mesh_sink is not None:
+                mesh_sink.prepare(mesh_arrays)
+                relay(wait=False)
                 # Work that holds the GIL stalls the worker at each of its many short numpy
                 # steps; while the worker is inside the watershed it stalls it the least.
                 gil_free.wait()
-                then()
+                mesh_sink.fill()
         finally:
             timings["topology"] = time.perf_counter() - started
-            for event in iter(events.get, None):
-                if progress is not None:
-                    progress(*event)
-        filtered, seg, distance, heights_px = image_stages.result()
+            relay(wait=True)
+            if isinstance(source, OpenImage):
+                source.close()  # the worker has finished; it may have failed before decoding
+        image, metadata, working, filtered, seg, distance, heights_px = image_stages.result()
+    clock = _Stages(progress, timings)
     clock.start("mesh", 0.8)
 
     rows, cols = working.shape[:2]
@@ -235,8 +283,12 @@ def build_relief(
     )
 
 
-def _image_stages(working, metadata, segmentation, profile, exaggeration, clock, gil_free):
-    """Filter, segment and inflate the working image (in the worker thread)."""
+def _image_stages(source, max_size, segmentation, profile, exaggeration, clock, gil_free):
+    """Decode, resize, filter, segment and inflate (in the worker thread; `clock` is at "load")."""
+    image, metadata = source.decode() if isinstance(source, OpenImage) else source
+    clock.start("resize", 0.1)
+    working = resize_longest(image, max_size)
+
     clock.start("filter", 0.2)
     filtered = quaternion_filter(working)
 
@@ -252,7 +304,7 @@ def _image_stages(working, metadata, segmentation, profile, exaggeration, clock,
     distance = distance_map(seg.labels)
     heights_px = inflate(seg.labels, profile=profile, exaggeration=exaggeration, distance=distance)
     clock.start(None, None)
-    return filtered, seg, distance, heights_px
+    return image, metadata, working, filtered, seg, distance, heights_px
 
 
 class _Stages:
@@ -262,10 +314,10 @@ class _Stages:
     the caller's next one starts).
     """
 
-    def __init__(self, progress, timings):
+    def __init__(self, progress, timings, *, stage=None):
         self.progress = progress
         self.timings = timings
-        self.stage = None
+        self.stage = stage  # already started (and reported) by the caller, if given
         self.t0 = time.perf_counter()
 
     def start(self, stage, fraction):
@@ -315,10 +367,23 @@ def resize_longest(image, max_size):
     """
     image = check_rgb("image", image)
     max_size = check_int("max_size", max_size, minimum=1)
-    rows, cols = image.shape[:2]
+    rows, cols = resized_shape(image.shape[:2], max_size)
+    if (rows, cols) == image.shape[:2]:
+        return image
+    return cv2.resize(image, (cols, rows), interpolation=cv2.INTER_AREA)
+
+
+def resized_shape(shape, max_size):
+    """(rows, cols) of `shape` shrunk so its longest side is at most `max_size` (as :func:`resize_longest`).
+
+    Examples
+    --------
+    >>> resized_shape((2300, 3500), 2000)
+    (1314, 2000)
+    """
+    rows, cols = (int(n) for n in shape)
     longest = max(rows, cols)
     if longest <= max_size:
-        return image
+        return rows, cols
     scale = max_size / longest
-    size = (max(1, round(cols * scale)), max(1, round(rows * scale)))
-    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return max(1, round(rows * scale)), max(1, round(cols * scale))

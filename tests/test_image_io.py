@@ -691,3 +691,80 @@ def test_memory_guard_reduces_a_real_jpeg_only_when_allowed():
     assert rgb.shape == (750, 1000, 3) and meta.reduction == 4
     with pytest.raises(ImageTooLargeError, match=r"use a smaller max_size"):
         load_image(CALITERRA, max_size=3000, max_pixels=5_000_000)
+
+
+# ------------------------------------------------------------------------------------ two-step decoding
+
+
+def _pillow_reference(path, reduction=1):
+    """What Pillow alone makes of a JPEG: decoded (reduced by libjpeg), upright, RGB."""
+    with Image.open(path) as im:
+        if reduction > 1:
+            im.draft(im.mode, (im.size[0] // reduction, im.size[1] // reduction))
+        return np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
+
+
+def _jpeg_variants(tmp_path):
+    """Colour JPEGs of every chroma subsampling, progressive, greyscale and rotated ones."""
+    source = tmp_path / "source.jpg"
+    rgb = _small_real_jpeg(source, size=(161, 119))
+    paths = [source]
+    for subsampling in (0, 1, 2):
+        paths.append(tmp_path / f"subsampling{subsampling}.jpg")
+        Image.fromarray(rgb).save(paths[-1], quality=88, subsampling=subsampling)
+    paths.append(tmp_path / "progressive.jpg")
+    Image.fromarray(rgb).save(paths[-1], quality=88, progressive=True)
+    paths.append(tmp_path / "grey.jpg")
+    Image.fromarray(rgb).convert("L").save(paths[-1], quality=88)
+    paths.append(_with_orientation(tmp_path / "o6.jpg", rgb, 6, quality=95))
+    paths.append(_with_orientation(tmp_path / "o3.jpg", rgb, 3, quality=95))
+    return paths
+
+
+def test_jpegs_are_decoded_in_one_call_to_pillows_very_pixels(tmp_path, monkeypatch):
+    import cliff_terrain.image_io as image_io
+
+    pillow_decodes = []
+    pillow_decode = image_io._decode
+    monkeypatch.setattr(
+        image_io, "_decode", lambda im, name: pillow_decodes.append(name) or pillow_decode(im, name)
+    )
+    photos = _jpeg_variants(tmp_path) + [p for p in (BROCCOLI, CALITERRA, SENECA) if p.is_file()]
+    for path in photos:
+        for max_size in (None, 16, 60, 400):
+            rgb, meta = load_image(path, max_size=max_size)
+            expected = _pillow_reference(path, meta.reduction)
+            assert rgb.shape == expected.shape and rgb.flags.c_contiguous, (path.name, max_size)
+            np.testing.assert_array_equal(rgb, expected, err_msg=f"{path.name}, max_size={max_size}")
+    # Every one of them went through OpenCV, none through Pillow's decoder.
+    assert pillow_decodes == []
+    # CMYK is Pillow's to convert.
+    cmyk = tmp_path / "cmyk.jpg"
+    Image.fromarray(_rng_image((20, 30, 3))).convert("CMYK").save(cmyk, quality=95)
+    load_image(cmyk)
+    assert pillow_decodes == [str(cmyk)]
+
+
+def test_open_image_knows_the_shape_before_decoding(tmp_path):
+    from cliff_terrain.image_io import OpenImage, open_image
+
+    path = _jpeg_variants(tmp_path)[-2]  # orientation 6: stored 161x119, shown 119x161
+    with open_image(path, max_size=16, gsd=0.01) as image:
+        assert isinstance(image, OpenImage)
+        assert image.shape == (21, 15)  # libjpeg's 1/8, rotated
+        assert image.metadata == read_metadata(path, max_size=16, gsd=0.01)
+        rgb, meta = image.decode()
+        assert rgb.shape[:2] == image.shape and meta == load_image(path, max_size=16, gsd=0.01)[1]
+        with pytest.raises(CliffTerrainError, match=r"o6\.jpg' was already decoded or closed"):
+            image.decode()
+    with open_image(path) as image:
+        pass  # closing without decoding is allowed
+    with pytest.raises(CliffTerrainError, match="already decoded or closed"):
+        image.decode()
+    # Header errors come at once, pixel errors from decode().
+    with pytest.raises(ImageReadError, match="no such file"):
+        open_image(tmp_path / "missing.jpg")
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(path.read_bytes()[:-400])
+    with open_image(cut) as image, pytest.raises(ImageReadError, match="the file is truncated"):
+        image.decode()

@@ -118,3 +118,21 @@ def test_edges_are_each_pair_of_consecutive_corners_once(two_sided):
     np.testing.assert_array_equal(np.unique(got, axis=0), expected)
     # corner_edges points every corner at the edge to the next corner.
     np.testing.assert_array_equal(got[mesh.corner_edges], pairs)
+
+
+@pytest.mark.parametrize("two_sided", [False, True])
+@pytest.mark.parametrize("shape", [(1, 1), (2, 3), (7, 5), (31, 64)])
+def test_grid_sizes_are_those_of_the_built_mesh(shape, two_sided):
+    from cliff_terrain.mesh import grid_sizes, grid_topology
+
+    mesh = grid_topology(shape, two_sided=two_sided)
+    sizes = grid_sizes(shape, two_sided=two_sided)
+    assert sizes.n_vertices == mesh.n_vertices
+    assert sizes.n_edges == mesh.edges.shape[0] == mesh.edge_face_counts().size
+    assert sizes.n_faces == mesh.n_faces
+    assert sizes.n_corners == mesh.corner_verts.size == int(mesh.face_sizes.sum())
+    assert sizes.n_front_faces == mesh.n_front_faces == shape[0] * shape[1]
+    with pytest.raises(
+        CliffTerrainError, match=r"`shape` must be \(rows, cols\) with both >= 1, got \(0, 4\)"
+    ):
+        grid_sizes((0, 4))

@@ -47,32 +47,63 @@ def test_stages_are_consistent(field):
     assert relief.params["max_size"] == 450 and relief.units == "px"
 
 
-def test_topology_and_progress_reach_the_calling_thread_while_the_worker_runs(field):
+class RecordingSink:
+    """A mesh sink that records which step came when, in which thread."""
+
+    def __init__(self, on_fill=None):
+        import threading
+
+        self.calls, self.on_fill, self.thread = [], on_fill, threading.get_ident
+        self.sizes = self.mesh = None
+
+    def allocate(self, sizes):
+        self.sizes = sizes
+        self.calls.append(("allocate", self.thread()))
+
+    def prepare(self, mesh):
+        # The worker filters and segments meanwhile: the grid is known, the heights are not.
+        self.mesh = mesh
+        self.calls.append(("prepare", self.thread(), mesh.grid_shape, float(np.abs(mesh.vertices).max())))
+
+    def fill(self):
+        self.calls.append(("fill", self.thread()))
+        if self.on_fill is not None:
+            self.on_fill()
+
+
+def test_the_mesh_and_progress_reach_the_calling_thread_while_the_worker_runs(field, tmp_path):
     import threading
 
+    from PIL import Image
+
+    from cliff_terrain.mesh import grid_sizes
+
     image, _ = field
+    path = tmp_path / "field.jpg"
+    Image.fromarray(image).save(path, quality=95)
     caller = threading.get_ident()
-    calls = []
+    for source in (image, path):
+        sink, stages = RecordingSink(), []
+        relief = build_relief(
+            source,
+            max_size=450,
+            progress=lambda f, s, stages=stages: stages.append((s, threading.get_ident())),
+            mesh_sink=sink,
+        )
+        # In order, once each, in the calling thread; the vertices are placed only afterwards.
+        assert sink.calls == [("allocate", caller), ("prepare", caller, (300, 450), 0.0), ("fill", caller)]
+        assert sink.sizes == grid_sizes((300, 450)) and sink.mesh is relief.mesh
+        assert relief.mesh.vertices[:, 2].max() == pytest.approx(relief.max_height, rel=0.05)
+        assert [s for s, _ in stages] == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
+        assert {t for _, t in stages} == {caller}
+        # Without a sink the result is the same, array for array.
+        plain = build_relief(source, max_size=450)
+        for name in ("working", "labels", "heights"):
+            np.testing.assert_array_equal(getattr(relief, name), getattr(plain, name))
+        np.testing.assert_array_equal(relief.mesh.vertices, plain.mesh.vertices)
 
-    def on_topology(mesh):
-        # The worker filters and segments meanwhile; the grid is known, the heights are not.
-        calls.append(("topology", threading.get_ident(), mesh.grid_shape, mesh.n_vertices))
 
-    def progress(fraction, stage):
-        calls.append((stage, threading.get_ident()))
-
-    relief = build_relief(image, max_size=450, progress=progress, on_topology=on_topology)
-    assert {call[1] for call in calls} == {caller}
-    topology = [call for call in calls if call[0] == "topology"]
-    assert topology == [("topology", caller, (300, 450), relief.mesh.n_vertices)]
-    # Without a callback the result is the same, array for array.
-    plain = build_relief(image, max_size=450)
-    for name in ("labels", "heights"):
-        np.testing.assert_array_equal(getattr(relief, name), getattr(plain, name))
-    np.testing.assert_array_equal(relief.mesh.vertices, plain.mesh.vertices)
-
-
-def test_the_callable_on_topology_returns_runs_while_the_worker_is_in_the_watershed(field, monkeypatch):
+def test_the_sink_fills_while_the_worker_is_in_the_watershed(field, monkeypatch):
     import threading
 
     import cliff_terrain.segmentation as segmentation
@@ -84,47 +115,58 @@ def test_the_callable_on_topology_returns_runs_while_the_worker_is_in_the_waters
     image[plants] = (40, 160, 40)
     kernel = segmentation._watershed_raveled
     assert kernel is not None, "scikit-image's watershed kernel moved: _flood falls back"
-    in_kernel, then_ran = threading.Event(), threading.Event()
+    in_kernel, filled = threading.Event(), threading.Event()
     seen = {}
 
     def watched_kernel(*args):
         in_kernel.set()
-        # The caller's work must come now, while the worker is here (not after it finished).
-        seen["then_ran_during_kernel"] = then_ran.wait(timeout=30)
+        # The sink's fill must come now, while the worker is here (not after it finished).
+        seen["filled_during_kernel"] = filled.wait(timeout=30)
         return kernel(*args)
 
-    def then():
+    def on_fill():
         seen["kernel_started_first"] = in_kernel.is_set()
-        then_ran.set()
+        filled.set()
 
     monkeypatch.setattr(segmentation, "_watershed_raveled", watched_kernel)
-    relief = build_relief(image, on_topology=lambda mesh: then)
-    assert seen == {"kernel_started_first": True, "then_ran_during_kernel": True}
+    relief = build_relief(image, mesh_sink=RecordingSink(on_fill))
+    assert seen == {"kernel_started_first": True, "filled_during_kernel": True}
     assert relief.n_regions == 2
-    with pytest.raises(CliffTerrainError, match="`on_topology` must return a callable or None, got 5"):
-        build_relief(field[0], max_size=300, on_topology=lambda mesh: 5)
 
 
-def test_errors_of_the_topology_callback_and_of_the_worker_propagate(field, monkeypatch):
+def test_errors_of_the_sink_and_of_the_worker_propagate(field, monkeypatch, tmp_path):
     import cliff_terrain.pipeline as pipeline
 
     image, _ = field
 
-    def broken(mesh):
-        raise RuntimeError("the caller's mesh failed")
+    class Broken(RecordingSink):
+        def prepare(self, mesh):
+            raise RuntimeError("the caller's mesh failed")
 
     with pytest.raises(RuntimeError, match="the caller's mesh failed"):
-        build_relief(image, max_size=300, on_topology=broken)
+        build_relief(image, max_size=300, mesh_sink=Broken())
+
+    # A photo whose pixel data is cut: the header passes, the worker's decode fails.
+    cut = tmp_path / "cut.jpg"
+    from PIL import Image
+
+    Image.fromarray(image).save(cut, quality=95)
+    data = cut.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    sink = RecordingSink()
+    with pytest.raises(CliffTerrainError, match="the file is truncated"):
+        build_relief(cut, max_size=300, mesh_sink=sink)
+    assert [call[0] for call in sink.calls] == ["allocate", "prepare", "fill"]
 
     def failing_segment(*args, **kwargs):
         raise CliffTerrainError("segmentation failed in the worker")
 
     monkeypatch.setattr(pipeline, "segment", failing_segment)
-    seen, stages = [], []
+    sink, stages = RecordingSink(), []
     with pytest.raises(CliffTerrainError, match="segmentation failed in the worker"):
-        build_relief(image, max_size=300, on_topology=seen.append, progress=lambda f, s: stages.append(s))
-    # The topology was handed over before the worker failed; progress stopped at the failing stage.
-    assert len(seen) == 1 and seen[0].grid_shape == (200, 300)
+        build_relief(image, max_size=300, mesh_sink=sink, progress=lambda f, s: stages.append(s))
+    # The sink got every step (the worker's failure ends its wait); progress stopped at the failing stage.
+    assert [call[0] for call in sink.calls] == ["allocate", "prepare", "fill"]
     assert stages == ["load", "resize", "filter", "segment"]
 
 
@@ -179,7 +221,10 @@ def test_orthophoto_with_georeference_is_in_metres():
         ({"gsd": 0}, r"`gsd` must be > 0.0, got 0.0"),
         ({"two_sided": "yes"}, "`two_sided` must be True or False, got 'yes'"),
         ({"progress": 3}, "`progress` must be callable or None, got 3"),
-        ({"on_topology": "mesh"}, "`on_topology` must be callable or None, got 'mesh'"),
+        (
+            {"mesh_sink": "mesh"},
+            "`mesh_sink` must have methods allocate, prepare and fill, or be None, got 'mesh'",
+        ),
     ],
 )
 def test_bad_settings_name_the_parameter(kwargs, match):
@@ -228,3 +273,21 @@ def test_orthophoto_no_data_stays_flat():
     # Even the literal paper mode, which raises whatever is bright, leaves the no-data corners flat.
     assert relief.heights[~valid].max() == 0.0
     assert relief.heights[valid].max() > 0.0
+
+
+@pytest.mark.parametrize(
+    ("shape", "max_size", "expected"),
+    [
+        ((2300, 3500), 2000, (1314, 2000)),
+        ((3500, 2300), 2000, (2000, 1314)),
+        ((600, 900), 900, (600, 900)),
+        ((600, 900), 1000, (600, 900)),
+        ((3, 5000), 1000, (1, 1000)),
+        ((1001, 1001), 1000, (1000, 1000)),
+    ],
+)
+def test_resized_shape_is_the_shape_resize_longest_makes(shape, max_size, expected):
+    from cliff_terrain.pipeline import resize_longest, resized_shape
+
+    assert resized_shape(shape, max_size) == expected
+    assert resize_longest(np.zeros((*shape, 3), np.uint8), max_size).shape[:2] == expected
