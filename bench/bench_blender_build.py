@@ -7,8 +7,9 @@ vertex count, a Displace modifier driven by the height image as an image texture
 then Apply. The peer gets the height image ready-made in Blender (not timed), so it is timed on
 mesh making alone, while ours is timed end to end. Both run in the same process. The stages of
 ours are also timed apart (core, mesh transfer, material); in the operator they add up to more
-than the whole, because the mesh's faces, edges and UVs go into Blender on the main thread while
-the core's worker thread filters, segments and inflates.
+than the whole, because the mesh goes into Blender on the main thread while the core's worker
+thread decodes, filters, segments and inflates (bench/build_timeline.py shows which step runs
+beside which).
 
     python bench/bench_blender_build.py [--max-size 2000] [--repeat 1]
 

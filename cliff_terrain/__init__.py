@@ -5,10 +5,10 @@ Never imports bpy. The main entry point is :func:`build_relief`.
 
 from .errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 from .heights import inflate
-from .image_io import ImageMetadata, load_image
-from .mesh import MeshArrays, affine_matrix, apply_transform, grid_mesh
+from .image_io import ImageMetadata, OpenImage, load_image, open_image
+from .mesh import MeshArrays, MeshSizes, affine_matrix, apply_transform, grid_mesh, grid_sizes
 from .metrics import height_points, psnr, ssim, surface_distance
-from .pipeline import Relief, build_relief, resize_longest
+from .pipeline import MeshSink, Relief, build_relief, resize_longest
 from .quaternion import quaternion_filter
 from .segmentation import Segmentation, distance_map, segment, vegetation_index
 from .synthetic import FieldTruth, synthetic_field
@@ -22,6 +22,9 @@ __all__ = [
     "ImageReadError",
     "ImageTooLargeError",
     "MeshArrays",
+    "MeshSink",
+    "MeshSizes",
+    "OpenImage",
     "Relief",
     "Segmentation",
     "__version__",
@@ -30,9 +33,11 @@ __all__ = [
     "build_relief",
     "distance_map",
     "grid_mesh",
+    "grid_sizes",
     "height_points",
     "inflate",
     "load_image",
+    "open_image",
     "psnr",
     "quaternion_filter",
     "resize_longest",

@@ -221,9 +221,7 @@ def read_metadata(path, *, max_size=None, gsd=None, height_above_ground=None, ma
     >>> meta.camera_model, round(meta.gsd_m_per_px, 4)  # doctest: +SKIP
     ('Canon PowerShot SX260 HS', 0.0344)
     """
-    with open_image(
-        path, max_size=max_size, gsd=gsd, height_above_ground=height_above_ground, max_pixels=max_pixels
-    ) as image:
+    with _open_checked(path, max_size, gsd, height_above_ground, max_pixels, read_jpeg=False) as image:
         return image.metadata
 
 
@@ -233,7 +231,9 @@ def open_image(path, *, max_size=None, gsd=None, height_above_ground=None, max_p
     :func:`load_image` in two steps, so that a caller learns the decoded size (and any error the
     header shows) at once, and can decode elsewhere, for example in a worker thread while it
     prepares for an image of that size. Parameters and errors are those of :func:`load_image`;
-    errors of the pixel data itself come from :meth:`OpenImage.decode`.
+    errors of the pixel data itself come from :meth:`OpenImage.decode`. The bytes of a colour or
+    greyscale JPEG are read here as well, so that decoding it is a single call that releases the
+    GIL (see :meth:`OpenImage.decode`).
 
     Returns
     -------
@@ -247,6 +247,10 @@ def open_image(path, *, max_size=None, gsd=None, height_above_ground=None, max_p
     ...     rgb, meta = image.decode()
     (750, 1000)
     """
+    return _open_checked(path, max_size, gsd, height_above_ground, max_pixels, read_jpeg=True)
+
+
+def _open_checked(path, max_size, gsd, height_above_ground, max_pixels, *, read_jpeg):
     name, max_size, gsd, height_above_ground, max_pixels = _check_arguments(
         path, max_size, gsd, height_above_ground, max_pixels
     )
@@ -255,7 +259,7 @@ def open_image(path, *, max_size=None, gsd=None, height_above_ground=None, max_p
         try:
             info = _header(im, name, max_size, max_pixels)
             _refuse_non_photo(im, name)
-            return OpenImage(name, im, info, gsd, height_above_ground)
+            return OpenImage(name, im, info, gsd, height_above_ground, read_jpeg=read_jpeg)
         except BaseException:
             im.close()
             raise
@@ -273,13 +277,13 @@ class OpenImage:
         What the header tells, as :func:`read_metadata` returns it.
     """
 
-    def __init__(self, name, im, info, gsd, height_above_ground):
+    def __init__(self, name, im, info, gsd, height_above_ground, *, read_jpeg=True):
         self._name, self._im, self._info = name, im, info
         self._gsd, self._height_above_ground = gsd, height_above_ground
         width, height = _oriented(im.size, info["orientation"])
         self.shape = (height, width)
         # Read now, so that decode() is one call that releases the GIL from start to end.
-        self._jpeg_data = _jpeg_data(im, name)
+        self._jpeg_data = _jpeg_data(im, name) if read_jpeg else None
 
     @property
     def metadata(self):
@@ -289,7 +293,12 @@ class OpenImage:
         return _metadata(self._name, info, self._gsd, self._height_above_ground)
 
     def decode(self):
-        """Decode the pixels (once) and close the file: ``(rgb, metadata)`` as :func:`load_image` returns."""
+        """Decode the pixels (once) and close the file: ``(rgb, metadata)`` as :func:`load_image` returns.
+
+        A colour or greyscale JPEG is decoded by OpenCV in one call that releases the GIL, so a
+        thread decoding it keeps going while another holds the GIL; its pixels are Pillow's, bit
+        for bit. Other images are decoded by Pillow.
+        """
         if self._im is None:
             raise CliffTerrainError(f"image {self._name!r} was already decoded or closed")
         with _reading(self._name):
