@@ -316,6 +316,11 @@ class OpenImage:
         if alpha is not None:
             valid = _composite_over_black(rgb, alpha)
         rgb = _orient(rgb, info["orientation"])
+        if rgb.shape[:2] != self.shape:  # callers size their work by `shape` before decoding
+            raise ImageReadError(
+                f"cannot read image {self._name!r}: its pixel data is {rgb.shape[1]}x{rgb.shape[0]}, "
+                f"its header says {self.shape[1]}x{self.shape[0]}"
+            )
         if valid is not None:
             valid = np.ascontiguousarray(_orient(valid, info["orientation"]))
         rgb = np.ascontiguousarray(rgb)
