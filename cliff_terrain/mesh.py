@@ -101,10 +101,8 @@ def grid_sizes(shape, *, two_sided=True):
 
     Parameters
     ----------
-    shape : tuple of int
-        (rows, cols) of the height grid.
-    two_sided : bool, optional
-        As in :func:`grid_mesh`.
+    shape, two_sided
+        As in :func:`grid_topology`.
 
     Returns
     -------

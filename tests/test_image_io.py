@@ -721,7 +721,7 @@ def _jpeg_variants(tmp_path):
     return paths
 
 
-def test_jpegs_are_decoded_in_one_call_to_pillows_very_pixels(tmp_path, monkeypatch):
+def test_jpegs_decode_in_one_call_to_exactly_pillows_pixels(tmp_path, monkeypatch):
     import cliff_terrain.image_io as image_io
 
     pillow_decodes = []
