@@ -156,11 +156,5 @@ def _plain(value):
 CLASSES = (CLIFF_TERRAIN_OT_render_views, CLIFF_TERRAIN_OT_evaluate)
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+# Registered in order, unregistered in reverse (Blender's own helper for exactly this).
+register, unregister = bpy.utils.register_classes_factory(CLASSES)

@@ -74,11 +74,5 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
 CLASSES = (CLIFF_TERRAIN_PT_sidebar,)
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+# Registered in order, unregistered in reverse (Blender's own helper for exactly this).
+register, unregister = bpy.utils.register_classes_factory(CLASSES)
