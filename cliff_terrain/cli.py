@@ -1,0 +1,68 @@
+"""The ``cliff-terrain`` command (also ``python -m cliff_terrain``): the core's jobs without Blender.
+
+Each subcommand lives in its own module under :mod:`cliff_terrain.commands`, imported only when it
+runs, so ``--help`` answers at once. A module defines ``HELP`` (one line), ``configure(parser)`` and
+``run(args) -> int``. Bad input exits with status 2 and one line on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+PROG = "cliff-terrain"
+
+# Subcommand -> module under cliff_terrain.commands, in the order --help lists them.
+COMMANDS = {
+    "relief": "relief",
+    "synthetic": "synthetic",
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but usage errors are one line and exit 2 (argparse prints the whole usage)."""
+
+    def error(self, message):
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def command_module(name):
+    return importlib.import_module(f"{__package__}.commands.{COMMANDS[name]}")
+
+
+def build_parser():
+    from . import __version__
+
+    parser = _Parser(
+        prog=PROG, description="Cliff Terrain: UAV crop photos to 3D reliefs, heights and tables."
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name in COMMANDS:
+        module = command_module(name)
+        configure = module.configure
+        child = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        configure(child)
+    return parser
+
+
+def main(argv=None):
+    """Run the command line; return the exit status (0 ok, 1 some work failed, 2 bad input)."""
+    from .errors import CliffTerrainError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return int(command_module(args.command).run(args) or 0)
+    except CliffTerrainError as exc:
+        print(f"{PROG} {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
