@@ -1,38 +1,60 @@
 # Two commands for a newcomer: `make demo` (figures from the synthetic field) and `make test`.
 SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
+# Python 3.13 for Blender 5.1-5.2 (bpy 5.2.3): python3.13 on PATH, else pyenv's.
+PYTHON313 ?= $(shell for p in python3.13 $$HOME/.pyenv/versions/3.13*/bin/python3.13; do \
+	"$$p" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null && { command -v "$$p" || echo "$$p"; } && break; done)
 VENV := .venv
 VENV42 := .venv-bpy42
+VENV52 := .venv-bpy52
 BIN := $(VENV)/bin
 DEMO_DIR := demo
 
-.PHONY: help venv venv42 demo test test-core test-blender42 lint format bench extension clean
+.PHONY: help venv venv42 venv52 demo test test-core test-bpy42 test-bpy52 test-app lint format bench extension clean
 
 help:
 	@echo "make demo       - set up .venv, make the synthetic field, render its figures into $(DEMO_DIR)/"
-	@echo "make test       - lint and run the whole test suite (bpy 5.0.1, then the Blender tests on bpy 4.2)"
+	@echo "make test       - lint, then the whole suite three times: bpy 5.0.1 with the pinned libraries"
+	@echo "                  (numpy 1.26), bpy 4.2 with the oldest supported ones, bpy 5.2.3 on Python 3.13"
+	@echo "                  with the newest (numpy 2, OpenCV 5)"
+	@echo "make test-app   - the extension zip in a real blender executable (Debian 13's, in a chroot, if"
+	@echo "                  none is on PATH): install, Build Relief, render_views.py, the sidebar in a window"
 	@echo "make bench      - run the benchmarks (ratios against named peers)"
-	@echo "make extension  - build one Blender extension zip per platform into dist/"
+	@echo "make extension  - build one Blender extension zip per platform and Python into dist/"
 
 $(VENV)/.installed: requirements.txt requirements-dev.txt
-	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed (Blender 4.2-5.0 and the bpy wheels are 3.11); set PYTHON=/path/to/python3.11")'
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed (Blender 4.2-5.0 and their bpy wheels are 3.11); set PYTHON=/path/to/python3.11")'
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -r requirements-dev.txt
 	@touch $@
 
-# A second environment with the declared minimum Blender, for the Blender tests only.
-$(VENV42)/.installed: requirements.txt requirements-bpy42.txt
+# The declared minimum Blender with the oldest library versions pyproject.toml admits.
+$(VENV42)/.installed: requirements-bpy42.txt
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed for bpy 4.2; set PYTHON=/path/to/python3.11")'
 	$(PYTHON) -m venv $(VENV42)
 	$(VENV42)/bin/pip install -q --upgrade pip
 	$(VENV42)/bin/pip install -q -r requirements-bpy42.txt
 	@touch $@
 
+# Blender 5.1-5.2 LTS: Python 3.13, numpy 2, and the newest OpenCV, scikit-image and SciPy.
+$(VENV52)/.installed: requirements-bpy52.txt
+	@if [ -z "$(PYTHON313)" ]; then \
+	  echo "Python 3.13 is needed for the tests on Blender 5.1-5.2 (bpy 5.2.3) and was not found."; \
+	  echo "Install it (e.g. 'pyenv install 3.13', 'apt-get install python3.13-venv' on Debian 13,"; \
+	  echo "or python.org) and put python3.13 on PATH, or run 'make test PYTHON313=/path/to/python3.13'."; \
+	  exit 1; fi
+	$(PYTHON313) -m venv $(VENV52)
+	$(VENV52)/bin/pip install -q --upgrade pip
+	$(VENV52)/bin/pip install -q -r requirements-bpy52.txt
+	@touch $@
+
 venv: $(VENV)/.installed
 venv42: $(VENV42)/.installed
+venv52: $(VENV52)/.installed
 
 demo: venv
-	$(BIN)/python -m cliff_terrain.synthetic $(DEMO_DIR)/synthetic_field.png
+	$(BIN)/python -m cliff_terrain synthetic $(DEMO_DIR)/synthetic_field.png
 	$(BIN)/python render_views.py $(DEMO_DIR)/synthetic_field.png --out $(DEMO_DIR)/synthetic_field_relief --overwrite
 	@echo "Figures: $(DEMO_DIR)/synthetic_field_relief/"
 
@@ -47,10 +69,16 @@ format: venv
 test-core: venv
 	$(BIN)/python -m pytest
 
-test-blender42: venv42
-	$(VENV42)/bin/python -m pytest -m blender
+test-bpy42: venv42
+	$(VENV42)/bin/python -m pytest
 
-test: lint test-core test-blender42
+test-bpy52: venv52
+	$(VENV52)/bin/python -m pytest
+
+test: lint test-core test-bpy42 test-bpy52
+
+test-app: venv
+	PY=$(BIN)/python bash tools/test_app.sh
 
 bench: venv
 	$(BIN)/python bench/run_all.py

@@ -1,8 +1,9 @@
 """Cliff Terrain: turn one UAV crop photo into a textured 3D relief (a Blender extension).
 
-Only registration lives here. The Blender side is in ``operators/`` (scene settings, operators, the
-numpy-to-Blender mesh and material code) and ``panels/`` (the 3D Viewport sidebar); the bpy-free core
-that does the image work is ``cliff_terrain/``.
+Only registration lives here. The Blender side is in ``operators/`` (scene settings and operators),
+``scene/`` (what they put into a scene: the numpy-to-Blender mesh, materials, the view rig and render
+settings; no classes) and ``panels/`` (the 3D Viewport sidebar); the bpy-free core that does the image
+work is ``cliff_terrain/``.
 """
 
 from . import operators, panels

@@ -7,9 +7,10 @@ views against the photo, as in the paper's Table 4).
 
 Both run the same code: the repository root (this file's folder) is loaded as the package
 ``cliff_terrain_addon`` and registered like the installed extension; the relief object is made by the
-build operator's own function (``operators.build.build_relief_object``), the views by
-``operators.views``. Arguments are parsed before Blender is imported, so ``--help`` and bad options
-answer at once. Bad input exits with status 2 and one line on stderr; existing output files are
+build operator's own function (``operators.build.build_relief_object``), the views by the modules
+of ``scene/``. Arguments are parsed before Blender is imported, so ``--help`` and bad options
+answer at once: their choices, defaults and limits come from ``cliff_terrain/settings.py`` and
+their checks from ``cliff_terrain/_validate.py``, which need neither bpy nor the core's libraries. Bad input exits with status 2 and one line on stderr; existing output files are
 never replaced without ``--overwrite``.
 """
 
@@ -19,7 +20,6 @@ import argparse
 import importlib
 import importlib.util
 import json
-import math
 import os
 import sys
 import time
@@ -32,16 +32,10 @@ PROG = "render_views.py"
 # Everything the script writes into the output folder.
 RENDERS = ("xy.png", "xy_flat.png", "xz.png", "view3d.png", "mesh.png")
 MAPS = ("filtered.png", "mask.png", "distance.png", "height.tif")
-OUTPUTS = (*RENDERS, *MAPS, "scene.blend", "metrics.json")
-
-# The paper's Table 4 (its lit top view against the photo).
-PAPER_TABLE4 = {"psnr": 17.73, "ssim": 0.8713}
-
-# operators.views.MAX_RESOLUTION and MIN_VIEW_SIDE, repeated here because the arguments are checked
-# before bpy (and with it operators.views) is imported: the longest side of a rendered view, and
-# the shorter side that default views are enlarged to.
-MAX_RESOLUTION = 16384
-MIN_VIEW_SIDE = 16
+# Figures with legends, drawn on copies of the renders (the raw renders stay as Blender made them,
+# the top views for PSNR/SSIM), and the contact sheet for a report.
+FIGURES = ("xy_annotated.png", "xz_annotated.png", "mesh_annotated.png", "summary.png")
+OUTPUTS = (*RENDERS, *MAPS, *FIGURES, "scene.blend", "metrics.json")
 
 _START = time.perf_counter()
 # Inside Blender (blender -b -P) bpy is loaded before this script runs; with the bpy wheel it is not.
@@ -52,13 +46,44 @@ class InputError(Exception):
     """Bad input the user can fix: reported as one line on stderr, exit status 2."""
 
 
+def addon_package(*, execute=True):
+    """The repository root as the package ``cliff_terrain_addon``, as Blender imports an extension.
+
+    The one loader of the extension from this folder (the tests and benchmarks use it too). With
+    `execute` False the package's ``__init__`` (which imports bpy) has not run yet: enough to import
+    its bpy-free modules, such as ``cliff_terrain.settings``, while the arguments are parsed.
+    """
+    module = sys.modules.get(PACKAGE)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(
+            PACKAGE, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
+        )
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[PACKAGE] = module
+    if execute and not hasattr(module, "register"):
+        try:
+            module.__spec__.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[PACKAGE]
+            raise
+    return module
+
+
+def core_module(name):
+    """A module of the core (``cliff_terrain.<name>``) from this folder's copy of the extension."""
+    addon_package(execute=False)
+    return importlib.import_module(f"{PACKAGE}.cliff_terrain.{name}")
+
+
 # --------------------------------------------------------------------------------------------
 # Arguments (no bpy)
 # --------------------------------------------------------------------------------------------
 
 
-def _number(kind, *, minimum=None, maximum=None, strict=False):
-    """An argparse type: a finite number of `kind` within bounds (the error names the value)."""
+def _number(kind, option, **limits):
+    """An argparse type: a finite number of `kind` within `limits`, checked as the core checks it."""
+    validate = core_module("_validate")
+    check = validate.check_int if kind is int else validate.check_float
 
     def convert(text):
         try:
@@ -67,13 +92,11 @@ def _number(kind, *, minimum=None, maximum=None, strict=False):
             raise argparse.ArgumentTypeError(
                 f"expected {'an integer' if kind is int else 'a number'}, got {text!r}"
             ) from None
-        if kind is float and not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-        if minimum is not None and (value <= minimum if strict else value < minimum):
-            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {minimum}, got {text}")
-        if maximum is not None and value > maximum:
-            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {text}")
-        return value
+        try:
+            return check(option, value, **limits)
+        except validate.CliffTerrainError as exc:
+            # argparse names the option already: "argument --max-size: must be >= 16, got 3".
+            raise argparse.ArgumentTypeError(str(exc).removeprefix(f"`{option}` ")) from None
 
     convert.__name__ = kind.__name__
     return convert
@@ -87,6 +110,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser():
+    settings = core_module("settings")
     parser = _Parser(
         prog=PROG,
         description="Build the 3D relief of a UAV photo in Blender and render its figures and metrics.",
@@ -99,59 +123,92 @@ def build_parser():
     build = parser.add_argument_group("relief (as cliff_terrain.build_relief)")
     build.add_argument(
         "--max-size",
-        type=_number(int, minimum=16, maximum=16384),
-        default=1000,
-        help="longest side of the processing grid in pixels (default 1000)",
+        type=_number(int, "--max-size", minimum=settings.MIN_SIZE, maximum=settings.MAX_SIZE),
+        default=settings.DEFAULT_MAX_SIZE,
+        help=f"longest side of the processing grid in pixels (default {settings.DEFAULT_MAX_SIZE})",
     )
-    build.add_argument("--segmentation", choices=("vegetation", "paper"), default="vegetation")
-    build.add_argument("--profile", choices=("circular", "poisson"), default="circular")
     build.add_argument(
-        "--exaggeration", type=_number(float, minimum=0.0, strict=True), default=1.0, help="height factor"
+        "--segmentation",
+        choices=settings.ids(settings.SEGMENTATIONS),
+        default=settings.DEFAULT_SEGMENTATION,
+    )
+    build.add_argument("--profile", choices=settings.ids(settings.PROFILES), default=settings.DEFAULT_PROFILE)
+    build.add_argument(
+        "--exaggeration",
+        type=_number(float, "--exaggeration", minimum=settings.MIN_EXAGGERATION, strict_minimum=True),
+        default=settings.DEFAULT_EXAGGERATION,
+        help="height factor",
     )
     build.add_argument(
         "--gsd",
-        type=_number(float, minimum=0.0, strict=True),
+        type=_number(float, "--gsd", minimum=0.0, strict_minimum=True),
         help="ground sampling distance of the photo in m/px (default: from its metadata, if any)",
     )
     build.add_argument("--one-sided", action="store_true", help="the relief surface only (no walls and base)")
+    build.add_argument(
+        "--mesh",
+        choices=settings.ids(settings.MESHES),
+        default=settings.DEFAULT_MESH,
+        help=f"grid: a vertex per pixel corner; adaptive: a TIN within --max-error (default {settings.DEFAULT_MESH})",
+    )
+    build.add_argument(
+        "--max-error",
+        type=_number(float, "--max-error", minimum=0.0, strict_minimum=True),
+        help="adaptive mesh: largest vertical error, in metres with a GSD, else in processing pixels "
+        "(default: 5 mm with a GSD, else 1%% of the relief's height)",
+    )
     render = parser.add_argument_group("rendering")
     render.add_argument(
         "--engine",
-        choices=("CYCLES", "WORKBENCH", "EEVEE"),
-        default="CYCLES",
-        help="engine of the lit views (default CYCLES; the flat top view is always Cycles)",
+        choices=settings.ids(settings.ENGINES),
+        default=settings.DEFAULT_ENGINE,
+        help=f"engine of the lit views (default {settings.DEFAULT_ENGINE}; the flat top view is always Cycles)",
     )
     render.add_argument(
         "--resolution",
-        type=_number(int, minimum=16, maximum=MAX_RESOLUTION),
+        type=_number(int, "--resolution", minimum=settings.MIN_VIEW_SIDE, maximum=settings.MAX_RESOLUTION),
         help=(
             "longest side of the rendered views in pixels (default: the processing grid's, enlarged "
-            f"until the shorter side has {MIN_VIEW_SIDE})"
+            f"until the shorter side has {settings.MIN_VIEW_SIDE})"
         ),
     )
     render.add_argument(
         "--samples",
-        type=_number(int, minimum=1, maximum=4096),
-        default=16,
-        help="samples per pixel (default 16)",
+        type=_number(int, "--samples", minimum=1, maximum=settings.MAX_SAMPLES),
+        default=settings.DEFAULT_SAMPLES,
+        help=f"samples per pixel (default {settings.DEFAULT_SAMPLES})",
     )
     render.add_argument(
         "--sun-azimuth",
-        type=_number(float, minimum=-360.0, maximum=360.0),
-        default=315.0,
-        help="where the sun comes from, degrees clockwise from the image's top (default 315: upper left)",
+        type=_number(float, "--sun-azimuth", minimum=-360.0, maximum=360.0),
+        default=settings.DEFAULT_SUN_AZIMUTH,
+        help="where the sun comes from, degrees clockwise from the image's top "
+        f"(default {settings.DEFAULT_SUN_AZIMUTH:g}: upper left)",
     )
     render.add_argument(
         "--sun-elevation",
-        type=_number(float, minimum=0.0, maximum=90.0, strict=True),
-        default=70.0,
-        help="sun elevation in degrees (default 70)",
+        type=_number(float, "--sun-elevation", minimum=0.0, maximum=90.0, strict_minimum=True),
+        default=settings.DEFAULT_SUN_ELEVATION,
+        help=f"sun elevation in degrees (default {settings.DEFAULT_SUN_ELEVATION:g})",
     )
     render.add_argument(
         "--ambient",
-        type=_number(float, minimum=0.0, maximum=0.99),
-        default=0.4,
-        help="share of sky light on level ground, the sun gives the rest (default 0.4)",
+        type=_number(float, "--ambient", minimum=0.0, maximum=settings.MAX_AMBIENT),
+        default=settings.DEFAULT_AMBIENT,
+        help="share of sky light on level ground, the sun gives the rest "
+        f"(default {settings.DEFAULT_AMBIENT:g})",
+    )
+    render.add_argument(
+        "--transect",
+        metavar="STRIP",
+        help="side view of one strip of the photo only (photo pixels): rows=R0:R1 (a band of rows, seen "
+        "from the south) or line=R0,C0,R1,C1[,WIDTH] (a line across the field, seen from its right)",
+    )
+    render.add_argument(
+        "--side-exaggeration",
+        type=_number(float, "--side-exaggeration", minimum=0.0, strict=True),
+        help="vertical exaggeration of the side view (default: a round factor that makes the relief "
+        "rise to 12-30 %% of the view's width, at least 1)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     return parser
@@ -188,6 +245,17 @@ def check_inputs(args):
         if existing:
             more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
             raise InputError(f"{existing[0]} exists{more}; use --overwrite to replace it")
+    args.transect_strip = None
+    if args.transect is not None:
+        # Checked against the photo's header now, not after the pipeline's seconds of work.
+        errors = core_module("errors")
+        try:
+            meta = core_module("image_io").read_metadata(str(image))
+            args.transect_strip = core_module("figures").parse_transect(
+                args.transect, shape=(meta.height, meta.width), name="--transect"
+            )
+        except errors.CliffTerrainError as exc:
+            raise InputError(str(exc)) from None
     return image, out
 
 
@@ -211,19 +279,13 @@ def start_blender():
         ) from None
     # An empty scene with factory settings; the preferences (and installed add-ons) stay untouched.
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-    addon = sys.modules.get(PACKAGE)
-    if addon is None:
-        spec = importlib.util.spec_from_file_location(
-            PACKAGE, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
-        )
-        addon = importlib.util.module_from_spec(spec)
-        sys.modules[PACKAGE] = addon
-        spec.loader.exec_module(addon)
+    addon = addon_package()
     # An installed Cliff Terrain extension may already have registered the same classes.
     if not hasattr(bpy.types.Scene, "cliff_terrain"):
         addon.register()
     try:
         core = importlib.import_module(f"{PACKAGE}.cliff_terrain")
+        importlib.import_module(f"{PACKAGE}.cliff_terrain._deps").check_required()
     except ImportError as exc:
         raise InputError(
             f"Cliff Terrain's libraries are missing in this Python ({exc}): install the extension zip "
@@ -258,11 +320,132 @@ def write_maps(relief, out):
     )
 
 
+def crop_figures(relief):
+    """Plants, ground cover and plant heights (each region's highest point), in the relief's units."""
+    import numpy as np
+    from scipy import ndimage
+
+    n = relief.n_regions
+    tops = ndimage.maximum(relief.heights, relief.labels, np.arange(1, n + 1)) if n else []
+    tops = np.asarray(tops, dtype=np.float64)
+    return {
+        "plants": n,
+        "cover": float(relief.mask.mean()),
+        "plant_height_median": float(np.median(tops)) if n else None,
+        "plant_height_p90": float(np.percentile(tops, 90)) if n else None,
+    }
+
+
+def write_figures(relief, out, side, metrics, *, transect=None):
+    """xy_annotated.png, xz_annotated.png, mesh_annotated.png and summary.png; returns what
+    metrics.json records about them (the side view's exaggeration, the crop's key figures)."""
+    import numpy as np
+    from PIL import Image
+
+    figures = core_module("figures")
+
+    def read(name):
+        with Image.open(out / name) as image:
+            return np.asarray(image.convert("RGBA" if "A" in image.mode else "RGB"))
+
+    def save(name, array):
+        Image.fromarray(array).save(out / name)
+        return array
+
+    meta = relief.metadata
+    crop = crop_figures(relief)
+    factor, unit = (
+        figures.display_units(relief.max_height, relief.units)
+        if relief.max_height > 0
+        else (1.0, relief.units)
+    )
+    lit = read("xy.png")
+    gsd = meta.gsd_m_per_px
+    metres_per_pixel = gsd * meta.width / lit.shape[1] if gsd else None
+    xy = save(
+        "xy_annotated.png",
+        figures.annotate_top_view(
+            lit,
+            metres_per_pixel=metres_per_pixel,
+            georeferenced=meta.gsd_source == "geotiff",
+            transect=transect,
+            photo_shape=(meta.height, meta.width),
+        ),
+    )
+    if relief.max_height > 0:
+        title = (
+            "Side view from the south" if transect is None else f"Side view of the transect {transect.text}"
+        )
+        xz = save(
+            "xz_annotated.png",
+            figures.annotate_side_view(
+                read("xz.png"),
+                ground_row=side["ground_row"],
+                rows_per_unit=side["rows_per_unit"],
+                max_height=relief.max_height,
+                units=relief.units,
+                exaggeration=side["exaggeration"],
+                title=title,
+            ),
+        )
+        mesh = save(
+            "mesh_annotated.png",
+            figures.annotate_colour_bar(read("mesh.png"), max_height=relief.max_height, units=relief.units),
+        )
+        heights = np.round(figures.height_colours(relief.heights / relief.max_height) * 255).astype(np.uint8)
+        heights = figures.annotate_colour_bar(heights, max_height=relief.max_height, units=relief.units)
+    else:
+        # Nothing rose: no ruler or colour bar can be labelled; the figures say so instead.
+        note = f"flat relief: no {'plant' if crop['plants'] == 0 else 'height'} to measure"
+        xz = save("xz_annotated.png", figures.contact_sheet([(note, read("xz.png"))], tile=480, columns=1))
+        mesh = save(
+            "mesh_annotated.png", figures.contact_sheet([(note, read("mesh.png"))], tile=480, columns=1)
+        )
+        heights = np.zeros(relief.heights.shape, np.uint8)
+
+    def height(value):
+        return "n/a" if value is None else f"{value * factor:.3g} {unit}"
+
+    if gsd:
+        units_line = f"GSD {gsd * 100:.3g} cm/px ({meta.gsd_source})"
+    else:
+        units_line = "no GSD: heights in processing pixels"
+    facts = [
+        f"plants: {crop['plants']}",
+        f"ground cover: {100 * crop['cover']:.1f} %",
+        f"plant height: median {height(crop['plant_height_median'])}",
+        f"    90th percentile {height(crop['plant_height_p90'])}",
+        f"highest point: {height(relief.max_height)}",
+        f"lit top view: PSNR {metrics['psnr_xy']:.2f} dB, SSIM {metrics['ssim_xy']:.3f}",
+        f"flat top view: PSNR {metrics['psnr_xy_flat']:.2f} dB",
+        units_line,
+        f"side view: vertical exaggeration {side['exaggeration']:g}x",
+    ]
+    panels = [
+        ("photo", read("xy_flat.png")),
+        ("plants (mask)", read("mask.png")),
+        (f"heights ({unit})", heights),
+        ("lit top view (x-y)", xy),
+        ("3D view", read("view3d.png")),
+        ("mesh by height", mesh),
+        ("side view (x-z)", xz, 2),
+    ]
+    save("summary.png", figures.contact_sheet(panels, facts=facts, title=Path(meta.path).name))
+    return {
+        **crop,
+        "side_view": {key: side[key] for key in ("exaggeration", "ground_row", "rows_per_unit", "transect")},
+        "figures": {"raw_renders": "unchanged", "annotated": list(FIGURES), "height_label_unit": unit},
+    }
+
+
 def run(args):
     image, out = check_inputs(args)
     log("starting Blender")
     bpy, addon, core = start_blender()
-    views = importlib.import_module(f"{PACKAGE}.operators.views")
+    evaluation = core_module("evaluation")
+    rig = importlib.import_module(f"{PACKAGE}.scene.rig")
+    render_settings = importlib.import_module(f"{PACKAGE}.scene.render_settings")
+    views = importlib.import_module(f"{PACKAGE}.scene.views")
     build_relief_object = importlib.import_module(f"{PACKAGE}.operators.build").build_relief_object
 
     timings = {"blender_start": time.perf_counter() - _START}
@@ -282,6 +465,8 @@ def run(args):
             exaggeration=args.exaggeration,
             gsd=args.gsd,
             two_sided=not args.one_sided,
+            mesh=args.mesh,
+            max_error=args.max_error,
             progress=lambda fraction, name: log(f"pipeline: {name}"),
         )
     except core.CliffTerrainError as exc:
@@ -295,7 +480,7 @@ def run(args):
     )
 
     try:
-        resolution = views.view_resolution(args.resolution, rows, cols, name="--resolution")
+        resolution = evaluation.view_resolution(args.resolution, rows, cols, name="--resolution")
     except core.CliffTerrainError as exc:
         raise InputError(str(exc)) from None
 
@@ -310,24 +495,28 @@ def run(args):
     stage("blender_object", start)
     log(f"relief object {obj.name}: {len(obj.data.vertices)} vertices, {len(obj.data.polygons)} faces")
 
-    engine = views.choose_engine(args.engine, log=log)
-    rig = views.make_rig(
+    engine = render_settings.choose_engine(args.engine, log=log)
+    view_rig = rig.make_rig(
         context,
         obj,
         resolution=resolution,
         sun_azimuth=args.sun_azimuth,
         sun_elevation=args.sun_elevation,
         ambient=args.ambient,
+        side_exaggeration=args.side_exaggeration,
+        transect=args.transect_strip,
+        photo_shape=(relief.metadata.height, relief.metadata.width),
     )
+    log(f"side view: vertical exaggeration {view_rig.side['exaggeration']:g}x")
     paths, seconds = views.render_views(
-        context, rig, str(out), engine=engine, samples=args.samples, log=log, quiet=True
+        context, view_rig, str(out), engine=engine, samples=args.samples, log=log, quiet=True
     )
     for view, value in seconds.items():
         timings[f"render_{view}"] = value
 
     log("comparing the top views with the photo")
     start = time.perf_counter()
-    metrics = views.evaluate_relief(obj, rig, paths["xy"], paths["xy_flat"], source=path)
+    metrics = views.evaluate_relief(obj, view_rig, paths["xy"], paths["xy_flat"], source=path)
     stage("metrics", start)
 
     log("writing the maps")
@@ -335,9 +524,14 @@ def run(args):
     write_maps(relief, out)
     stage("maps", start)
 
+    log("drawing the figures")
+    start = time.perf_counter()
+    figures_record = write_figures(relief, out, view_rig.side, metrics, transect=args.transect_strip)
+    stage("figures", start)
+
     log("saving scene.blend")
     start = time.perf_counter()
-    views.set_top_view(context, rig, engine, samples=args.samples)
+    views.set_top_view(context, view_rig, engine, samples=args.samples)
     blend = out / "scene.blend"
     if blend.exists():
         blend.unlink()  # no scene.blend1 backup beside it
@@ -346,41 +540,35 @@ def run(args):
     timings["total"] = time.perf_counter() - _START
 
     meta = relief.metadata
-    record = {
-        **{key: _plain(value) for key, value in metrics.items()},
-        "regions": relief.n_regions,
-        "max_height": relief.max_height,
-        "units": relief.units,
-        "gsd_m_per_px": meta.gsd_m_per_px,
-        "gsd_source": meta.gsd_source,
-        "vertices": len(obj.data.vertices),
-        "faces": len(obj.data.polygons),
-        "image": {"path": path, "width": meta.width, "height": meta.height},
-        "processing_size": [cols, rows],
-        "params": relief.params,
-        "engine": engine,
-        "samples": args.samples,
-        "flat_view": f"Cycles, texture as emission, {views.FLAT_SAMPLES} samples, 1-pixel box filter",
-        "light": rig.light,
-        "paper_table4": PAPER_TABLE4,
-        "timings_s": {key: round(value, 3) for key, value in timings.items()},
-        "versions": {"cliff_terrain": core.__version__, "blender": bpy.app.version_string},
-    }
-    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
-    log(
-        f"lit top view PSNR {metrics['psnr_xy']:.2f} dB, SSIM {metrics['ssim_xy']:.4f}; "
-        f"flat PSNR {metrics['psnr_xy_flat']:.2f} dB, SSIM {metrics['ssim_xy_flat']:.4f} "
-        f"(paper: {PAPER_TABLE4['psnr']} dB, {PAPER_TABLE4['ssim']})"
+    # JSON holds no infinity: the PSNR of a view identical to the photo is written as null.
+    record = evaluation.json_safe(
+        {
+            **metrics,
+            "regions": relief.n_regions,
+            "max_height": relief.max_height,
+            "units": relief.units,
+            "gsd_m_per_px": meta.gsd_m_per_px,
+            "gsd_source": meta.gsd_source,
+            "vertices": len(obj.data.vertices),
+            "faces": len(obj.data.polygons),
+            "max_error": relief.max_error,
+            "image": {"path": path, "width": meta.width, "height": meta.height},
+            "processing_size": [cols, rows],
+            "params": relief.params,
+            "engine": engine,
+            "samples": args.samples,
+            "flat_view": f"Cycles, texture as emission, {render_settings.FLAT_SAMPLES} samples, 1-pixel box filter",
+            "light": view_rig.light,
+            **figures_record,
+            "paper_table4": core_module("settings").PAPER_TABLE4,
+            "timings_s": {key: round(value, 3) for key, value in timings.items()},
+            "versions": {"cliff_terrain": core.__version__, "blender": bpy.app.version_string},
+        }
     )
+    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
+    log(f"{evaluation.metrics_summary(metrics)} ({evaluation.paper_summary()})")
     log(f"done: {out}")
     return record
-
-
-def _plain(value):
-    """JSON-friendly numbers (inf PSNR of identical images becomes null)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def main(argv=None):

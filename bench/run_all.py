@@ -1,38 +1,114 @@
-"""Run every benchmark in bench/ (each prints its own figures and ratios) and say which ran.
+"""Run every benchmark in bench/ (each prints its own figures and ratios) and write the README's table.
 
-python bench/run_all.py            # all
-python bench/run_all.py filter     # the ones whose name contains "filter"
+python bench/run_all.py            # all, then the README's benchmark table
+python bench/run_all.py filter     # the ones whose name contains "filter" (the README is left alone)
+
+A benchmark's ``main`` returns its figures; those with ``rows`` (what, ours, peer, ratio, goal) make
+the README's table, between the markers below, so that its numbers are always a run's output and
+never copied by hand. The Build benchmark also runs on the declared minimum Blender when its
+environment (.venv-bpy42, ``make venv42``) exists. The README is written only after a run of every
+benchmark in which none failed.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import json
+import platform
+import subprocess
 import sys
+import tempfile
 import time
+from datetime import date
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+README = ROOT / "README.md"
+BEGIN = "<!-- bench:begin (written by `make bench`, bench/run_all.py; not edited by hand) -->"
+END = "<!-- bench:end -->"
+BPY42_PYTHON = ROOT / ".venv-bpy42" / "bin" / "python"
+
+
+def run_module(path):
+    """Run one benchmark in this process; its figures (a dict) or None if it failed."""
+    print(f"\n=== {path.stem} ===", flush=True)
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    start = time.perf_counter()
+    try:
+        spec.loader.exec_module(module)
+        return module.main([]) or {}
+    except Exception as exc:  # report and go on: one broken bench must not hide the others
+        print(f"{path.stem} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return None
+    finally:
+        print(f"({path.stem} took {time.perf_counter() - start:.1f} s)", flush=True)
+
+
+def run_build_on_bpy42():
+    """bench_blender_build.py with the bpy 4.2 environment; its figures, or None."""
+    print("\n=== bench_blender_build (bpy 4.2 environment) ===", flush=True)
+    with tempfile.TemporaryDirectory(prefix="cliff_terrain_bench42_") as tmp:
+        out = Path(tmp) / "figures.json"
+        proc = subprocess.run(
+            [str(BPY42_PYTHON), str(HERE / "bench_blender_build.py"), "--json", str(out)], check=False
+        )
+        if proc.returncode != 0 or not out.is_file():
+            print(f"bench_blender_build on bpy 4.2 failed (exit {proc.returncode})", file=sys.stderr)
+            return None
+        return json.loads(out.read_text())
+
+
+def table(rows):
+    """A Markdown table of (what, ours, peer, ratio, goal) rows."""
+    lines = ["| what | ours | peer | ratio | goal |", "|---|---|---|---|---|"]
+    for row in rows:
+        lines.append("| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |")
+    return "\n".join(lines)
+
+
+def write_readme(rows, readme=README):
+    """Put the table (with the machine and the day it ran) between the README's markers."""
+    sys.path.insert(0, str(HERE))
+    import cv2
+    import numpy as np
+    from machine_info import describe
+
+    text = readme.read_text()
+    if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
+        raise RuntimeError(f"{readme.name} needs one {BEGIN!r} line, then one {END!r} line")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    block = (
+        f"Measured by `make bench` on {date.today().isoformat()}: {describe()}, {platform.system()}, "
+        f"numpy {np.__version__}, OpenCV {cv2.__version__}. The load average is the machine's as the run "
+        "ended (other processes may share its cores: absolute times move with the load, ratios "
+        "less).\n\n" + table(rows)
+    )
+    readme.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
+    print(f"\nwrote {len(rows)} rows into {readme.name}")
 
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     selected = [p for p in sorted(HERE.glob("bench_*.py")) if not argv or any(a in p.stem for a in argv)]
-    failed = []
+    results, failed = {}, []
     for path in selected:
-        print(f"\n=== {path.stem} ===", flush=True)
-        spec = importlib.util.spec_from_file_location(path.stem, path)
-        module = importlib.util.module_from_spec(spec)
-        t = time.perf_counter()
-        try:
-            spec.loader.exec_module(module)
-            module.main([])
-        except Exception as exc:  # report and go on: one broken bench must not hide the others
+        figures = run_module(path)
+        if figures is None:
             failed.append(path.stem)
-            print(f"{path.stem} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
-        print(f"({path.stem} took {time.perf_counter() - t:.1f} s)", flush=True)
+        results[path.stem] = figures or {}
+        if path.stem == "bench_blender_build" and BPY42_PYTHON.is_file():
+            figures = run_build_on_bpy42()
+            if figures is None:
+                failed.append("bench_blender_build (bpy 4.2)")
+            results["bench_blender_build (bpy 4.2)"] = figures or {}
     if failed:
-        print(f"\nfailed: {', '.join(failed)}", file=sys.stderr)
+        print(f"\nfailed: {', '.join(failed)}; the README is left as it was", file=sys.stderr)
         return 1
+    if not argv:
+        write_readme([tuple(row) for figures in results.values() for row in figures.get("rows", [])])
     return 0
 
 

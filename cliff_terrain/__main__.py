@@ -4,4 +4,6 @@ import sys
 
 from .cli import main
 
-sys.exit(main())
+# Guarded: Dask's worker processes start by importing the parent's __main__ (multiprocessing "spawn").
+if __name__ == "__main__":
+    sys.exit(main())

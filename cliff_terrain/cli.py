@@ -17,6 +17,8 @@ PROG = "cliff-terrain"
 COMMANDS = {
     "relief": "relief",
     "synthetic": "synthetic",
+    "season": "season",
+    "heights": "heights",
 }
 
 
@@ -53,8 +55,11 @@ def main(argv=None):
     """Run the command line; return the exit status (0 ok, 1 some work failed, 2 bad input)."""
     from .errors import CliffTerrainError
 
+    from ._deps import check_required
+
     args = build_parser().parse_args(argv)
     try:
+        check_required()
         return int(command_module(args.command).run(args) or 0)
     except CliffTerrainError as exc:
         print(f"{PROG} {args.command}: error: {exc}", file=sys.stderr)

@@ -15,3 +15,23 @@ class ImageReadError(CliffTerrainError):
 
 class ImageTooLargeError(CliffTerrainError):
     """An image would decode past the documented memory limit and cannot be reduced."""
+
+
+class DependencyError(CliffTerrainError, ImportError):
+    """A library Cliff Terrain needs is missing, too old, or lacks an API: the environment, not the data.
+
+    The message names the package and its version. It is also an :class:`ImportError`, so code that
+    guards an import (the Blender add-on does) catches it as one.
+    """
+
+
+class RasterReadError(CliffTerrainError):
+    """A surface model or orthophoto GeoTIFF is missing, unreadable, or lacks a usable georeference."""
+
+
+class GeoreferenceError(CliffTerrainError):
+    """Rasters or plots that cannot be put on one map: other CRSs, no overlap, feet or degrees."""
+
+
+class PlotFileError(CliffTerrainError):
+    """A plot polygon file (GeoJSON or ESRI Shapefile) is missing, broken, empty or not polygons."""

@@ -9,11 +9,13 @@ from scipy.sparse import linalg as splinalg
 from ._validate import check_choice, check_float
 from .errors import CliffTerrainError
 from .segmentation import distance_map, label_max, region_interiors
+from .settings import PROFILES as _PROFILE_CHOICES
+from .settings import ids
 
-PROFILES = ("circular", "poisson")
+PROFILES = ids(_PROFILE_CHOICES)
 
 
-def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None):
+def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None, max_height=None):
     """Heights of every region, in pixels.
 
     Parameters
@@ -27,10 +29,19 @@ def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None):
         laplace(h) = -4 inside the regions with h = 0 on their boundary and take sqrt(h) (after
         Baran & Lehtinen's notes on inflating curves): smooth, no creases along the medial axis.
         Both give a hemisphere of radius r for a disc of radius r.
+        ``"plateau"``: the circular profile with the canopy height as a ceiling: each region rises
+        like the circular profile of radius min(Dmax, canopy height) and then stays level, so an
+        isolated plant narrower than twice the canopy height is the paper's dome, while a closed
+        canopy (merged plants, a plot) is a plateau at canopy height instead of a dome as tall as
+        half its width (see :func:`plateau_profile`).
     exaggeration : float, optional
         Factor applied to the heights (> 0).
     distance : (rows, cols) float array, optional
-        ``distance_map(labels)`` if already computed (circular profile only).
+        ``distance_map(labels)`` if already computed (circular and plateau profiles).
+    max_height : float, optional
+        Canopy height in pixels (> 0, finite), before `exaggeration`. ``"plateau"``: the height of
+        the plateau, by default :func:`canopy_height` (the radius of a typical isolated plant).
+        ``"circular"`` and ``"poisson"``: a cap (heights above it are cut level); none by default.
 
     Returns
     -------
@@ -52,16 +63,21 @@ def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None):
         raise CliffTerrainError(f"`labels` must hold integers, got dtype {labels.dtype}")
     check_choice("profile", profile, PROFILES)
     exaggeration = check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True)
+    max_height = check_float("max_height", max_height, minimum=0.0, strict_minimum=True, allow_none=True)
     labels = labels.astype(np.int32, copy=False)
     mask = labels > 0
     if not mask.any():
         return np.zeros(labels.shape, dtype=np.float32)
-    if profile == "circular":
+    if profile == "plateau":
+        h = plateau_profile(labels, max_height, region_distance=distance)
+    elif profile == "circular":
         if distance is None:
             distance = distance_map(labels)
         h = circular_profile(labels, distance)
     else:
         h = poisson_profile(region_interiors(labels))
+    if max_height is not None and profile != "plateau":
+        np.minimum(h, np.float32(max_height), out=h)
     if exaggeration != 1.0:
         h *= np.float32(exaggeration)
     return h
@@ -81,6 +97,150 @@ def circular_profile(labels, distance):
     out = np.zeros(labels.shape, dtype=np.float32)
     out.ravel()[inside] = h
     return out
+
+
+def plateau_profile(labels, canopy=None, *, region_distance=None):
+    """The circular profile levelled off at the canopy height: a closed canopy is a plateau.
+
+    With D the distance to flat ground (of the whole mask: touching plants form one canopy, with
+    no valley where the watershed split them), Dmax each region's largest D and c its radius:
+    H = sqrt(c^2 - (c - min(D, c))^2). Regions have c = min(Dmax, canopy): narrow ones are the
+    paper's domes, wide ones (plants merged in a canopy, rows, plots) rise like a dome of radius
+    `canopy` at their rim and are level at `canopy` inside. With the estimated canopy height, an
+    isolated plant (a region off the frame that touches no other and is about round: area at
+    most twice the disc of radius Dmax) keeps c = Dmax, the paper's dome, whatever its size; a
+    `canopy` given is a ceiling for every region.
+
+    Parameters
+    ----------
+    labels : (rows, cols) int array
+        0 on flat ground, 1..n for the regions.
+    canopy : float, optional
+        Canopy height in pixels; default :func:`canopy_height` (estimated).
+    region_distance : (rows, cols) float array, optional
+        ``distance_map(labels)`` if already computed (for the default `canopy`).
+
+    Returns
+    -------
+    (rows, cols) float32 array
+
+    Examples
+    --------
+    >>> labels = np.zeros((60, 200), np.int32); labels[10:50, 10:190] = 1   # 40 px wide
+    >>> h = plateau_profile(labels, 8.0)
+    >>> float(h.max()), float(h[30, 100]), bool(0 < h[30, 10] < 8)
+    (8.0, 8.0, True)
+    """
+    labels = np.asarray(labels, dtype=np.int32)
+    out = np.zeros(labels.shape, dtype=np.float32)
+    inside = np.flatnonzero(labels.ravel())
+    if inside.size == 0:
+        return out
+    distance = distance_map(labels > 0)
+    lab = labels.ravel()[inside]
+    d = distance.ravel()[inside]
+    regions = _Regions(labels, label_max(d, lab))
+    radius = regions.dmax.astype(np.float32)
+    if canopy is None:  # estimated: isolated plants keep their domes, whatever their size
+        canopy = canopy_height(labels, region_distance, regions=regions)
+        np.minimum(radius, np.float32(canopy), out=radius, where=~regions.isolated_plant)
+    else:  # given: nothing rises above it
+        np.minimum(radius, np.float32(canopy), out=radius)
+    c = radius[lab]
+    np.minimum(d, c, out=d)
+    # c^2 - (c - d)^2 = d (2c - d)
+    c *= np.float32(2.0)
+    c -= d
+    c *= d
+    out.ravel()[inside] = np.sqrt(np.maximum(c, np.float32(0.0)))
+    return out
+
+
+# Regions larger than this many times the disc of their largest inscribed radius are not single
+# round plants (rows, merged canopy).
+_COMPACT = 2.0
+# An isolated region narrower than this share of the typical region is a weed or a speck.
+_PLANT_SHARE = 0.5
+# Canopy height when no region lies off the frame (a canopy over the whole photo): this fraction
+# of the shorter side.
+_FALLBACK_FRACTION = 0.02
+
+
+class _Regions:
+    """Per-region traits for the plateau profile: size, frame contact, contact with other regions."""
+
+    def __init__(self, labels, dmax):
+        n = int(labels.max(initial=0))
+        self.dmax = np.asarray(dmax, dtype=np.float64)
+        self.area = np.bincount(labels.ravel(), minlength=n + 1).astype(np.float64)
+        self.off_frame = np.ones(n + 1, dtype=bool)
+        for edge in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
+            self.off_frame[edge] = False
+        self.off_frame[0] = False
+        self.alone = np.ones(n + 1, dtype=bool)
+        for a, b in ((labels[:, 1:], labels[:, :-1]), (labels[1:, :], labels[:-1, :])):
+            pair = (a != b) & (a > 0) & (b > 0)
+            self.alone[a[pair]] = False
+            self.alone[b[pair]] = False
+        self.alone[0] = False
+        round_ = self.area <= _COMPACT * np.pi * self.dmax**2
+        self.isolated_plant = self.alone & round_ & self.off_frame
+
+
+def canopy_height(labels, distance=None, *, regions=None):
+    """The radius of a typical isolated plant, in pixels: the default canopy height of ``"plateau"``.
+
+    The typical region is the area-weighted median of the regions' largest inscribed radii (Dmax,
+    each region on its own: where the watershed split touching plants, each plant counts), over
+    the regions off the frame. Isolated plants are the regions that touch neither the frame nor
+    another region, are about round (area at most twice the disc of radius Dmax, so rows and
+    merged canopy do not count) and are at least half as wide as the typical region (weeds and
+    specks do not count). The result is their median Dmax; without any (all plants touch, as in
+    closed rows), the typical region's; without regions off the frame (a canopy over the whole
+    photo), 2 % of the image's shorter side; 0 without regions.
+
+    Parameters
+    ----------
+    labels : (rows, cols) int array
+        0 on flat ground, 1..n for the regions.
+    distance : (rows, cols) float array, optional
+        ``distance_map(labels)`` if already computed.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[:80, :160]
+    >>> labels = (np.hypot(rr - 40, cc - 30) <= 12).astype(np.int32)
+    >>> labels[np.hypot(rr - 40, cc - 70) <= 16] = 2
+    >>> labels[np.hypot(rr - 40, cc - 115) <= 20] = 3
+    >>> labels[38:41, 150:153] = 4   # a speck
+    >>> round(canopy_height(labels))
+    16
+    """
+    labels = np.asarray(labels, dtype=np.int32)
+    if int(labels.max(initial=0)) == 0:
+        return 0.0
+    if distance is None:
+        distance = distance_map(labels)
+    # Each region's own Dmax (touching plants split by the watershed count one by one).
+    dmax = label_max(distance, labels).astype(np.float64)
+    if regions is None:
+        regions = _Regions(labels, dmax)
+    off_frame = regions.off_frame
+    if not off_frame.any():
+        return _FALLBACK_FRACTION * min(labels.shape)
+    typical = _weighted_median(dmax[off_frame], regions.area[off_frame])
+    isolated = regions.isolated_plant & off_frame & (dmax >= _PLANT_SHARE * typical)
+    return float(np.median(dmax[isolated])) if isolated.any() else typical
+
+
+def _weighted_median(values, weights):
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
 def poisson_profile(mask):

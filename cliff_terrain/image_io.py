@@ -51,6 +51,7 @@ import numpy as np
 from PIL import Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
 from . import camera
+from ._deps import environment_error
 from ._validate import check_float, check_int
 from .errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 
@@ -255,7 +256,16 @@ def _open_checked(path, max_size, gsd, height_above_ground, max_pixels, *, read_
         path, max_size, gsd, height_above_ground, max_pixels
     )
     with _reading(name):
-        im = _open(name)
+        try:
+            im = _open(name)
+        except ImageReadError:
+            # Float or planar orthophotos (OpenDroneMap's) that Pillow cannot open: tifffile can.
+            from .tiff_photo import open_tiff_photo
+
+            photo = open_tiff_photo(name, gsd, height_above_ground, max_pixels)
+            if photo is None:
+                raise
+            return photo
         try:
             info = _header(im, name, max_size, max_pixels)
             _refuse_non_photo(im, name)
@@ -372,6 +382,9 @@ def _reading(name):
     except MemoryError as error:
         raise ImageTooLargeError(f"image {name!r}: ran out of memory while decoding it") from error
     except Exception as error:
+        environment = environment_error(error, doing=f"cannot read image {name!r}")
+        if environment is not None:
+            raise environment from error
         text = str(error)
         if "truncated" in text:
             why = f"the file is truncated (its data ends before the image does: {text})"
@@ -580,11 +593,34 @@ def _decode_jpeg_at_once(data, shape, reduction):
     file: its decoder stops rather than filling with grey) or its size disagrees with the
     (rows, cols) `shape` Pillow read from the header.
     """
-    flags = _CV2_REDUCED[reduction] | cv2.IMREAD_COLOR_RGB | cv2.IMREAD_IGNORE_ORIENTATION
-    rgb = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    if data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
+        # No end-of-image marker after the last scan: the file is cut. OpenCV 4.11 and newer return
+        # nothing then, older releases fill the missing rows with grey; Pillow words the error.
+        return None
+    flags, swap = _cv2_colour_flags(reduction)
+    try:
+        rgb = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    except cv2.error:
+        return None  # an OpenCV that refuses these flags: Pillow decodes the same pixels
     if rgb is None or rgb.shape != (*shape, 3):
         return None
+    if swap:
+        cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB, dst=rgb)  # in place, and it releases the GIL too
     return rgb
+
+
+def _cv2_colour_flags(reduction):
+    """OpenCV's imread flags for a colour decode in RGB order, and whether BGR must still be swapped.
+
+    OpenCV 4.11 added ``IMREAD_COLOR_RGB``; OpenCV 5 refuses it beside the BGR bit that the reduced
+    colour modes carry (``IMREAD_REDUCED_COLOR_2 = IMREAD_COLOR_BGR | 16``), so that bit is cleared.
+    Older releases decode BGR, swapped afterwards.
+    """
+    flags = _CV2_REDUCED[reduction] | cv2.IMREAD_IGNORE_ORIENTATION
+    rgb_flag = getattr(cv2, "IMREAD_COLOR_RGB", None)
+    if rgb_flag is None:
+        return flags, True
+    return (flags & ~getattr(cv2, "IMREAD_COLOR_BGR", cv2.IMREAD_COLOR)) | rgb_flag, False
 
 
 def _bands(im):

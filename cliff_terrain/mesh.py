@@ -373,67 +373,183 @@ def place_vertices(topology, heights, *, pixel_size=1.0, base_depth=None):
     return topology
 
 
-def affine_matrix(*, rotation=None, translation=None, scale=None):
-    """A 4x4 affine matrix: scale first, then rotation, then translation.
+def adaptive_mesh(heights, *, max_error, pixel_size=1.0, two_sided=True, base_depth=None):
+    """Build the relief mesh of a height grid as a TIN whose vertical error is at most `max_error`.
+
+    The front is a triangulated irregular network (:func:`cliff_terrain.tin.triangulate`) with
+    its vertices at pixel *centres*, so the surface is within `max_error` of every pixel's height
+    at that pixel's centre (:func:`cliff_terrain.tin.tin_error` measures it). A frame half a
+    pixel wide, level with the TIN's border vertices, takes the front out to the pixel corners of
+    the image's border, so the mesh covers the image exactly as :func:`grid_mesh` does; the front
+    UVs are planar (u = x / width, v = y / height), so a top view still shows every pixel of the
+    texture. Walls, base and back UVs (u > 1) follow the outer border as in :func:`grid_mesh`.
 
     Parameters
     ----------
-    rotation : (3,) array_like or (3, 3) array_like, optional
-        Euler angles in radians applied in X, Y, Z order (Blender's default ``XYZ``), or a
-        rotation matrix.
-    translation : (3,) array_like, optional
-    scale : float or (3,) array_like, optional
+    heights : (rows, cols) array
+        Height of each pixel, in the same unit as `pixel_size`.
+    max_error : float
+        Largest vertical distance between the front and a pixel centre's height (> 0, the unit
+        of `heights`).
+    pixel_size, two_sided, base_depth
+        As in :func:`grid_mesh`.
 
     Returns
     -------
-    (4, 4) float64 array
+    MeshArrays
+        Front faces are triangles (the TIN's, then the frame's); ``grid_shape`` is the height
+        grid's shape. Two-sided, the solid is watertight.
 
     Examples
     --------
-    >>> m = affine_matrix(rotation=(0, 0, np.pi / 2), translation=(1, 0, 0))
-    >>> np.round(apply_transform(np.array([[1.0, 0, 0]]), m), 6)
-    array([[1., 1., 0.]])
+    >>> import numpy as np
+    >>> mesh = adaptive_mesh(np.zeros((100, 150)), max_error=0.01, two_sided=False)
+    >>> mesh.n_faces  # two triangles, the frame's four strips and four corners
+    18
     """
-    m = np.eye(4)
-    s = np.ones(3) if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (3,))
-    if not np.all(np.isfinite(s)) or np.any(s == 0):
-        raise CliffTerrainError(f"`scale` must be finite and non-zero, got {scale!r}")
-    rot = np.eye(3)
-    if rotation is not None:
-        rotation = np.asarray(rotation, dtype=float)
-        if rotation.shape == (3, 3):
-            rot = rotation
-        elif rotation.shape == (3,):
-            rot = _euler_xyz(rotation)
-        else:
-            raise CliffTerrainError(
-                f"`rotation` must be 3 Euler angles or a 3x3 matrix, got shape {rotation.shape}"
-            )
-    m[:3, :3] = rot * s[None, :]
-    if translation is not None:
-        t = np.asarray(translation, dtype=float)
-        if t.shape != (3,) or not np.all(np.isfinite(t)):
-            raise CliffTerrainError(f"`translation` must be 3 finite numbers, got {translation!r}")
-        m[:3, 3] = t
-    return m
+    from .tin import triangulate
+
+    heights = np.asarray(heights)
+    if heights.ndim != 2 or min(heights.shape) < 1:
+        raise CliffTerrainError(f"`heights` must be a non-empty 2-D array, got shape {heights.shape}")
+    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    rows, cols = heights.shape
+    if base_depth is None:
+        base_depth = 0.02 * max(rows, cols) * pixel_size
+    base_depth = check_float("base_depth", base_depth, minimum=0.0, strict_minimum=True)
+    if not isinstance(two_sided, bool | np.bool_):
+        raise CliffTerrainError(f"`two_sided` must be True or False, got {two_sided!r}")
+    return tin_mesh(
+        triangulate(heights, max_error=max_error),
+        pixel_size=pixel_size,
+        two_sided=bool(two_sided),
+        base_depth=base_depth,
+    )
 
 
-def _euler_xyz(angles):
-    ax, ay, az = angles
-    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
+def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
+    """The relief mesh of a :class:`cliff_terrain.tin.Tin` (see :func:`adaptive_mesh`)."""
+    rows, cols = (int(n) for n in tin.shape)
+    if base_depth is None:
+        base_depth = 0.02 * max(rows, cols) * pixel_size
+    n_tin = len(tin.z)
+    # Positions in pixels: x = col + 0.5, y = rows - (row + 0.5) (y up, the image's top row highest).
+    x_in = tin.cols.astype(np.float64) + 0.5
+    y_in = rows - (tin.rows.astype(np.float64) + 0.5)
+
+    # The border of the TIN, side by side, counter-clockwise from above, each from corner to corner:
+    # bottom (last row) left to right, right (last column) bottom to top, top (row 0) right to
+    # left, left (column 0) top to bottom.
+    def side(on_side, key):
+        idx = np.flatnonzero(on_side)
+        return idx[np.argsort(key[idx], kind="stable")].astype(np.int64)
+
+    sides = [
+        side(tin.rows == rows - 1, tin.cols),
+        side(tin.cols == cols - 1, -tin.rows),
+        side(tin.rows == 0, -tin.cols),
+        side(tin.cols == 0, tin.rows),
+    ]
+    # Each side's vertices projected half a pixel outwards onto the image's border.
+    proj_x = [x_in[sides[0]], np.full(len(sides[1]), float(cols)), x_in[sides[2]], np.zeros(len(sides[3]))]
+    proj_y = [np.zeros(len(sides[0])), y_in[sides[1]], np.full(len(sides[2]), float(rows)), y_in[sides[3]]]
+    counts = [len(s) for s in sides]
+    proj_start = n_tin + np.concatenate([[0], np.cumsum(counts)])
+    projections = [np.arange(proj_start[k], proj_start[k + 1]) for k in range(4)]
+    corner_start = int(proj_start[4])
+    # Outer corners after each side: bottom-right, top-right, top-left, bottom-left.
+    outer = corner_start + np.arange(4)
+    corner_x = np.array([cols, cols, 0, 0], dtype=np.float64)
+    corner_y = np.array([0, rows, rows, 0], dtype=np.float64)
+    n_front_vertices = corner_start + 4
+
+    x = np.concatenate([x_in, *proj_x, corner_x])
+    y = np.concatenate([y_in, *proj_y, corner_y])
+    z_in = tin.z.astype(np.float32)
+    ends = np.array([s[-1] for s in sides])
+    z = np.concatenate([z_in, *(z_in[s] for s in sides), z_in[ends]])
+
+    # Front triangles: the TIN's, turned counter-clockwise seen from +z (rows grow downwards).
+    faces = [tin.triangles[:, ::-1].astype(np.int64)]
+    for k in range(4):
+        a, p = sides[k], projections[k]
+        # Strip between the side and its projection: quads p_i, p_i+1, a_i+1, a_i.
+        faces.append(np.stack([p[:-1], p[1:], a[1:]], axis=1))
+        faces.append(np.stack([p[:-1], a[1:], a[:-1]], axis=1))
+        # Corner square after the side: its last projection, the outer corner, the next side's
+        # first projection, the inner corner.
+        q, inner = projections[(k + 1) % 4][0], a[-1]
+        faces.append(np.array([[p[-1], outer[k], q], [p[-1], q, inner]]))
+    front = np.concatenate(faces).astype(np.int32)
+    n_front = len(front)
+
+    u_vertex = (x / cols).astype(np.float32)
+    v_vertex = (y / rows).astype(np.float32)
+    if not two_sided:
+        vertices = np.stack([x * pixel_size, y * pixel_size, z], axis=1)
+        face_sizes = np.full(n_front, 3, dtype=np.int32)
+        corner_verts = front.ravel()
+        uvs = np.stack([u_vertex[corner_verts], v_vertex[corner_verts]], axis=1)
+        return _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols))
+
+    # The outer border ring, counter-clockwise from the bottom-left corner (as border_ring).
+    ring = np.concatenate(
+        [
+            outer[3:4],
+            projections[0],
+            outer[0:1],
+            projections[1],
+            outer[1:2],
+            projections[2],
+            outer[2:3],
+            projections[3],
+        ]
+    ).astype(np.int32)
+    n_ring = len(ring)
+    base_idx = np.arange(n_front_vertices, n_front_vertices + n_ring, dtype=np.int32)
+    nxt = np.roll(np.arange(n_ring), -1)
+    walls = np.stack([ring, base_idx, base_idx[nxt], ring[nxt]], axis=1)
+    corner_verts = np.concatenate([front.ravel(), walls.ravel(), base_idx[::-1]]).astype(np.int32)
+    face_sizes = np.concatenate(
+        [np.full(n_front, 3, np.int32), np.full(n_ring, 4, np.int32), np.array([n_ring], np.int32)]
+    )
+    x = np.concatenate([x, x[ring]])
+    y = np.concatenate([y, y[ring]])
+    z = np.concatenate([z, np.full(n_ring, -base_depth, np.float32)])
+    vertices = np.stack([x * pixel_size, y * pixel_size, z], axis=1)
+
+    uvs = np.empty((corner_verts.size, 2), dtype=np.float32)
+    uvs[: 3 * n_front, 0] = u_vertex[front.ravel()]
+    uvs[: 3 * n_front, 1] = v_vertex[front.ravel()]
+    # Back UVs: the front UV of the vertex (or of the border vertex a base vertex sits under), u + 1;
+    # the left border moves in by half a texel so that u > 1 holds for every back corner.
+    back = corner_verts[3 * n_front :]
+    front_vertex = np.where(
+        back >= n_front_vertices, ring[np.clip(back - n_front_vertices, 0, n_ring - 1)], back
+    )
+    uvs[3 * n_front :, 0] = np.maximum(u_vertex[front_vertex], np.float32(0.5 / cols)) + 1.0
+    uvs[3 * n_front :, 1] = v_vertex[front_vertex]
+    return _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols))
 
 
-def apply_transform(vertices, matrix):
-    """Apply a 4x4 affine `matrix` to (n, 3) `vertices`; returns float32 like the mesh arrays."""
-    vertices = np.asarray(vertices)
-    matrix = np.asarray(matrix, dtype=float)
-    if vertices.ndim != 2 or vertices.shape[1] != 3:
-        raise CliffTerrainError(f"`vertices` must have shape (n, 3), got {vertices.shape}")
-    if matrix.shape != (4, 4):
-        raise CliffTerrainError(f"`matrix` must have shape (4, 4), got {matrix.shape}")
-    out = vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
-    return out.astype(np.float32)
+def _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, grid_shape):
+    """MeshArrays with its edges and corner edges derived from the faces."""
+    n_vertices = len(vertices)
+    starts = np.zeros(len(face_sizes), dtype=np.int64)
+    np.cumsum(face_sizes[:-1], out=starts[1:])
+    nxt = np.arange(1, corner_verts.size + 1, dtype=np.int64)
+    nxt[starts + face_sizes - 1] = starts
+    a = corner_verts.astype(np.int64)
+    b = a[nxt]
+    keys, corner_edges = np.unique(np.minimum(a, b) * n_vertices + np.maximum(a, b), return_inverse=True)
+    edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1).astype(np.int32)
+    return MeshArrays(
+        vertices=np.ascontiguousarray(vertices, dtype=np.float32),
+        face_sizes=np.ascontiguousarray(face_sizes, dtype=np.int32),
+        corner_verts=np.ascontiguousarray(corner_verts, dtype=np.int32),
+        uvs=np.ascontiguousarray(uvs, dtype=np.float32),
+        n_front_faces=int(n_front),
+        grid_shape=tuple(int(n) for n in grid_shape),
+        edges=edges,
+        corner_edges=corner_edges.astype(np.int32).ravel(),
+    )

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import os
 import queue
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import cv2
 import numpy as np
@@ -17,39 +15,22 @@ from ._validate import check_choice, check_float, check_int, check_rgb
 from .errors import CliffTerrainError
 from .heights import PROFILES, inflate
 from .image_io import ImageMetadata, OpenImage, open_image
-from .mesh import MeshArrays, MeshSizes, grid_sizes, grid_topology, place_vertices
+from .mesh import MeshArrays, adaptive_mesh, grid_topology, place_vertices
 from .quaternion import quaternion_filter
-from .segmentation import METHODS, distance_map, segment
-
-MIN_SIZE = 16
-MAX_SIZE = 16384
-
-
-class MeshSink(Protocol):
-    """What :func:`build_relief` hands the mesh to, step by step (its `mesh_sink`).
-
-    Every method is called in the thread that called :func:`build_relief`, once, in this order,
-    each at the moment the worker thread least needs the GIL: work that holds the GIL for long
-    (Blender's bulk calls do) stalls the worker at each of its steps that need it.
-    """
-
-    def allocate(self, sizes: MeshSizes) -> None:
-        """The mesh's sizes, as soon as the grid's shape is known (the photo's header is read).
-
-        The worker is decoding and resizing the photo, in few long calls that release the GIL:
-        the time to allocate.
-        """
-
-    def prepare(self, mesh: MeshArrays) -> None:
-        """Faces, corners, UVs and edges (the vertices are not placed yet).
-
-        The worker is running many short numpy steps: work here should release the GIL too
-        (numpy checks, layouts), not hold it.
-        """
-
-    def fill(self) -> None:
-        """The worker is inside the watershed, one long call that releases the GIL: the time
-        to copy what `prepare` was given."""
+from .segmentation import METHODS, Segmentation, distance_map, segment
+from .settings import (
+    DEFAULT_EXAGGERATION,
+    DEFAULT_MAX_SIZE,
+    DEFAULT_MESH,
+    DEFAULT_PROFILE,
+    DEFAULT_SEGMENTATION,
+    MAX_SIZE,
+    MESHES,
+    MIN_EXAGGERATION,
+    MIN_SIZE,
+    ids,
+)
+from .tin import default_max_error
 
 
 @dataclass
@@ -84,6 +65,8 @@ class Relief:
         The settings of the call.
     timings : dict
         Seconds per stage.
+    max_error : float or None
+        The adaptive mesh's maximum vertical error in `units` (None for the grid).
     """
 
     image: np.ndarray
@@ -100,6 +83,8 @@ class Relief:
     pixel_size: float
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    max_error: float | None = None
+    canopy: object = None  # a cliff_terrain.canopy.Canopy on the processing grid when built with a DSM
 
     @property
     def n_regions(self) -> int:
@@ -113,14 +98,19 @@ class Relief:
 def build_relief(
     image_or_path,
     *,
-    max_size=1000,
-    segmentation="vegetation",
-    profile="circular",
-    exaggeration=1.0,
+    max_size=DEFAULT_MAX_SIZE,
+    segmentation=DEFAULT_SEGMENTATION,
+    profile=DEFAULT_PROFILE,
+    exaggeration=DEFAULT_EXAGGERATION,
+    max_height=None,
     gsd=None,
     two_sided=True,
+    mesh=DEFAULT_MESH,
+    max_error=None,
     progress=None,
-    mesh_sink=None,
+    dsm=None,
+    dtm=None,
+    heights="inflated",
 ):
     """Turn one UAV photo into a relief: filter, segment, inflate, mesh.
 
@@ -136,25 +126,44 @@ def build_relief(
         ``"vegetation"``: plants rise and soil stays flat. ``"paper"``: the paper's Algorithm 2 as
         printed (Otsu on the filtered image's brightness; it may raise bright soil). See
         :mod:`cliff_terrain.segmentation`.
-    profile : {"circular", "poisson"}, optional
-        Cross-section of each region (see :func:`cliff_terrain.heights.inflate`).
+    profile : {"circular", "poisson", "plateau"}, optional
+        Cross-section of each region (see :func:`cliff_terrain.heights.inflate`); ``"plateau"``
+        levels closed canopy off at `max_height`.
     exaggeration : float, optional
         Height factor (> 0).
+    max_height : float, optional
+        Canopy height (> 0, finite), in metres when the ground sampling distance is known, else in
+        processing pixels; before `exaggeration`. With ``profile="plateau"`` the height at which
+        closed canopy levels off (default: the radius of a typical isolated plant, see
+        :func:`cliff_terrain.heights.canopy_height`); with the other profiles a cap.
     gsd : float, optional
         Ground sampling distance of the *original* photo in metres per pixel; wins over what
         the camera metadata gives. With a GSD the heights and the mesh are in metres.
+    dsm : str or os.PathLike, optional
+        A digital surface model GeoTIFF (metres, projected CRS) of the orthophoto
+        `image_or_path` (a georeferenced GeoTIFF): the heights are then measured. It is resampled
+        onto the processing grid; ``Relief.canopy`` holds the DSM, ground and canopy height there,
+        and ``params["georeference"]`` the grid's CRS and map origin (the mesh starts at 0, 0).
+    dtm : str or os.PathLike, optional
+        A terrain model: the ground; without it the ground is estimated from the soil pixels
+        (see :func:`cliff_terrain.ground.estimate_ground`).
+    heights : {"inflated", "calibrated", "measured"}, optional
+        ``"inflated"``: domes from the photo (the only mode without a DSM). ``"measured"``: the
+        canopy height model. ``"calibrated"``: each region's dome scaled so its top equals the
+        region's measured p99 height (photo-resolution shapes, measured heights).
     two_sided : bool, optional
         Close the relief into a watertight solid with a base (back UVs have u > 1).
+    mesh : {"grid", "adaptive"}, optional
+        ``"grid"``: one vertex per pixel corner. ``"adaptive"``: a triangulated irregular network
+        within `max_error` of every pixel's height at its centre, with far fewer triangles where
+        the ground is flat (see :func:`cliff_terrain.mesh.adaptive_mesh`).
+    max_error : float, optional
+        The adaptive mesh's largest vertical error, in the relief's units (metres with a GSD,
+        else processing pixels; > 0). Default: 5 mm with a GSD, else 1 % of the relief's height
+        (:func:`cliff_terrain.tin.default_max_error`); ``Relief.max_error`` is the value used.
     progress : callable, optional
         ``progress(fraction, stage)`` is called as each stage starts, fraction in [0, 1], always
         in the calling thread (a GUI may update itself from it).
-    mesh_sink : MeshSink, optional
-        Receives the mesh step by step, in the calling thread, while decoding, filter,
-        segmentation and heights run in a worker thread, so that a caller can fill a mesh of its
-        own in parallel (the Blender add-on does). Each step comes when the worker least needs
-        the GIL, which work such as Blender's bulk calls holds throughout: see
-        :class:`MeshSink`. The mesh it is given, with its vertices placed, is ``Relief.mesh``.
-        Whatever it raises propagates once the worker has finished.
 
     Returns
     -------
@@ -171,25 +180,30 @@ def build_relief(
     max_size = check_int("max_size", max_size, minimum=MIN_SIZE, maximum=MAX_SIZE)
     check_choice("segmentation", segmentation, METHODS)
     check_choice("profile", profile, PROFILES)
-    exaggeration = check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True)
+    exaggeration = check_float("exaggeration", exaggeration, minimum=MIN_EXAGGERATION, strict_minimum=True)
+    max_height = check_float("max_height", max_height, minimum=0.0, strict_minimum=True, allow_none=True)
     gsd = check_float("gsd", gsd, minimum=0.0, strict_minimum=True, allow_none=True)
     if not isinstance(two_sided, bool | np.bool_):
         raise CliffTerrainError(f"`two_sided` must be True or False, got {two_sided!r}")
+    check_choice("mesh", mesh, ids(MESHES))
+    max_error = check_float("max_error", max_error, minimum=0.0, strict_minimum=True, allow_none=True)
     if progress is not None and not callable(progress):
         raise CliffTerrainError(f"`progress` must be callable or None, got {progress!r}")
-    if mesh_sink is not None and not all(
-        callable(getattr(mesh_sink, step, None)) for step in ("allocate", "prepare", "fill")
-    ):
-        raise CliffTerrainError(
-            f"`mesh_sink` must have methods allocate, prepare and fill, or be None, got {mesh_sink!r}"
-        )
+    # Measured heights (issue 13): the photo must be a georeferenced orthophoto of the DSM.
+    heights_mode = _check_heights(heights, dsm, dtm, image_or_path)
     params = {
         "max_size": max_size,
         "segmentation": segmentation,
         "profile": profile,
         "exaggeration": exaggeration,
+        "max_height": max_height,
         "gsd": gsd,
         "two_sided": bool(two_sided),
+        "mesh": mesh,
+        "max_error": max_error,
+        "heights": heights_mode,
+        "dsm": None if dsm is None else os.fspath(dsm),
+        "dtm": None if dtm is None else os.fspath(dtm),
     }
     timings = {}
     if progress is not None:
@@ -204,53 +218,21 @@ def build_relief(
     grid_shape = resized_shape(source_shape, max_size)
 
     # Decoding, resizing, filter, segmentation and heights run in a worker thread while this
-    # thread builds the mesh's faces, UVs and edges, which depend on the grid's shape only, and
-    # hands them to `mesh_sink` step by step. Progress is relayed to this thread.
-    events = queue.SimpleQueue()
-
-    worker_done = False
-
-    def relay(*, wait):
-        """Pass the worker's progress on; with `wait`, until the worker has finished."""
-        nonlocal worker_done
-        while not worker_done:
-            try:
-                event = events.get(block=wait)
-            except queue.Empty:
-                return
-            if event is None:
-                worker_done = True
-            elif progress is not None:
-                progress(*event)
-
-    worker_clock = _Stages(lambda fraction, stage: events.put((fraction, stage)), timings, stage="load")
-    # Set when the worker enters its long GIL-free stretch (the watershed, else the heights).
-    gil_free = threading.Event()
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain") as pool:
-        image_stages = pool.submit(
-            _image_stages, source, max_size, segmentation, profile, exaggeration, worker_clock, gil_free
-        )
-        image_stages.add_done_callback(lambda _: (gil_free.set(), events.put(None)))
-        started = time.perf_counter()
-        try:
-            if mesh_sink is not None:
-                # The worker is decoding and resizing the photo, in calls that release the GIL.
-                mesh_sink.allocate(grid_sizes(grid_shape, two_sided=bool(two_sided)))
-                relay(wait=False)
-            mesh_arrays = grid_topology(grid_shape, two_sided=bool(two_sided))
-            if mesh_sink is not None:
-                mesh_sink.prepare(mesh_arrays)
-                relay(wait=False)
-                # Work that holds the GIL stalls the worker at each of its many short numpy
-                # steps; while the worker is inside the watershed it stalls it the least.
-                gil_free.wait()
-                mesh_sink.fill()
-        finally:
-            timings["topology"] = time.perf_counter() - started
-            relay(wait=True)
-            if isinstance(source, OpenImage):
-                source.close()  # the worker has finished; it may have failed before decoding
-        image, metadata, working, filtered, seg, distance, heights_px = image_stages.result()
+    # thread builds the mesh's faces, UVs and edges, which depend on the grid's shape only.
+    worker = _Worker(
+        progress, timings, _image_stages, source, max_size, segmentation, profile, exaggeration, max_height
+    )
+    started = time.perf_counter()
+    try:
+        # An adaptive mesh's size depends on the heights: it is built at the end, in one go.
+        mesh_arrays = grid_topology(grid_shape, two_sided=bool(two_sided)) if mesh == "grid" else None
+    finally:
+        timings["topology"] = time.perf_counter() - started
+        worker.relay(wait=True)
+        if isinstance(source, OpenImage):
+            source.close()  # the worker has finished; it may have failed before decoding
+    stages = worker.result()
+    metadata, working = stages.metadata, stages.working
     clock = _Stages(progress, timings)
     clock.start("mesh", 0.8)
 
@@ -261,29 +243,110 @@ def build_relief(
         pixel_size = float(metadata.gsd_m_per_px) * metadata.width / cols
     else:
         units, pixel_size = "px", 1.0
-    heights = heights_px * np.float32(pixel_size) if units == "m" else heights_px
-    mesh = place_vertices(mesh_arrays, heights, pixel_size=pixel_size)
+    heights = stages.heights_px * np.float32(pixel_size) if units == "m" else stages.heights_px
+    canopy = None
+    if dsm is not None:
+        from .canopy import relief_heights
+
+        canopy, heights, pixel_size, params["georeference"] = relief_heights(
+            image_or_path, stages, dsm=dsm, dtm=dtm, mode=heights_mode, exaggeration=exaggeration
+        )
+        units = "m"
+    if mesh == "grid":
+        relief_mesh = place_vertices(mesh_arrays, heights, pixel_size=pixel_size)
+    else:
+        if max_error is None:
+            max_error = default_max_error(heights, units=units, pixel_size=pixel_size)
+        relief_mesh = adaptive_mesh(
+            heights, max_error=max_error, pixel_size=pixel_size, two_sided=bool(two_sided)
+        )
     clock.start(None, 1.0)
 
     return Relief(
-        image=image,
+        image=stages.image,
         metadata=metadata,
         working=working,
-        filtered=filtered,
-        mask=seg.mask,
-        labels=seg.labels,
-        boundaries=seg.boundaries,
-        distance=distance,
+        filtered=stages.filtered,
+        mask=stages.segmentation.mask,
+        labels=stages.segmentation.labels,
+        boundaries=stages.segmentation.boundaries,
+        distance=stages.distance,
         heights=heights,
-        mesh=mesh,
+        mesh=relief_mesh,
         units=units,
         pixel_size=pixel_size,
         params=params,
         timings=timings,
+        max_error=max_error if mesh == "adaptive" else None,
+        canopy=canopy,
     )
 
 
-def _image_stages(source, max_size, segmentation, profile, exaggeration, clock, gil_free):
+def _check_heights(heights, dsm, dtm, image_or_path):
+    """The heights mode, checked against the surface models it needs."""
+    from .settings import HEIGHT_MODES
+
+    mode = check_choice("heights", heights, ids(HEIGHT_MODES))
+    if dsm is None and dtm is not None:
+        raise CliffTerrainError(f"`dtm` needs a `dsm`, got dtm={os.fspath(dtm)!r} and dsm=None")
+    if dsm is None and mode != "inflated":
+        raise CliffTerrainError(f"`heights` {mode!r} needs a `dsm` (a surface model GeoTIFF), got None")
+    if dsm is not None and not isinstance(image_or_path, str | os.PathLike):
+        raise CliffTerrainError(
+            "`dsm` needs `image_or_path` to be a georeferenced orthophoto file, got an array"
+        )
+    return mode
+
+
+@dataclass
+class _ImageStages:
+    """What the worker thread computes: the photo's stages up to the heights in processing pixels."""
+
+    image: np.ndarray
+    metadata: ImageMetadata
+    working: np.ndarray
+    filtered: np.ndarray
+    segmentation: Segmentation
+    distance: np.ndarray
+    heights_px: np.ndarray
+
+
+class _Worker:
+    """Runs ``task(*args, clock=...)`` in a thread; relays its progress to the calling thread.
+
+    The task reports its stages through `clock` (started at "load"); :meth:`relay` passes them
+    on to `progress` in the calling thread.
+    """
+
+    def __init__(self, progress, timings, task, *args):
+        self.progress = progress
+        self._events = queue.SimpleQueue()
+        self._done = False
+        clock = _Stages(lambda fraction, stage: self._events.put((fraction, stage)), timings, stage="load")
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain")
+        self._future = pool.submit(task, *args, clock=clock)
+        self._future.add_done_callback(lambda _: self._events.put(None))  # the end of its events
+        pool.shutdown(wait=False)  # the thread ends with its one task
+
+    def relay(self, *, wait=False):
+        """Pass the task's progress on; with `wait`, until the task has finished."""
+        while not self._done:
+            try:
+                event = self._events.get(block=wait)
+            except queue.Empty:
+                return
+            if event is None:
+                self._done = True
+            elif self.progress is not None:
+                self.progress(*event)
+
+    def result(self):
+        """The task's result (or its exception), once all its progress is relayed."""
+        self.relay(wait=True)
+        return self._future.result()
+
+
+def _image_stages(source, max_size, segmentation, profile, exaggeration, max_height, *, clock):
     """Decode, resize, filter, segment and inflate (in the worker thread; `clock` is at "load")."""
     image, metadata = source.decode() if isinstance(source, OpenImage) else source
     clock.start("resize", 0.1)
@@ -297,14 +360,17 @@ def _image_stages(source, max_size, segmentation, profile, exaggeration, clock, 
     if metadata.valid_mask is not None:  # an orthophoto's no-data area stays flat
         size = working.shape[1::-1]
         valid = cv2.resize(metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
-    seg = segment(working, method=segmentation, filtered=filtered, valid=valid, on_watershed=gil_free.set)
-    gil_free.set()
+    seg = segment(working, method=segmentation, filtered=filtered, valid=valid)
 
     clock.start("heights", 0.6)
     distance = distance_map(seg.labels)
-    heights_px = inflate(seg.labels, profile=profile, exaggeration=exaggeration, distance=distance)
+    if max_height is not None and metadata.gsd_m_per_px:  # metres -> processing pixels
+        max_height /= float(metadata.gsd_m_per_px) * metadata.width / working.shape[1]
+    heights_px = inflate(
+        seg.labels, profile=profile, exaggeration=exaggeration, distance=distance, max_height=max_height
+    )
     clock.start(None, None)
-    return image, metadata, working, filtered, seg, distance, heights_px
+    return _ImageStages(image, metadata, working, filtered, seg, distance, heights_px)
 
 
 class _Stages:

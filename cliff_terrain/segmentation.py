@@ -16,7 +16,9 @@ Two modes:
     threshold is Otsu's, kept within a band so that an image of bare soil yields (almost) nothing
     and pale or bluish plants are not lost to a brighter grass class. Touching plants are split by a
     watershed whose markers are the distance map's peaks and whose landscape adds the quaternion
-    filter's colour-edge strength, so boundaries follow colour edges between plants.
+    filter's colour-edge strength, so boundaries follow colour edges between plants. Holes are
+    filled only where they are plausibly inside a plant (see :func:`plant_holes`): soil enclosed
+    by canopy, such as the strips between rows that join at their ends, stays flat.
 """
 
 from __future__ import annotations
@@ -25,18 +27,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from skimage import filters, measure, segmentation
-
-try:  # scikit-image's flooding kernel, for _flood (pinned version; the public function otherwise)
-    from skimage.morphology._util import _offsets_to_raveled_neighbors, _validate_connectivity
-    from skimage.segmentation._watershed_cy import watershed_raveled as _watershed_raveled
-except ImportError:  # pragma: no cover
-    _watershed_raveled = None
+from skimage import filters, segmentation
 
 from ._validate import check_choice, check_int, check_rgb
 from .errors import CliffTerrainError
+from .settings import SEGMENTATIONS, ids
 
-METHODS = ("vegetation", "paper")
+METHODS = ids(SEGMENTATIONS)
 INDICES = ("auto", "green", "nir")
 
 # Threshold bands (Otsu's threshold is clipped into them): bare soil and grey objects sit at or
@@ -161,7 +158,6 @@ def segment(
     index="auto",
     min_region=None,
     valid=None,
-    on_watershed=None,
 ):
     """Find the regions that rise: binarize, label, fill holes, trace boundaries, split by watershed.
 
@@ -182,8 +178,6 @@ def segment(
     valid : (rows, cols) bool array, optional
         Pixels that hold data (an orthophoto's alpha); the others stay flat and do not count
         for the threshold.
-    on_watershed : callable, optional
-        Called with no argument just before the watershed (see :func:`split_regions`).
 
     Returns
     -------
@@ -215,19 +209,21 @@ def segment(
             raise CliffTerrainError(f"`valid` must have shape {image.shape[:2]}, got {valid.shape}")
         if valid.all():
             valid = None
+    vi = None
     if method == "paper":
         if filtered is None:
             raise CliffTerrainError("`filtered` is required when `method` is 'paper', got None")
         mask, threshold, index_name = _paper_mask(filtered, valid)
     else:
-        mask, threshold, index_name = _vegetation_mask(image, index, valid)
+        mask, threshold, index_name, vi = _vegetation_mask(image, index, valid)
     if valid is not None:
         mask &= valid
 
-    mask = _clean(mask, min_region)
+    # The paper fills every hole (imfill); vegetation mode only those plausibly inside a plant.
+    mask = _clean(mask, min_region, vi=vi, threshold=threshold)
     distance = distance_map(mask)
     edges = colour_edges(filtered) if (filtered is not None and method == "vegetation") else None
-    labels = split_regions(mask, distance, edges=edges, on_watershed=on_watershed)
+    labels = split_regions(mask, distance, edges=edges)
     boundaries = inner_boundaries(labels)
     return Segmentation(
         mask=mask, labels=labels, boundaries=boundaries, threshold=threshold, index=index_name
@@ -247,7 +243,7 @@ def _vegetation_mask(image, index, valid):
     otsu = _otsu(vi if valid is None else vi[valid])
     low, high = _GREEN_BAND if name == "green" else _NIR_BAND
     threshold = float(np.clip(otsu, low, high))
-    return vi > threshold, threshold, name
+    return vi > threshold, threshold, name, vi
 
 
 def _otsu(values):
@@ -258,23 +254,106 @@ def _otsu(values):
         flat = flat[:: flat.size // 400_000]
     if float(flat.min()) == float(flat.max()):
         return float(flat[0])
-    return float(filters.threshold_otsu(flat))
+    # float64: numpy 2 refuses 256 histogram bins over a float32 range of a few ulps.
+    return float(filters.threshold_otsu(flat.astype(np.float64)))
 
 
-def _clean(mask, min_region):
-    """Drop specks and fill holes (the paper's ``bwareaopen`` and ``imfill``)."""
+def _clean(mask, min_region, *, vi=None, threshold=None):
+    """Drop specks and fill holes (the paper's ``bwareaopen`` and ``imfill``).
+
+    Without `vi` every hole is filled (``imfill``); with it only the holes that
+    :func:`plant_holes` finds plausibly inside a plant.
+    """
     mask = np.ascontiguousarray(mask, dtype=np.uint8)
+    components = None
     if min_region > 0:
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        n, components, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         keep = stats[:, cv2.CC_STAT_AREA] >= min_region
         keep[0] = False
-        mask = keep.astype(np.uint8)[labels]
+        mask = keep.astype(np.uint8)[components]
+        components = np.where(keep[components], components, 0)
     # Holes: background that cannot be reached from the frame (flood the padded background).
     padded = np.pad(mask, 1)
     flood = padded.copy()
     cv2.floodFill(flood, None, (0, 0), 1)
     holes = flood[1:-1, 1:-1] == 0
-    return holes | (mask > 0)
+    if vi is None or not holes.any():
+        return holes | (mask > 0)
+    return plant_holes(mask, holes, vi, threshold, min_region=min_region, components=components) | (mask > 0)
+
+
+# A hole this small against the plant region around it is a leaf gap or a highlight.
+HOLE_FRACTION = 0.02
+
+
+def plant_holes(mask, holes, vi, threshold, *, min_region=0, components=None):
+    """The holes of `mask` that plausibly lie inside a plant, to be filled.
+
+    A hole is kept (filled) when it is small compared with the region that encloses it (at most
+    ``HOLE_FRACTION`` = 2 % of that region's area, or smaller than `min_region`): a gap between
+    leaves, a specular highlight; or when it is not soil-coloured: its mean vegetation index lies
+    above the midpoint between the soil's (the median over all non-plant pixels) and the
+    threshold (shadows and pale spots inside a plant). Any other hole is soil enclosed by canopy,
+    such as the strip between two crop rows that join at their ends, and stays flat.
+
+    Parameters
+    ----------
+    mask : (rows, cols) bool or uint8 array
+        Plant pixels.
+    holes : (rows, cols) bool array
+        Non-plant pixels that cannot be reached from the frame.
+    vi : (rows, cols) float array
+        The vegetation index the mask was thresholded from.
+    threshold : float
+        Its threshold.
+    min_region : int, optional
+        Holes smaller than this many pixels are always filled.
+    components : (rows, cols) int array, optional
+        8-connected components of `mask` if already computed.
+
+    Returns
+    -------
+    (rows, cols) bool array
+        The holes to fill.
+
+    Examples
+    --------
+    >>> mask = np.zeros((60, 60), bool); mask[5:55, 5:55] = True
+    >>> mask[10:12, 10:12] = False; mask[20:50, 30:34] = False   # a leaf gap and a soil strip
+    >>> vi = np.where(mask, 0.4, -0.2).astype(np.float32)
+    >>> holes = np.zeros_like(mask); holes[5:55, 5:55] = ~mask[5:55, 5:55]
+    >>> filled = plant_holes(mask, holes, vi, 0.1)
+    >>> bool(filled[10, 10]), bool(filled[30, 31])
+    (True, False)
+    """
+    mask = np.ascontiguousarray(mask, dtype=np.uint8)
+    holes = np.asarray(holes, dtype=bool)
+    vi = np.asarray(vi, dtype=np.float32)
+    rows, cols = mask.shape
+    n_holes, hole_labels, hole_stats, _ = cv2.connectedComponentsWithStats(
+        holes.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S
+    )
+    if n_holes <= 1:
+        return np.zeros(mask.shape, dtype=bool)
+    if components is None:
+        _, components = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    area = hole_stats[:, cv2.CC_STAT_AREA].astype(np.float64)
+    inside = np.flatnonzero(holes)
+    which = hole_labels.ravel()[inside]
+    # The pixel above a hole's first pixel (in raster order) belongs to the region around it.
+    _, first = np.unique(which, return_index=True)
+    above = inside[first] - cols
+    enclosing = components.ravel()[above]
+    region_area = np.bincount(components.ravel(), minlength=int(components.max()) + 1)[enclosing]
+    small = (area[1:] < min_region) | (area[1:] <= HOLE_FRACTION * region_area)
+    # Soil colour: the median index of the non-plant pixels (a sample), holes included.
+    ground = vi.ravel()[:: max(1, vi.size // 200_000)][mask.ravel()[:: max(1, vi.size // 200_000)] == 0]
+    soil = float(np.median(ground)) if ground.size else float(threshold)
+    mean_vi = np.bincount(which, weights=vi.ravel()[inside], minlength=n_holes)[1:] / area[1:]
+    not_soil = mean_vi > 0.5 * (soil + float(threshold))
+    fill = np.zeros(n_holes, dtype=bool)
+    fill[1:] = small | not_soil
+    return fill[hole_labels]
 
 
 def distance_map(labels):
@@ -358,7 +437,7 @@ def colour_edges(filtered):
     return np.sqrt(cv2.transform(chroma * chroma, np.ones((1, 3), np.float32)))
 
 
-def split_regions(mask, distance, *, edges=None, on_watershed=None):
+def split_regions(mask, distance, *, edges=None):
     """Label `mask`, splitting touching blobs by a marker-controlled watershed of the distance map.
 
     Parameters
@@ -368,10 +447,6 @@ def split_regions(mask, distance, *, edges=None, on_watershed=None):
         Distance map of `mask`.
     edges : (rows, cols) float array, optional
         Colour-edge strength added to the watershed landscape (scaled to the distance range).
-    on_watershed : callable, optional
-        Called with no argument just before the watershed runs, if one is needed. It is the
-        longest step and releases the GIL: :func:`~cliff_terrain.pipeline.build_relief` starts
-        its caller's GIL-holding work then.
 
     Returns
     -------
@@ -410,7 +485,7 @@ def split_regions(mask, distance, *, edges=None, on_watershed=None):
         landscape -= smooth
     else:
         landscape = np.negative(smooth)
-    flooded = _flood(landscape, markers, flood_mask, on_watershed=on_watershed)
+    flooded = segmentation.watershed(landscape, markers, mask=flood_mask)
     # Number the result 1..n without gaps: the components left whole first, in their order, then
     # the watershed's basins in marker order (each basin holds at least its marker).
     whole = ~split
@@ -425,40 +500,6 @@ def split_regions(mask, distance, *, edges=None, on_watershed=None):
     labels = component_label[components]
     labels += basin_label[flooded]
     return labels
-
-
-def _flood(landscape, markers, mask, *, on_watershed=None):
-    """``skimage.segmentation.watershed(landscape, markers, mask=mask)``, 4-connected.
-
-    The same preparation and the same flooding kernel as scikit-image's, called in two steps so
-    that `on_watershed` runs after the preparation (numpy steps that need the GIL) and just
-    before the kernel (which releases it). Falls back to the public function if scikit-image's
-    internals move.
-    """
-    if _watershed_raveled is None:
-        if on_watershed is not None:
-            on_watershed()
-        return segmentation.watershed(landscape, markers, mask=mask)
-    # As scikit-image's wrapper: float64 image, int8 mask and int32 markers (inside the mask),
-    # padded by a pixel of zeros so that the kernel never steps past the border.
-    rows, cols = mask.shape
-    image = np.zeros((rows + 2, cols + 2), dtype=np.float64)
-    image[1:-1, 1:-1] = landscape
-    flat_mask = np.zeros((rows + 2, cols + 2), dtype=np.int8)
-    flat_mask[1:-1, 1:-1] = mask
-    flat_mask = flat_mask.ravel()
-    output = np.zeros((rows + 2, cols + 2), dtype=np.int32)
-    np.multiply(markers, mask, out=output[1:-1, 1:-1], casting="unsafe")
-    footprint, offset = _validate_connectivity(2, 1, None)
-    neighbours = _offsets_to_raveled_neighbors(image.shape, footprint, center=offset)
-    marker_locations = np.flatnonzero(output)
-    strides = np.array(image.strides, dtype=np.intp) // image.itemsize
-    if on_watershed is not None:
-        on_watershed()
-    _watershed_raveled(
-        image.ravel(), marker_locations, neighbours, flat_mask, strides, 0.0, output.ravel(), False
-    )
-    return output[1:-1, 1:-1]
 
 
 def _label4(mask):
@@ -484,26 +525,3 @@ def label_max(values, labels):
     inside = np.flatnonzero(labels)
     np.maximum.at(out, labels[inside], np.asarray(values, dtype=np.float32).ravel()[inside])
     return out
-
-
-def trace_boundaries(labels):
-    """Trace the outer boundary of each region (MATLAB's ``bwboundaries``).
-
-    Parameters
-    ----------
-    labels : (rows, cols) int array
-
-    Returns
-    -------
-    list of (n, 2) float arrays
-        (row, col) points of each region's outline, in label order.
-    """
-    labels = np.asarray(labels)
-    outlines = []
-    for region in measure.regionprops(labels):
-        r0, c0, r1, c1 = region.bbox
-        sub = np.pad(region.image, 1).astype(np.uint8)
-        contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        longest = max(contours, key=len)[:, 0, ::-1].astype(np.float64)
-        outlines.append(longest + (r0 - 1, c0 - 1))
-    return outlines

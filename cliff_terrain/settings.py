@@ -31,11 +31,31 @@ DEFAULT_SEGMENTATION = "vegetation"
 PROFILES = (
     ("circular", "Circular", "Each region rises as a dome with a circular cross-section"),
     ("poisson", "Poisson", "Each region rises as a smooth membrane (a solution of Poisson's equation)"),
+    (
+        "plateau",
+        "Plateau",
+        "Isolated plants rise as the circular domes; merged or wide canopy levels off at canopy height",
+    ),
 )
 DEFAULT_PROFILE = "circular"
 
 DEFAULT_EXAGGERATION = 1.0
 MIN_EXAGGERATION = 0.0  # exclusive
+
+# The relief's front: one vertex per pixel corner, or a TIN within a vertical error (cliff_terrain/tin.py).
+MESHES = (
+    ("grid", "Grid", "One vertex per pixel corner: every pixel's height, and the most triangles"),
+    (
+        "adaptive",
+        "Adaptive",
+        "Few triangles where the ground is flat: a TIN within the maximum error of every pixel's height",
+    ),
+)
+DEFAULT_MESH = "grid"
+# The adaptive mesh's default maximum vertical error: this share of the relief's height, or this
+# many metres when the ground sampling distance is known (what a 3D print or a plant shows).
+DEFAULT_MAX_ERROR_SHARE = 0.01
+DEFAULT_MAX_ERROR_M = 0.005
 
 # Rendered views: the longest side of a view, and the shorter side that default views are enlarged
 # to (SSIM's 7x7 window needs 7 pixels on each side).
@@ -43,8 +63,39 @@ MAX_RESOLUTION = 16384
 MIN_VIEW_SIDE = 16
 SSIM_MIN_SIDE = 7
 
+# Engines of the lit views (the flat top view is always Cycles).
+ENGINES = (
+    ("CYCLES", "Cycles", "Path traced, with the calibrated sun and sky (colours stay the photo's)"),
+    ("WORKBENCH", "Workbench", "Fast: the texture as it is with cavity shading (needs a GPU context)"),
+    ("EEVEE", "EEVEE", "Rasterised with the calibrated sun and sky (slow to start without a GPU)"),
+)
+DEFAULT_ENGINE = "CYCLES"
+# Samples per pixel of the lit views; fewer leave the sky-light shadows noisy (SSIM drops by about
+# 0.01 at 8 on dense canopies).
+DEFAULT_SAMPLES = 16
+MAX_SAMPLES = 4096
+
+# The light of the lit views: where the sun comes from (compass degrees, 0 = north = the image's
+# top, 90 = east), how high (degrees), and the share of the sky light on level ground (the sun
+# gives the rest). Why these values: scene/rig.py.
+DEFAULT_SUN_AZIMUTH = 315.0
+DEFAULT_SUN_ELEVATION = 70.0
+DEFAULT_AMBIENT = 0.4
+MAX_AMBIENT = 0.99
+
 # The paper's Table 4: its lit top view against the photo.
 PAPER_TABLE4 = {"psnr": 17.73, "ssim": 0.8713}
+
+
+# Heights of the relief (issue 13): from the photo alone, or measured with a surface model (DSM).
+HEIGHT_MODES = (
+    ("inflated", "Inflated", "Heights from the photo alone: each plant inflated into a dome (no DSM needed)"),
+    ("calibrated", "Calibrated", "Photo domes scaled so each plant's top equals its height measured on the DSM"),
+    ("measured", "Measured", "The mesh follows the canopy height model: DSM minus ground, in metres"),
+)
+DEFAULT_HEIGHT_MODE = "inflated"
+# Ground from one flight: blocks of this side (metres) for the trend (see cliff_terrain.ground).
+DEFAULT_GROUND_BLOCK_M = 5.0
 
 
 def ids(choices):

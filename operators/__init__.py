@@ -1,12 +1,12 @@
-"""Blender operators of Cliff Terrain and what they share: scene settings, mesh and material builders.
+"""Blender operators of Cliff Terrain: the scene settings, Build Relief, Render Views and Evaluate.
 
-``mesh_data`` and ``material`` hold no classes to register; the render script reuses them.
+What they put into the scene (mesh, materials, cameras, light, render settings) is in ``scene/``.
 """
 
-from . import build, properties, render
+from . import build, properties, render, season
 
 # The settings first: the build operator and the panel read them.
-_MODULES = (properties, build, render)
+_MODULES = (properties, build, render, season)
 
 
 def register():

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import bpy
 
-from .material import load_photo, relief_material
-from .mesh_data import allocate_mesh, checked_topology, fill_topology, mesh_from_arrays, set_positions
+from ..scene.material import load_photo, relief_material
+from ..scene.mesh_data import mesh_from_arrays
 from .properties import PARAMETER_NAMES, ReliefParameters
 
 # Without a known ground sampling distance the relief is scaled so its longest side is this many
@@ -77,10 +77,9 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 def on_progress(fraction, stage):
                     progress(PIPELINE_SHARE * fraction, stage)
 
-                sink = _ReliefMesh(relief_name(path), created)
-                relief = build_relief(path, progress=on_progress, mesh_sink=sink, **params)
+                relief = build_relief(path, progress=on_progress, **params)
                 progress(PIPELINE_SHARE, "building the mesh")
-                obj = build_relief_object(context, relief, path, params, created=created, mesh=sink.mesh)
+                obj = build_relief_object(context, relief, path, params, created=created)
                 progress(1.0, "done")
         except CliffTerrainError as exc:
             _remove(created)
@@ -94,6 +93,7 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         except BaseException:
             _remove(created)
             raise
+        show_relief(context, obj)
         info = obj["cliff_terrain"]
         self.report(
             {"INFO"},
@@ -103,28 +103,25 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class _ReliefMesh:
-    """The relief's Blender mesh, made while the core computes (its ``mesh_sink``).
-
-    Each step comes when the core's worker least needs the GIL that Blender's calls hold:
-    elements are allocated while it decodes the photo, the faces, edges and UVs are checked
-    (numpy) while it segments and are copied in while it floods the watershed. The mesh goes
-    into `created` as soon as it exists.
+def show_relief(context, obj):
+    """Show a new relief in every 3D view of the window, as Blender's Add menu would and then some:
+    each view frames it (View Selected), and Solid shading shows the photo (Texture colour) so the
+    user does not meet a grey slab. Nothing to do without a window (background mode, scripts).
     """
-
-    def __init__(self, name, created):
-        self.name, self.created = name, created
-        self.mesh = self.topology = None
-
-    def allocate(self, sizes):
-        self.mesh = allocate_mesh(self.name, sizes)
-        self.created.append(self.mesh)
-
-    def prepare(self, mesh_arrays):
-        self.topology = checked_topology(mesh_arrays)
-
-    def fill(self):
-        fill_topology(self.mesh, self.topology)
+    screen = context.screen
+    if bpy.app.background or screen is None:
+        return
+    for area in screen.areas:
+        if area.type != "VIEW_3D":
+            continue
+        space = area.spaces.active
+        if space.shading.type == "SOLID":
+            space.shading.color_type = "TEXTURE"
+        region = next((r for r in area.regions if r.type == "WINDOW"), None)
+        if region is None:
+            continue
+        with context.temp_override(area=area, region=region, space_data=space):
+            bpy.ops.view3d.view_selected(use_all_regions=False)
 
 
 def relief_scale(relief):
@@ -140,20 +137,17 @@ def relief_name(path):
     return Path(path).stem or "relief"
 
 
-def build_relief_object(context, relief, path, params, *, created, mesh=None):
+def build_relief_object(context, relief, path, params, *, created):
     """Make the relief's mesh, material and object, linked to the active collection.
 
     Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
-    all if a later step fails. `mesh`, if given, is the relief's mesh with its faces, edges and UVs
-    filled (already in `created`) and only needs its vertices placed.
+    all if a later step fails. The mesh goes into Blender once the core has finished: moving parts
+    of it in while the core computes saved nothing measurable (bench/bench_blender_build.py).
     """
     name = relief_name(path)
     scale = relief_scale(relief)
-    if mesh is None:
-        mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
-        created.append(mesh)
-    else:
-        set_positions(mesh, relief.mesh.vertices, scale=scale)
+    mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
+    created.append(mesh)
     image, image_created = load_photo(path, metadata=relief.metadata, fallback_rgb=relief.image, name=name)
     if image_created:
         created.append(image)
@@ -188,12 +182,42 @@ def build_record(relief, path, params, scale):
         "grid_rows": int(relief.mesh.grid_shape[0]),
         "grid_cols": int(relief.mesh.grid_shape[1]),
         "regions": int(relief.n_regions),
+        # The photo's ground sampling distance (0 when unknown) and where it came from ("" when unknown).
+        "gsd_m_per_px": float(relief.metadata.gsd_m_per_px or 0.0),
+        "gsd_source": relief.metadata.gsd_source or "",
+        # The adaptive mesh's bound (0 for the grid) and its front faces (triangles, or grid quads).
+        "max_error": float(relief.max_error or 0.0),
+        "front_faces": int(relief.mesh.n_front_faces),
         "max_height": relief.max_height,
         "image_width": int(relief.metadata.width),
         "image_height": int(relief.metadata.height),
         # ID properties hold no None: an unknown GSD is stored as 0, as in the settings.
         "params": {key: (0.0 if value is None else value) for key, value in params.items()},
+        **key_figures(relief),
     }
+
+
+def key_figures(relief):
+    """Cover and, with a surface model, the canopy height p50/p90 (cm, -1 without) and the map offset.
+
+    The mesh is built near the world origin; ``map_offset`` is the map (x, y) of its local (0, 0)
+    (the grid's bottom-left corner) in EPSG ``crs``: add it to a vertex to get map coordinates.
+    """
+    import numpy as np
+
+    figures = {"cover": float(relief.mask.mean()), "canopy_p50_cm": -1.0, "canopy_p90_cm": -1.0}
+    canopy = getattr(relief, "canopy", None)
+    if canopy is not None:
+        chm = canopy.chm[relief.mask & np.isfinite(canopy.chm)]
+        if chm.size:
+            p50, p90 = np.percentile(chm, (50, 90)) * 100.0
+            figures.update(canopy_p50_cm=float(p50), canopy_p90_cm=float(p90))
+        rows = relief.mesh.grid_shape[0]
+        t = canopy.transform
+        figures["map_offset"] = [float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2])]
+        figures["crs"] = int(canopy.crs)
+        figures["ground"] = canopy.ground_source
+    return figures
 
 
 def _remove(datablocks):
@@ -227,6 +251,10 @@ class _Progress:
         self.wm.progress_update(int(round(100 * min(max(fraction, 0.0), 1.0))))
         if self.workspace is not None:
             self.workspace.status_text_set(f"Cliff Terrain: {stage} ({fraction:.0%})")
+            # The window redraws only between operators: draw the status bar once per stage.
+            if stage != getattr(self, "stage", None) and not bpy.app.background:
+                self.stage = stage
+                bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=1)
 
     def __exit__(self, *exc):
         self.wm.progress_end()

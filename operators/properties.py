@@ -7,26 +7,23 @@ and the build operator, so the panel, scripts and the Adjust Last Operation pane
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-# Identifiers match the core's choices (cliff_terrain.segmentation.METHODS, heights.PROFILES).
-SEGMENTATIONS = (
-    (
-        "vegetation",
-        "Vegetation",
-        "Plants found by a vegetation index (also false-colour NIR photos), split into single plants",
-    ),
-    (
-        "paper",
-        "Paper (Otsu)",
-        "The paper's method: Otsu threshold of the quaternion-filtered photo (bright objects rise)",
-    ),
-)
-PROFILES = (
-    ("circular", "Circular", "Each region rises as a dome with a circular cross-section"),
-    ("poisson", "Poisson", "Each region rises as a smooth membrane (a solution of Poisson's equation)"),
-)
+# The core's choices, defaults and limits (a module that imports nothing: registering stays fast).
+from ..cliff_terrain import settings
 
 # Names of the parameters passed to the core's build_relief (besides the image path).
-PARAMETER_NAMES = ("segmentation", "profile", "max_size", "exaggeration", "gsd", "two_sided")
+PARAMETER_NAMES = (
+    "segmentation",
+    "profile",
+    "max_size",
+    "exaggeration",
+    "gsd",
+    "two_sided",
+    "mesh",
+    "max_error",
+    "dsm",
+    "dtm",
+    "heights",
+)
 
 
 class ReliefParameters:
@@ -40,29 +37,29 @@ class ReliefParameters:
     segmentation: EnumProperty(
         name="Segmentation",
         description="How the regions that rise are found",
-        items=SEGMENTATIONS,
-        default="vegetation",
+        items=settings.SEGMENTATIONS,
+        default=settings.DEFAULT_SEGMENTATION,
     )
     profile: EnumProperty(
         name="Profile",
         description="Shape of each raised region",
-        items=PROFILES,
-        default="circular",
+        items=settings.PROFILES,
+        default=settings.DEFAULT_PROFILE,
     )
     max_size: IntProperty(
         name="Max Size",
         description="Longest side of the processing grid in pixels (the mesh has about max size squared "
         "vertices; the texture always uses the full-resolution photo)",
-        min=16,
-        max=8000,
-        default=1000,
+        min=settings.MIN_SIZE,
+        max=settings.MAX_SIZE,
+        default=settings.DEFAULT_MAX_SIZE,
     )
     exaggeration: FloatProperty(
         name="Exaggeration",
         description="Multiplies every height",
-        min=0.01,
+        min=0.01,  # the core takes any value > 0; the panel offers from 0.01
         soft_max=10.0,
-        default=1.0,
+        default=settings.DEFAULT_EXAGGERATION,
     )
     gsd: FloatProperty(
         name="GSD (m/px)",
@@ -82,10 +79,52 @@ class ReliefParameters:
         default=True,
     )
 
+    mesh: EnumProperty(
+        name="Mesh",
+        description="How the relief's surface is meshed",
+        items=settings.MESHES,
+        default=settings.DEFAULT_MESH,
+    )
+    max_error: FloatProperty(
+        name="Max Error",
+        description="Adaptive mesh: largest vertical distance between the mesh and any pixel's height, "
+        "in metres with a GSD, else in processing pixels. 0 = automatic: 5 mm with a GSD, else 1 % of "
+        "the relief's height",
+        min=0.0,
+        soft_max=1.0,
+        default=0.0,
+        precision=4,
+        step=0.1,
+    )
+
+    # Measured heights (a surface model of the same orthophoto); empty paths mean none.
+    dsm: StringProperty(
+        name="Surface Model",
+        description="Digital surface model GeoTIFF (DSM, metres) of the orthophoto: heights are then "
+        "measured. Empty = heights from the photo alone",
+        subtype="FILE_PATH",
+    )
+    dtm: StringProperty(
+        name="Ground Model",
+        description="Digital terrain model GeoTIFF (DTM, metres). Empty = the ground is estimated from "
+        "the surface model at the soil pixels",
+        subtype="FILE_PATH",
+    )
+    heights: EnumProperty(
+        name="Heights",
+        description="Where the relief's heights come from (Calibrated and Measured need a surface model)",
+        items=settings.HEIGHT_MODES,
+        default=settings.DEFAULT_HEIGHT_MODE,
+    )
+
     def core_kwargs(self):
         """Keyword arguments for ``cliff_terrain.pipeline.build_relief`` (GSD 0 means unknown)."""
         kwargs = {name: getattr(self, name) for name in PARAMETER_NAMES}
         kwargs["gsd"] = kwargs["gsd"] if kwargs["gsd"] > 0.0 else None
+        # Max Error 0 means the core's default (5 mm with a GSD, else 1 % of the relief's height).
+        kwargs["max_error"] = kwargs["max_error"] if kwargs["max_error"] > 0.0 else None
+        for name in ("dsm", "dtm"):
+            kwargs[name] = bpy.path.abspath(kwargs[name]) if kwargs[name] else None
         return kwargs
 
 

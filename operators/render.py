@@ -19,13 +19,9 @@ import traceback
 import bpy
 from bpy.props import EnumProperty, IntProperty
 
-from . import views
-
-ENGINES = (
-    ("CYCLES", "Cycles", "Path traced, with the calibrated sun and sky (colours stay the photo's)"),
-    ("WORKBENCH", "Workbench", "Fast: the texture as it is with cavity shading (needs a GPU context)"),
-    ("EEVEE", "EEVEE", "Rasterised with the calibrated sun and sky (slow to start without a GPU)"),
-)
+from ..cliff_terrain import settings as core_settings
+from ..cliff_terrain.evaluation import json_safe, metrics_summary, view_resolution
+from ..scene import render_settings, rig, views
 
 
 def active_relief(context):
@@ -40,21 +36,24 @@ class _ViewSettings:
     """Settings shared by both operators (a mixin: Blender collects annotations from bases)."""
 
     engine: EnumProperty(
-        name="Engine", description="Engine of the lit views", items=ENGINES, default="CYCLES"
+        name="Engine",
+        description="Engine of the lit views",
+        items=core_settings.ENGINES,
+        default=core_settings.DEFAULT_ENGINE,
     )
     resolution: IntProperty(
         name="Resolution",
         description="Longest side of each view in pixels (0 = the relief's grid, one pixel per cell)",
         min=0,
-        max=views.MAX_RESOLUTION,
+        max=core_settings.MAX_RESOLUTION,
         default=0,
     )
     samples: IntProperty(
         name="Samples",
         description="Samples per pixel of the lit views",
         min=1,
-        max=4096,
-        default=views.SAMPLES,
+        max=core_settings.MAX_SAMPLES,
+        default=core_settings.DEFAULT_SAMPLES,
     )
 
     @classmethod
@@ -68,22 +67,28 @@ class _ViewSettings:
         """Render `view_names` of the active relief into `out_dir` and compare its top views with the photo."""
         obj = active_relief(context)
         scene = context.scene
-        engine = views.choose_engine(self.engine, log=lambda message: self.report({"WARNING"}, message))
-        with views.KeptRenderSettings(scene):
+
+        def warn(message):
+            self.report({"WARNING"}, message)
+
+        engine = render_settings.choose_engine(self.engine, log=warn)
+        with render_settings.KeptRenderSettings(scene, log=warn):
             record = obj["cliff_terrain"]
-            resolution = views.view_resolution(
+            resolution = view_resolution(
                 self.resolution, int(record["grid_rows"]), int(record["grid_cols"]), name="Resolution"
             )
-            rig = views.make_rig(context, obj, resolution=resolution)
+            view_rig = rig.make_rig(context, obj, resolution=resolution)
             paths, seconds = views.render_views(
-                context, rig, out_dir, views=view_names, engine=engine, samples=self.samples
+                context, view_rig, out_dir, views=view_names, engine=engine, samples=self.samples
             )
             start = time.perf_counter()
-            metrics = views.evaluate_relief(obj, rig, paths["xy"], paths["xy_flat"])
+            metrics = views.evaluate_relief(obj, view_rig, paths["xy"], paths["xy_flat"])
             seconds["metrics"] = time.perf_counter() - start
-        metrics.update(engine=engine, samples=self.samples, light=rig.light, timings_s=seconds)
+        metrics.update(engine=engine, samples=self.samples, light=view_rig.light, timings_s=seconds)
         settings = scene.cliff_terrain
-        settings.psnr = metrics["psnr_xy"] if metrics["psnr_xy"] != float("inf") else 999.0
+        # An infinite PSNR (a view identical to the photo) is stored as float32's largest value
+        # (Blender clamps it); the panel shows it as identical (evaluation.psnr_text).
+        settings.psnr = metrics["psnr_xy"]
         settings.ssim = metrics["ssim_xy"]
         return metrics
 
@@ -99,12 +104,6 @@ class _ViewSettings:
             traceback.print_exc()
             self.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
             return {"CANCELLED"}
-
-    def summary(self, metrics):
-        return (
-            f"lit top view PSNR {metrics['psnr_xy']:.2f} dB, SSIM {metrics['ssim_xy']:.4f}; "
-            f"flat PSNR {metrics['psnr_xy_flat']:.2f} dB, SSIM {metrics['ssim_xy_flat']:.4f}"
-        )
 
 
 class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
@@ -122,9 +121,9 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
         os.makedirs(out_dir, exist_ok=True)  # views are replaced, as F12 replaces its result
         metrics = self.run(context, out_dir, tuple(views.VIEW_FILES))
         with open(os.path.join(out_dir, "metrics.json"), "w", encoding="utf-8") as stream:
-            json.dump(_plain(metrics), stream, indent=2)
+            json.dump(json_safe(metrics), stream, indent=2)
         self.report(
-            {"INFO"}, f"Rendered {len(views.VIEW_FILES)} views into {out_dir}: {self.summary(metrics)}"
+            {"INFO"}, f"Rendered {len(views.VIEW_FILES)} views into {out_dir}: {metrics_summary(metrics)}"
         )
         return {"FINISHED"}
 
@@ -140,17 +139,8 @@ class CLIFF_TERRAIN_OT_evaluate(_ViewSettings, bpy.types.Operator):
     def run_operator(self, context):
         with tempfile.TemporaryDirectory(prefix="cliff_terrain_evaluate_") as out_dir:
             metrics = self.run(context, out_dir, ("xy_flat", "xy"))
-        self.report({"INFO"}, self.summary(metrics))
+        self.report({"INFO"}, metrics_summary(metrics))
         return {"FINISHED"}
-
-
-def _plain(value):
-    """JSON-friendly copy (an infinite PSNR of identical images becomes null)."""
-    if isinstance(value, dict):
-        return {key: _plain(item) for key, item in value.items()}
-    if isinstance(value, float) and value in (float("inf"), float("-inf")):
-        return None
-    return value
 
 
 CLASSES = (CLIFF_TERRAIN_OT_render_views, CLIFF_TERRAIN_OT_evaluate)

@@ -1,15 +1,5 @@
 """The 3D Viewport sidebar of Cliff Terrain."""
 
-from . import sidebar
+from .sidebar import register, unregister
 
-_MODULES = (sidebar,)
-
-
-def register():
-    for module in _MODULES:
-        module.register()
-
-
-def unregister():
-    for module in reversed(_MODULES):
-        module.unregister()
+__all__ = ["register", "unregister"]

@@ -5,11 +5,87 @@ import os
 import bpy
 
 BUILD_OPERATOR = "cliff_terrain.build_relief"
-# Operators the render module adds (their own poll greys them out without a relief object).
+SEASON_OPERATOR = "cliff_terrain.season_animation"
+# The render operators (their own poll greys them out without a relief object).
 RENDER_OPERATORS = (
-    ("CLIFF_TERRAIN_OT_render_views", "cliff_terrain.render_views", "RENDER_STILL"),
-    ("CLIFF_TERRAIN_OT_evaluate", "cliff_terrain.evaluate", "GRAPH"),
+    ("cliff_terrain.render_views", "RENDER_STILL"),
+    ("cliff_terrain.evaluate", "GRAPH"),
 )
+
+
+def format_length(metres):
+    """A length in cm under 1 m, else in m ("42 cm", "3.1 m")."""
+    return f"{metres * 100:.3g} cm" if abs(metres) < 1.0 else f"{metres:.3g} m"
+
+
+# What the core's ``gsd_source`` values mean, for the panel.
+GSD_SOURCES = {
+    "user": "set by hand",
+    "geotiff": "from the GeoTIFF",
+    "height_above_ground": "from the flight height and camera",
+    "exif-xmp": "from the photo's camera and flight height (EXIF/XMP)",
+}
+# The photo's GSD per (path, modification time): the header is read once, not at every redraw.
+_PHOTO_GSD = {}
+
+
+def photo_gsd(path):
+    """(metres per pixel, source) of the photo's own GSD, (None, None) when it has none, or None when
+    the photo cannot be read (the Build button reports why)."""
+    try:
+        key = (path, os.path.getmtime(path))
+    except OSError:
+        return None
+    if key not in _PHOTO_GSD:
+        try:
+            from ..cliff_terrain.image_io import read_metadata
+
+            meta = read_metadata(path)
+            _PHOTO_GSD[key] = (meta.gsd_m_per_px, meta.gsd_source)
+        except Exception:  # a bad photo: Build reports it properly; the panel just says nothing
+            _PHOTO_GSD[key] = None
+    return _PHOTO_GSD[key]
+
+
+def gsd_note(layout, settings):
+    """One plain line under the GSD field: where the ground size will come from."""
+    if settings.gsd > 0.0:
+        layout.label(text=f"GSD set by hand: {format_length(settings.gsd)}/px", icon="INFO")
+        return
+    path = bpy.path.abspath(settings.filepath) if settings.filepath else ""
+    found = photo_gsd(path) if path and os.path.isfile(path) else None
+    if found is None:
+        layout.label(text="0 = GSD from the photo", icon="INFO")
+    elif found[0] is None:
+        layout.label(text="Photo has no GSD: relative units", icon="INFO")
+    else:
+        layout.label(text=f"GSD from photo: {format_length(found[0])}/px", icon="INFO")
+
+
+def relief_size_lines(info):
+    """The relief's size in one unit: cm/m with a GSD, else relative units (longest side = 10)."""
+    height = float(info.get("max_height", 0.0))
+    if info.get("units") == "m":
+        gsd = float(info.get("gsd_m_per_px", 0.0))
+        source = GSD_SOURCES.get(info.get("gsd_source", ""), "")
+        lines = [f"Max height {format_length(height)}"]
+        if gsd > 0:
+            lines.append(f"GSD {format_length(gsd)}/px{f' ({source})' if source else ''}")
+        return lines
+    scale = float(info.get("blender_units_per_unit", 1.0))
+    return [f"Max height {height * scale:.3g}", "Relative units (longest side = 10)"]
+
+
+def key_figure_lines(info):
+    """Plants and cover, and the measured canopy height p50/p90 in cm after a build with a DSM."""
+    lines = []
+    if "cover" in info:
+        lines.append(f"Plants {info.get('regions')}, cover {float(info['cover']):.0%}")
+    if info.get("canopy_p90_cm", -1.0) >= 0.0:
+        lines.append(
+            f"Canopy height p50 {float(info['canopy_p50_cm']):.1f} cm, p90 {float(info['canopy_p90_cm']):.1f} cm"
+        )
+    return lines
 
 
 def relief_info(obj):
@@ -34,13 +110,24 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
 
         col = layout.column()
         col.prop(settings, "filepath")
+        col.prop(settings, "dsm")
+        col.prop(settings, "dtm")
+        sub = col.row()
+        sub.active = bool(settings.dsm)  # Calibrated and Measured need a surface model
+        sub.prop(settings, "heights")
         col.separator()
         col.prop(settings, "segmentation")
         col.prop(settings, "profile")
         col.prop(settings, "max_size")
         col.prop(settings, "exaggeration")
-        col.prop(settings, "gsd")
+        # 0 means "from the photo": say so, rather than let "0.0000" read as a ground size.
+        col.prop(settings, "gsd", text="GSD Override" if settings.gsd == 0.0 else "GSD (m/px)")
+        gsd_note(col, settings)
         col.prop(settings, "two_sided")
+        col.prop(settings, "mesh")
+        sub = col.row()
+        sub.active = settings.mesh == "adaptive"  # the grid has no error to bound
+        sub.prop(settings, "max_error")
 
         row = layout.row()
         row.scale_y = 1.4
@@ -52,23 +139,35 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         if info is not None:
             box = layout.box()
             box.label(text=f"{context.active_object.name}", icon="OBJECT_DATA")
-            units = "m" if info.get("units") == "m" else "normalised units"
             box.label(
                 text=f"Grid {info.get('grid_cols')} x {info.get('grid_rows')}, {info.get('regions')} regions"
             )
-            box.label(text=f"Max height {info.get('max_height', 0.0):.3g} {info.get('units')} ({units})")
+            for line in relief_size_lines(info):
+                box.label(text=line)
+            for line in key_figure_lines(info):
+                box.label(text=line)
+            if info.get("max_error"):
+                box.label(
+                    text=f"Adaptive: {info.get('front_faces')} triangles, "
+                    f"max error {info['max_error']:.3g} {info.get('units')}"
+                )
 
-        # ---- Render views and Evaluate (drawn once the render module registers its operators) ----
+        # ---- Render views and Evaluate ----
         layout.separator()
         col = layout.column()
         col.prop(settings, "output_dir")
-        for class_name, idname, icon in RENDER_OPERATORS:
-            if hasattr(bpy.types, class_name):
-                col.operator(idname, icon=icon)
+        for idname, icon in RENDER_OPERATORS:
+            col.operator(idname, icon=icon)
         if settings.psnr or settings.ssim:
             box = layout.box()
-            box.label(text=f"PSNR {settings.psnr:.2f} dB", icon="INFO")
+            from ..cliff_terrain.evaluation import psnr_text  # numpy: not at Blender's start-up
+
+            box.label(text=f"PSNR {psnr_text(settings.psnr)}", icon="INFO")
             box.label(text=f"SSIM {settings.ssim:.3f}")
+
+        # ---- A season of flights (the folder `cliff-terrain season` wrote) ----
+        layout.separator()
+        layout.operator(SEASON_OPERATOR, icon="RENDER_ANIMATION")
 
 
 CLASSES = (CLIFF_TERRAIN_PT_sidebar,)

@@ -6,7 +6,6 @@ Nothing here imports bpy at module level: the core tests run without it.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -57,19 +56,10 @@ ADDON = "cliff_terrain_addon"
 
 def load_addon():
     """Import the repository root as a package, the way Blender imports an extension."""
-    if ADDON in sys.modules:
-        return sys.modules[ADDON]
-    spec = importlib.util.spec_from_file_location(
-        ADDON, REPO / "__init__.py", submodule_search_locations=[str(REPO)]
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[ADDON] = module
-    try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        del sys.modules[ADDON]
-        raise
-    return module
+    import render_views  # the one loader (it imports no bpy itself)
+
+    assert render_views.PACKAGE == ADDON
+    return render_views.addon_package()
 
 
 @pytest.fixture(scope="module")

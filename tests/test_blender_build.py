@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_UAV as UAV
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 bpy = pytest.importorskip("bpy")
 
 ROOT = Path(__file__).resolve().parents[1]
-UAV = ROOT.parent / "shared" / "data" / "uav"
 MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # 261x284 RGBA GeoTIFF, 2.2 cm/px
 
 
@@ -76,7 +76,13 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
         assert platform == "any" or ("linux" in platform and platform.endswith("x86_64")), wheel
         assert python in ("py3", "cp311", "cp37") and abi in ("none", "cp311", "abi3"), wheel
     assert manifest["build"]["generated"]["platforms"] == ["linux-x64"]
-    for required in ("__init__.py", "cliff_terrain/pipeline.py", "operators/build.py", "panels/sidebar.py"):
+    for required in (
+        "__init__.py",
+        "cliff_terrain/pipeline.py",
+        "operators/build.py",
+        "scene/mesh_data.py",
+        "panels/sidebar.py",
+    ):
         assert required in names
     tops = {n.split("/", 1)[0] for n in names}
     assert not tops & {
@@ -101,6 +107,7 @@ def test_zip_check_names_a_wheel_the_builder_left_out(tool, tmp_path):
             "__init__.py",
             "cliff_terrain/__init__.py",
             "operators/__init__.py",
+            "scene/__init__.py",
             "panels/__init__.py",
         ):
             archive.writestr(name, "")

@@ -10,17 +10,16 @@ from __future__ import annotations
 import io
 import os
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
 import tifffile
+from conftest import SHARED_UAV as UAV
 from PIL import Image
 
 from cliff_terrain.errors import CliffTerrainError
 from cliff_terrain.image_io import load_image, read_metadata
 
-UAV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "uav"
 # A longer run: CLIFF_TERRAIN_FUZZ_CASES=50000 CLIFF_TERRAIN_FUZZ_SEED=1 pytest tests/test_fuzz_jpeg.py
 JPEG_CASES = int(os.environ.get("CLIFF_TERRAIN_FUZZ_CASES", 1500))
 OTHER_CASES = JPEG_CASES // 3

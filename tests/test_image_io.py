@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 import tifffile
+from conftest import SHARED_UAV as UAV
 from PIL import Image, ImageOps, TiffImagePlugin
 
 from cliff_terrain.errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 from cliff_terrain.image_io import ImageMetadata, load_image, read_metadata
 
-UAV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "uav"
 needs_uav = pytest.mark.skipif(not UAV.is_dir(), reason=f"shared UAV images not found at {UAV}")
 BROCCOLI = UAV / "broccoli" / "01_clip_raw_test.jpg"
 CALITERRA = UAV / "caliterra" / "IMG_9370.jpg"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cliff_terrain import CliffTerrainError, affine_matrix, apply_transform, grid_mesh
+from cliff_terrain import CliffTerrainError, grid_mesh
 from cliff_terrain.mesh import corner_heights
 
 
@@ -70,16 +70,6 @@ def test_corner_heights_average_neighbours():
     assert zc[1, 1] == 6.0 and zc[0, 0] == 0.0 and zc[2, 2] == 12.0 and zc[0, 1] == 2.0
 
 
-def test_affine_transform_matches_explicit_rotation():
-    m = affine_matrix(rotation=(0.0, 0.0, np.pi / 2), translation=(1.0, 2.0, 3.0), scale=2.0)
-    p = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]])
-    out = apply_transform(p, m)
-    np.testing.assert_allclose(out, [[1.0, 4.0, 3.0], [-1.0, 2.0, 5.0]], atol=1e-6)
-    # Euler XYZ: X first, then Y, then Z (Blender's default order).
-    m = affine_matrix(rotation=(np.pi / 2, np.pi / 2, 0.0))
-    np.testing.assert_allclose(apply_transform(np.array([[0.0, 1.0, 0.0]]), m), [[1.0, 0.0, 0.0]], atol=1e-6)
-
-
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -93,15 +83,6 @@ def test_grid_mesh_rejects_bad_arguments(kwargs, match):
     heights = kwargs.pop("heights")
     with pytest.raises(CliffTerrainError, match=match):
         grid_mesh(heights, **kwargs)
-
-
-def test_affine_rejects_bad_arguments():
-    with pytest.raises(CliffTerrainError, match="`scale` must be finite and non-zero"):
-        affine_matrix(scale=0)
-    with pytest.raises(CliffTerrainError, match=r"`rotation` must be 3 Euler angles or a 3x3 matrix"):
-        affine_matrix(rotation=(1, 2))
-    with pytest.raises(CliffTerrainError, match=r"`vertices` must have shape \(n, 3\)"):
-        apply_transform(np.zeros((2, 2)), np.eye(4))
 
 
 @pytest.mark.parametrize("two_sided", [False, True])

@@ -1,15 +1,13 @@
 """quaternion_filter against an independent quaternion-by-quaternion evaluation of Sangwine's mask."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import quaternion  # numpy-quaternion: Hamilton products, independent of the filter's linear form
+from conftest import SHARED_UAV as UAV
 
 from cliff_terrain.errors import CliffTerrainError
 from cliff_terrain.quaternion import quaternion_filter
 
-UAV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "uav"
 MU = quaternion.quaternion(0, 1, 1, 1) / np.sqrt(3)
 SCALE = 1 / np.sqrt(6)  # Sangwine's choice, the documented default
 

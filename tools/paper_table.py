@@ -21,8 +21,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "render_views.py"
 SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp"}
+sys.path.insert(0, str(ROOT))
+from cliff_terrain.settings import PAPER_TABLE4  # noqa: E402  (imports nothing heavy)
+
 # The paper's Table 4: its rendered top view against the photo.
-PAPER = ("Paper (Table 4)", 17.73, 0.8713)
+PAPER = ("Paper (Table 4)", PAPER_TABLE4["psnr"], PAPER_TABLE4["ssim"])
 
 
 def find_images(folder):

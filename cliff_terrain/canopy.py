@@ -1,0 +1,227 @@
+"""Measured canopy height on an orthophoto's grid: align the DSM (and DTM), find the ground, CHM.
+
+:func:`measure_canopy` is what the ``heights`` command, ``build_relief(dsm=...)`` and
+``render_views.py --dsm`` share: rasters in, everything on one georeferenced grid out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import check_float
+from .errors import GeoreferenceError
+from .georaster import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
+from .ground import DEFAULT_BLOCK_M, canopy_height, estimate_ground
+
+
+@dataclass
+class Canopy:
+    """Surface, ground and canopy height on one grid (metres; NaN where the DSM has no data).
+
+    Attributes
+    ----------
+    transform : (3, 3) float64
+        Pixel (col, row) -> map (x, y) of the grid.
+    crs : int
+        EPSG code.
+    dsm, ground, chm : (rows, cols) float32
+    ground_source : {"dtm", "estimated"}
+    pixel_size : float
+        Metres per pixel (mean of x and y).
+    """
+
+    transform: np.ndarray
+    crs: int
+    dsm: np.ndarray
+    ground: np.ndarray
+    chm: np.ndarray
+    ground_source: str
+    pixel_size: float
+
+    @property
+    def pixel_area_m2(self):
+        return float(abs(np.linalg.det(self.transform[:2, :2])))
+
+    @property
+    def origin(self):
+        """Map (x, y) of the grid's top-left corner."""
+        return float(self.transform[0, 2]), float(self.transform[1, 2])
+
+
+def grid_for(raster, shape):
+    """The transform of `raster`'s extent divided into `shape` (rows, cols) pixels."""
+    rows0, cols0 = raster.shape
+    rows, cols = shape
+    return raster.transform @ np.diag([cols0 / cols, rows0 / rows, 1.0])
+
+
+def load_surfaces(dsm, dtm=None):
+    """Read a DSM (and DTM) path into :class:`GeoRaster` (rasters pass through), checking their CRSs."""
+    dsm = dsm if isinstance(dsm, GeoRaster) else read_surface(dsm)
+    if dtm is not None:
+        dtm = dtm if isinstance(dtm, GeoRaster) else read_surface(dtm)
+        check_same_crs(dsm, dtm)
+    return dsm, dtm
+
+
+def measure_canopy(
+    dsm, *, plants, transform, crs, dtm=None, grid_name="the orthophoto", block_m=DEFAULT_BLOCK_M
+):
+    """DSM (and DTM) resampled onto a grid, the ground, and the canopy height there.
+
+    Parameters
+    ----------
+    dsm : GeoRaster or path
+        The digital surface model.
+    plants : (rows, cols) bool array
+        Plant pixels of the grid (the segmentation); the rest is soil where the DSM has data.
+    transform : (3, 3) array
+        The grid's pixel -> map transform.
+    crs : int
+        The grid's EPSG code.
+    dtm : GeoRaster or path, optional
+        A terrain model: the ground, instead of estimating it.
+    grid_name : str, optional
+        Name of the grid (its file) for error messages.
+    block_m : float, optional
+        Block size of the ground's trend (see :func:`cliff_terrain.ground.estimate_ground`).
+
+    Returns
+    -------
+    Canopy
+
+    Raises
+    ------
+    GeoreferenceError
+        CRSs differ or the rasters do not overlap the grid (the message names both).
+    """
+    dsm, dtm = load_surfaces(dsm, dtm)
+    plants = np.asarray(plants, dtype=bool)
+    shape = plants.shape
+    block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
+    transform = np.asarray(transform, dtype=np.float64)
+    if crs != dsm.crs:
+        raise GeoreferenceError(
+            f"{dsm.path!r} is in EPSG:{dsm.crs} but {grid_name} is in EPSG:{crs}; reproject one"
+        )
+    surface = resample(dsm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
+    if not np.isfinite(surface).any():
+        raise GeoreferenceError(f"{dsm.path!r} has no data where it overlaps {grid_name}")
+    pixel_size = float(np.mean([np.hypot(*transform[:2, 0]), np.hypot(*transform[:2, 1])]))
+    if dtm is not None:
+        if overlap_fraction(transform, shape, dtm.transform, dtm.shape) <= 0:
+            raise GeoreferenceError(f"{dtm.path!r} does not overlap {grid_name}")
+        ground = resample(dtm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
+        source = "dtm"
+    else:
+        ground = estimate_ground(surface, soil=~plants, pixel_size=pixel_size, block_m=block_m)
+        source = "estimated"
+    chm = canopy_height(surface, ground)
+    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size)
+
+
+def plant_mask(rgb, *, valid=None):
+    """Plant pixels of a photo by its vegetation index (the segmentation's threshold, no watershed).
+
+    Cheaper than :func:`cliff_terrain.segmentation.segment` on large orthophotos, where only
+    plant/soil matters (the ground, plot cover).
+    """
+    from .segmentation import _vegetation_mask
+
+    mask, *_ = _vegetation_mask(rgb, "auto", valid)
+    if valid is not None:
+        mask &= valid
+    return mask
+
+
+def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT_BLOCK_M):
+    """Read an orthophoto GeoTIFF and measure its canopy on its grid (or a coarser one).
+
+    Parameters
+    ----------
+    ortho : path or GeoRaster
+    dsm, dtm : path or GeoRaster
+    resolution : float, optional
+        Metres per pixel of the grid (>= the orthophoto's); default the orthophoto's own.
+
+    Returns
+    -------
+    rgb : (rows, cols, 3) uint8 on the grid
+    valid : (rows, cols) bool (photo and DSM have data)
+    plants : (rows, cols) bool (vegetation pixels)
+    canopy : Canopy
+    """
+    import cv2
+
+    ortho = ortho if isinstance(ortho, GeoRaster) else read_orthophoto(ortho)
+    dsm, dtm = load_surfaces(dsm, dtm)
+    check_same_crs(ortho, dsm)
+    rgb, valid = ortho.data, ortho.valid
+    transform = ortho.transform
+    if resolution is not None:
+        resolution = check_float("resolution", resolution, minimum=0.0, strict_minimum=True)
+        rows0, cols0 = ortho.shape
+        factor = resolution / np.mean(ortho.pixel_size)
+        if factor > 1.0:
+            shape = (max(1, round(rows0 / factor)), max(1, round(cols0 / factor)))
+            transform = grid_for(ortho, shape)
+            rgb = cv2.resize(rgb, shape[::-1], interpolation=cv2.INTER_AREA)
+            if valid is not None:
+                valid = cv2.resize(valid.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    plants = plant_mask(rgb, valid=valid)
+    canopy = measure_canopy(
+        dsm, plants=plants, transform=transform, crs=ortho.crs, dtm=dtm, grid_name=ortho.path, block_m=block_m
+    )
+    has_data = np.isfinite(canopy.chm) if valid is None else (valid & np.isfinite(canopy.chm))
+    return rgb, has_data, plants, canopy
+
+
+def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration):
+    """The relief's heights (metres) on the processing grid of orthophoto `path` (used by build_relief).
+
+    Returns ``(canopy, heights, pixel_size, georeference)``: ``"measured"`` heights are the CHM,
+    ``"calibrated"`` ones the photo's domes scaled so each region's top is its measured p99 height,
+    ``"inflated"`` ones the domes as they are (the canopy is then only measured, for the figures);
+    all times `exaggeration`.
+    """
+    from .georaster import read_georeference
+    from .segmentation import label_max
+
+    name = str(path)
+    transform0, crs = read_georeference(path)
+    rows, cols = stages.working.shape[:2]
+    meta = stages.metadata
+    transform = transform0 @ np.diag([meta.width / cols, meta.height / rows, 1.0])
+    plants = stages.segmentation.mask
+    canopy = measure_canopy(dsm, plants=plants, transform=transform, crs=crs, dtm=dtm, grid_name=name)
+    chm = np.nan_to_num(canopy.chm, nan=0.0)
+    pixel_size = canopy.pixel_size
+    if mode == "measured":
+        heights = chm * np.float32(exaggeration)
+    elif mode == "calibrated":
+        labels = stages.segmentation.labels
+        n = int(labels.max(initial=0))
+        dome = stages.heights_px.astype(np.float32)
+        tops = np.zeros(n + 1, dtype=np.float32)
+        if n:
+            from .plots import region_figures
+
+            figures = region_figures(labels, n, mask=plants, heights=canopy.chm, pixel_area_m2=1.0)
+            tops[1:] = np.nan_to_num([f["height_p99_m"] for f in figures], nan=0.0)
+        peaks = label_max(dome, labels)  # out[k] for region k, out[0] = 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(peaks > 0, tops / np.maximum(peaks, 1e-12), 0.0).astype(np.float32)
+        heights = dome * scale[labels] * np.float32(exaggeration)
+    else:
+        heights = stages.heights_px.astype(np.float32) * np.float32(pixel_size)
+    x0, y0 = canopy.origin
+    georeference = {
+        "crs": int(crs),
+        "origin": [x0, y0],
+        "transform": [float(v) for v in transform[:2].ravel()],
+        "pixel_size_m": pixel_size,
+        "ground": canopy.ground_source,
+    }
+    return canopy, np.ascontiguousarray(heights, dtype=np.float32), pixel_size, georeference

@@ -1,0 +1,107 @@
+"""``cliff-terrain season INPUTS... --plots FILE --out DIR``: a season of flights, one table and a chart.
+
+Writes ``DIR/season.csv`` (one row per date and plot), ``DIR/growth.png``, ``DIR/season.json`` (what
+``render_season.py`` animates) and ``DIR/cache/`` (one entry per image; a rerun computes only what is
+missing). Runs on Dask: a local cluster by default, ``--workers 0`` serially, ``--scheduler ADDRESS``
+on an existing cluster. Exit status 1 when some images failed (their rows carry the error).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .. import settings
+
+HELP = "per-plot growth over a season of dated orthophotos (cover, heights, volume), on Dask"
+
+
+def configure(parser):
+    parser.add_argument("inputs", nargs="+", type=Path, metavar="INPUT", help="photos or folders of photos")
+    parser.add_argument("--plots", type=Path, required=True, help="plot polygons (GeoJSON or Shapefile)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    parser.add_argument(
+        "--dates",
+        nargs="+",
+        default=(),
+        metavar="NAME=YYYY-MM-DD",
+        help="dates of photos whose file holds none (no EXIF/TIFF date, no date in the name)",
+    )
+    parser.add_argument(
+        "--dsm",
+        default=None,
+        help="surface models for measured heights: a folder (matched by date or name), "
+        "a pattern with {stem}, or one file for one photo",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="local Dask worker processes (default: one per core); 0 runs serially in this process",
+    )
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS", help="an existing Dask scheduler")
+    parser.add_argument(
+        "--timeout", type=float, default=10.0, help="seconds to wait for --scheduler (default 10)"
+    )
+    parser.add_argument(
+        "--memory-limit",
+        default="auto",
+        help="memory per local worker, e.g. 2GiB (default: the machine's memory shared out)",
+    )
+    parser.add_argument(
+        "--color-by", default=None, metavar="FIELD", help="plot attribute colouring the chart"
+    )
+    parser.add_argument("--max-size", type=int, default=settings.DEFAULT_MAX_SIZE)
+    parser.add_argument(
+        "--segmentation", choices=settings.ids(settings.SEGMENTATIONS), default=settings.DEFAULT_SEGMENTATION
+    )
+    parser.add_argument(
+        "--profile", choices=settings.ids(settings.PROFILES), default=settings.DEFAULT_PROFILE
+    )
+    parser.add_argument("--exaggeration", type=float, default=settings.DEFAULT_EXAGGERATION)
+    parser.add_argument(
+        "--max-height",
+        type=float,
+        default=None,
+        help="the canopy's known height in metres: calibrates the inflated heights",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args):
+    from ..season.dates import parse_given_dates
+    from ..season.runner import plan_season, run_season
+
+    jobs, plot_set = plan_season(
+        args.inputs,
+        plots=args.plots,
+        dates=parse_given_dates(args.dates),
+        dsm=args.dsm,
+        max_size=args.max_size,
+        segmentation=args.segmentation,
+        profile=args.profile,
+        exaggeration=args.exaggeration,
+        max_height=args.max_height,
+    )
+    season = run_season(
+        jobs,
+        plot_set,
+        out=args.out,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        timeout=args.timeout,
+        memory_limit=args.memory_limit,
+        progress=not args.no_progress,
+        color_by=args.color_by,
+    )
+    print(
+        f"{len(jobs)} dates x {len(plot_set.polygons)} plots: {season.computed} images computed, "
+        f"{season.cached} from the cache, in {season.seconds:.1f} s; wrote {season.table}, "
+        f"{season.out / 'growth.png'}, {season.out / 'season.json'}"
+    )
+    if season.failures:
+        print(f"{len(season.failures)} of {len(jobs)} images failed:", file=sys.stderr)
+        for image, error in season.failures:
+            print(f"  {image}: {error}", file=sys.stderr)
+        return 1
+    return 0

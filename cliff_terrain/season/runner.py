@@ -1,0 +1,683 @@
+"""A season of flights on Dask: one image is one task, results cached, one tidy table at the end.
+
+:func:`plan_season` checks everything it can before any work (files, dates, CRS, plots), so bad
+input is one error at once. :func:`run_season` then computes what the cache lacks, serially
+(``workers=0``), on a local cluster of worker processes, or on an existing ``dask.distributed``
+scheduler, and writes ``season.csv``, ``season.json`` (what the Blender animation reads) and
+``growth.png``. Dask is imported only when it is used.
+
+The workers need Cliff Terrain importable and the photos, DSMs and plots file at the same paths;
+results come back to this process, which writes the cache and the table.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from .. import settings
+from .._validate import check_choice, check_float, check_int
+from ..errors import CliffTerrainError
+from .cache import Cache, cache_key, file_hash
+from .dates import photo_date
+
+IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".webp")
+# The table's columns; the plots' attributes go between `plot` and `area_m2`.
+LEAD_COLUMNS = ("date", "date_source", "image", "plot")
+VALUE_COLUMNS = (
+    "area_m2",
+    "cover",
+    "volume_m3",
+    "height_mean",
+    "height_p50",
+    "height_p90",
+    "height_max",
+    "height_mode",
+    "height_units",
+    "reason",
+    "error",
+)
+# plot_table's keys for the value columns above.
+_FROM_TABLE = {
+    "area_m2": "area_m2",
+    "cover": "cover",
+    "volume_m3": "volume_m3",
+    "height_mean": "height_mean_m",
+    "height_p50": "height_p50_m",
+    "height_p90": "height_p90_m",
+    "height_max": "height_max_m",
+    "reason": "error",  # plot_table's why a plot has no or partial figures ("" when whole)
+}
+HEIGHT_MODES = ("inflated", "calibrated", "measured")
+
+
+@dataclasses.dataclass
+class Job:
+    """One image of the season: what a worker needs to compute it."""
+
+    path: str
+    date: str
+    date_source: str
+    plots: str
+    params: dict
+    dsm: str | None = None
+    key: str = ""
+
+    def as_dict(self):
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass
+class Season:
+    """What :func:`run_season` did."""
+
+    rows: list
+    failures: list  # (image, error)
+    computed: int
+    cached: int
+    out: Path
+    seconds: float
+    worker_peaks: dict = dataclasses.field(default_factory=dict)  # worker -> peak RSS bytes
+
+    @property
+    def table(self):
+        return self.out / "season.csv"
+
+
+def find_images(inputs):
+    """Files and folders (their image files, not recursive) to a sorted list of unique paths."""
+    found = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+            if not files:
+                raise CliffTerrainError(
+                    f"no images in folder {str(path)!r} (looked for {', '.join(IMAGE_SUFFIXES)})"
+                )
+            found.extend(files)
+        elif path.is_file():
+            found.append(path)
+        else:
+            raise CliffTerrainError(f"input {str(path)!r} is neither a file nor a folder")
+    if not found:
+        raise CliffTerrainError("no input images given")
+    unique = sorted({p.resolve() for p in found})
+    return [str(p) for p in unique]
+
+
+def pair_dsm(images, dsm):
+    """Each image's DSM: `dsm` is a file (one image), a folder, or a pattern with ``{stem}``.
+
+    A folder is searched for a file holding the image's date or stem, e.g. ``20180815_dsm.tif``.
+    """
+    if dsm is None:
+        return {image: None for image in images}
+    text = str(dsm)
+    pairs = {}
+    for image in images:
+        stem = Path(image).stem
+        if "{stem}" in text:
+            candidate = Path(text.format(stem=stem))
+        elif Path(text).is_dir():
+            candidate = _dsm_in_folder(Path(text), Path(image))
+        elif len(images) == 1:
+            candidate = Path(text)
+        else:
+            raise CliffTerrainError(
+                f"`--dsm` must be a folder or a pattern with {{stem}} for {len(images)} images, got {text!r}"
+            )
+        if candidate is None or not candidate.is_file():
+            raise CliffTerrainError(f"no DSM for {image!r} (`--dsm` {text!r})")
+        pairs[image] = str(candidate)
+    return pairs
+
+
+def _dsm_in_folder(folder, image):
+    from .dates import date_in_name
+
+    date = date_in_name(image.name)
+    for path in sorted(folder.iterdir()):
+        if path.suffix.lower() not in (".tif", ".tiff") or path.resolve() == image.resolve():
+            continue
+        if image.stem in path.stem or (date is not None and date_in_name(path.name) == date):
+            return path
+    return None
+
+
+def plan_season(
+    inputs,
+    *,
+    plots,
+    dates=None,
+    dsm=None,
+    max_size=settings.DEFAULT_MAX_SIZE,
+    segmentation=settings.DEFAULT_SEGMENTATION,
+    profile=settings.DEFAULT_PROFILE,
+    exaggeration=settings.DEFAULT_EXAGGERATION,
+    max_height=None,
+):
+    """Check the inputs and list the season's jobs, sorted by date.
+
+    Parameters
+    ----------
+    inputs : list of str or os.PathLike
+        Photos, or folders of photos.
+    plots : str or os.PathLike
+        The plot polygons (GeoJSON), in the photos' CRS.
+    dates : dict, optional
+        ``{file name or path: datetime.date}`` for photos whose file holds no date.
+    dsm : str, optional
+        Surface models: see :func:`pair_dsm`.
+    max_size, segmentation, profile, exaggeration
+        As for :func:`cliff_terrain.build_relief`.
+    max_height : float, optional
+        The canopy's known height in metres: the inflated heights are calibrated to it (the
+        table's `height_mode` is then "calibrated"; with `dsm`, "measured").
+
+    Returns
+    -------
+    jobs : list of Job
+    plot_set : PlotSet
+
+    Raises
+    ------
+    CliffTerrainError
+        For a missing file, a photo without a date, two photos of one date, or a photo whose CRS
+        differs from the plots'.
+    """
+    from ..plots import check_plot_crs, read_plots
+
+    params = {
+        "max_size": check_int("max_size", max_size, minimum=settings.MIN_SIZE, maximum=settings.MAX_SIZE),
+        "segmentation": check_choice("segmentation", segmentation, settings.ids(settings.SEGMENTATIONS)),
+        "profile": check_choice("profile", profile, settings.ids(settings.PROFILES)),
+        "exaggeration": check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True),
+        "max_height": check_float(
+            "max_height", max_height, minimum=0.0, strict_minimum=True, allow_none=True
+        ),
+    }
+    if dsm is not None:
+        import inspect
+
+        from ..pipeline import build_relief
+
+        if "dsm" not in inspect.signature(build_relief).parameters:
+            raise CliffTerrainError(
+                "`--dsm` needs measured heights, which this version's build_relief does not take yet"
+            )
+    plot_set = read_plots(plots)
+    images = find_images(inputs)
+    dsms = pair_dsm(images, dsm)
+    jobs, seen = [], {}
+    for image in images:
+        date, source = photo_date(image, given=dates)
+        if date in seen:
+            raise CliffTerrainError(
+                f"two photos of {date.isoformat()}: {seen[date]!r} and {image!r}; a season has one "
+                "orthophoto per date (mosaic the tiles of one flight first)"
+            )
+        seen[date] = image
+        _, crs, _ = photo_georeference(image)
+        check_plot_crs(plot_set, crs, raster=image)
+        jobs.append(
+            Job(
+                path=image,
+                date=date.isoformat(),
+                date_source=source,
+                plots=str(Path(plots).resolve()),
+                params=params,
+                dsm=dsms[image],
+            )
+        )
+    jobs.sort(key=lambda job: job.date)
+    return jobs, plot_set
+
+
+def process_image(job):
+    """One task: a photo's relief, its plots' statistics and its height grid (runs on a worker).
+
+    Never raises: a failure comes back as ``{"ok": False, "error": ...}`` so the others go on.
+    """
+    started = time.perf_counter()
+    try:
+        result = _process(job)
+    except Exception as exc:  # a task's failure is its image's rows, not the run's end
+        message = str(exc) or type(exc).__name__
+        return {"ok": False, "error": f"{type(exc).__name__}: {message}".replace("\n", " ")}
+    result["seconds"] = time.perf_counter() - started
+    result["peak_rss"] = _peak_rss()
+    result["worker"] = f"{os.uname().nodename}:{os.getpid()}"
+    result["ok"] = True
+    return result
+
+
+def _process(job):
+    import numpy as np
+
+    from ..pipeline import build_relief
+    from ..plots import plot_table, rasterize_plots
+
+    params = job["params"]
+    photo_transform, crs, photo_shape = photo_georeference(job["path"])
+    extra, mode = {}, "inflated" if params["max_height"] is None else "calibrated"
+    if job.get("dsm"):
+        extra["dsm"] = job["dsm"]  # measured heights (plan_season checked build_relief takes them)
+        mode = "measured"
+    relief = build_relief(
+        job["path"],
+        max_size=params["max_size"],
+        segmentation=params["segmentation"],
+        profile=params["profile"],
+        exaggeration=params["exaggeration"],
+        max_height=params["max_height"],
+        gsd=float(np.hypot(*photo_transform[:2, 0])),
+        two_sided=False,
+        **extra,
+    )
+    mode = getattr(relief, "height_mode", None) or mode
+    shape = relief.heights.shape
+    transform = grid_transform(photo_transform, photo_shape, shape)
+    labels = rasterize_plots(_plots(job["plots"]), transform=transform, shape=shape)
+    table = plot_table(
+        _plots(job["plots"]),
+        labels,
+        mask=relief.mask,
+        heights=relief.heights,
+        pixel_area_m2=float(abs(np.linalg.det(transform[:2, :2]))),
+        height_units=relief.units,
+    )
+    return {
+        "table": [_plain(row) for row in table],
+        "height_mode": mode,
+        "height_units": relief.units,
+        "grid": {"transform": transform[:2].tolist(), "shape": list(shape), "crs": crs},
+        "arrays": {
+            "heights": np.ascontiguousarray(relief.heights, dtype=np.float32),
+            "mask": np.packbits(relief.mask, axis=None),
+        },
+    }
+
+
+def photo_georeference(path):
+    """(3x3 pixel-to-map transform, EPSG code, (rows, cols)) of a GeoTIFF, from its header only.
+
+    The pixels are not decoded (the plan checks every photo's CRS before any work); the tags are
+    interpreted by :mod:`cliff_terrain.georaster`.
+    """
+    import tifffile
+
+    from ..errors import RasterReadError
+    from ..georaster import _georeference
+
+    name = os.fspath(path)
+    try:
+        with tifffile.TiffFile(name) as tif:
+            page = tif.pages[0]
+            tags = {tag.code: tag.value for tag in page.tags.values() if tag.code in _GEO_TAGS}
+            shape = (int(page.imagelength), int(page.imagewidth))
+    except Exception as exc:  # not a TIFF, truncated header
+        raise RasterReadError(f"cannot read the georeference of {name!r}: {exc}") from None
+    transform, crs = _georeference(tags, name)
+    return transform, crs, shape
+
+
+# ModelPixelScale, ModelTiepoint, ModelTransformation, GeoKeyDirectory, GeoDoubleParams, GeoAsciiParams.
+_GEO_TAGS = (33550, 33922, 34264, 34735, 34736, 34737)
+
+
+def grid_transform(photo_transform, photo_shape, grid_shape):
+    """The photo's transform for the processing grid, which resamples its pixels to `grid_shape`."""
+    import numpy as np
+
+    scale = np.diag([photo_shape[1] / grid_shape[1], photo_shape[0] / grid_shape[0], 1.0])
+    return np.asarray(photo_transform, dtype=np.float64) @ scale
+
+
+_PLOTS = {}
+
+
+def _plots(path):
+    """The plots, read once per worker process."""
+    if path not in _PLOTS:
+        from ..plots import read_plots
+
+        _PLOTS[path] = read_plots(path)
+    return _PLOTS[path]
+
+
+def _plain(value):
+    """numpy scalars and tuples to JSON's types (the rows travel and are cached as JSON)."""
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _peak_rss():
+    """This process's peak resident memory in bytes (Linux and macOS units differ)."""
+    try:
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    except ImportError:  # Windows
+        return None
+    return peak if sys.platform == "darwin" else peak * 1024
+
+
+# ---- running ----
+
+
+def run_season(
+    jobs,
+    plot_set,
+    *,
+    out,
+    workers=None,
+    scheduler=None,
+    timeout=10.0,
+    memory_limit="auto",
+    progress=True,
+    chart=True,
+    color_by=None,
+):
+    """Compute the jobs the cache lacks and write ``season.csv``, ``season.json`` and ``growth.png``.
+
+    Parameters
+    ----------
+    jobs, plot_set
+        From :func:`plan_season`.
+    out : str or os.PathLike
+        Output folder; its ``cache/`` holds one entry per computed image.
+    workers : int, optional
+        Local worker processes: None for one per core, 0 to run serially in this process.
+    scheduler : str, optional
+        Address of an existing ``dask.distributed`` scheduler (wins over `workers`).
+    timeout : float, optional
+        Seconds to wait for `scheduler` before giving up.
+    memory_limit : str or int, optional
+        Per local worker (Dask's syntax, e.g. ``"2GiB"``; ``"auto"`` shares the machine's memory).
+    progress : bool, optional
+        Draw a progress bar on stderr.
+    chart : bool, optional
+        Draw ``growth.png`` (needs matplotlib).
+    color_by : str, optional
+        Plot attribute that colours the chart's lines.
+
+    Returns
+    -------
+    Season
+    """
+    from .. import __version__
+
+    started = time.perf_counter()
+    out = Path(out)
+    if color_by is not None and color_by not in plot_set.fields:
+        raise CliffTerrainError(
+            f"`color_by` must be one of the plots' attributes ({', '.join(plot_set.fields)}), got {color_by!r}"
+        )
+    if workers is not None:
+        workers = check_int("workers", workers, minimum=0)
+    timeout = check_float("timeout", timeout, minimum=0.0, strict_minimum=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliffTerrainError(f"cannot create `out` {str(out)!r}: {exc}") from None
+    cache = Cache(out / "cache")
+    plots_hash = file_hash(jobs[0].plots) if jobs else ""
+    for job in jobs:
+        extra = [plots_hash] + ([file_hash(job.dsm)] if job.dsm else [])
+        job.key = cache_key(
+            image_hash=file_hash(job.path), params=job.params, version=__version__, extra_hashes=extra
+        )
+    todo = [job for job in jobs if not cache.has(job.key)]
+    bar = _Bar(len(todo), enabled=progress)
+    results = {}
+    peaks = {}
+
+    def finished(job, result):
+        if result["ok"]:
+            arrays = result.pop("arrays")
+            cache.store(job.key, result, arrays)
+            peaks[result["worker"]] = max(peaks.get(result["worker"], 0), result["peak_rss"] or 0)
+        results[job.key] = result
+        bar.step(Path(job.path).name, ok=result["ok"])
+
+    if todo:
+        if scheduler is None and workers == 0:
+            for job in todo:
+                finished(job, process_image(job.as_dict()))
+        else:
+            _run_on_dask(
+                todo,
+                finished,
+                workers=workers,
+                scheduler=scheduler,
+                timeout=timeout,
+                memory_limit=memory_limit,
+            )
+    bar.close()
+
+    rows, failures, dates = [], [], []
+    for job in jobs:
+        result = results.get(job.key) or cache.load_record(job.key)
+        if result is None:
+            result = {"ok": False, "error": "no result (the task was lost)"}
+        if not result["ok"]:
+            failures.append((job.path, result["error"]))
+        rows.extend(_rows(job, result, plot_set))
+        dates.append(_date_record(job, result, out))
+    columns = _columns(plot_set)
+    _write_csv(out / "season.csv", rows, columns)
+    manifest = {
+        "version": __version__,
+        "plots": jobs[0].plots if jobs else None,
+        "crs": plot_set.crs,
+        "params": jobs[0].params if jobs else {},
+        "color_by": color_by,
+        "dates": dates,
+    }
+    (out / "season.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    if chart:
+        from .charts import growth_chart
+
+        growth_chart(_typed(rows), out / "growth.png", color_by=color_by)
+    return Season(
+        rows=rows,
+        failures=failures,
+        computed=len(todo),
+        cached=len(jobs) - len(todo),
+        out=out,
+        seconds=time.perf_counter() - started,
+        worker_peaks=peaks,
+    )
+
+
+def _run_on_dask(todo, finished, *, workers, scheduler, timeout, memory_limit):
+    """Submit one task per image and hand each result to `finished` as it arrives."""
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise CliffTerrainError(
+            "Dask is not installed: pip install 'cliff-terrain[season]', or run serially with --workers 0"
+        ) from None
+    cluster = None
+    try:
+        if scheduler is not None:
+            try:
+                client = Client(scheduler, timeout=timeout, set_as_default=False)
+            except (OSError, TimeoutError) as exc:
+                raise CliffTerrainError(
+                    f"cannot reach the Dask scheduler `{scheduler}` within {timeout:g} s ({type(exc).__name__})"
+                ) from None
+        else:
+            n = workers if workers is not None else (os.cpu_count() or 1)
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                memory_limit=memory_limit,
+                dashboard_address=None,
+                host="127.0.0.1",
+            )
+            client = Client(cluster, set_as_default=False)
+            # Each worker owns one core and runs one image at a time: OpenCV's own thread pool would
+            # only make the workers fight over the cores.
+            client.run(_single_threaded_opencv)
+        with client:
+            futures = {}
+            for job in todo:
+                future = client.submit(process_image, job.as_dict(), key=f"season-{job.key}", pure=False)
+                futures[future] = job
+            for future in as_completed(futures, loop=client.loop):
+                job = futures[future]
+                try:
+                    result = future.result()
+                except Exception as exc:  # the worker died (memory limit) or the task was lost
+                    result = {"ok": False, "error": f"{type(exc).__name__}: {exc}".replace("\n", " ")}
+                finished(job, result)
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def _single_threaded_opencv():
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def _rows(job, result, plot_set):
+    """The image's rows: one per plot, the error on each when the image failed."""
+    base = {"date": job.date, "date_source": job.date_source, "image": Path(job.path).name}
+    rows = []
+    if result["ok"]:
+        for entry in result["table"]:
+            i = int(entry["plot"])
+            row = {**base, "plot": i, **_attributes(plot_set, i)}
+            for column, key in _FROM_TABLE.items():
+                row[column] = entry.get(key)
+            row["reason"] = row["reason"] or None
+            row["height_mode"] = result["height_mode"]
+            row["height_units"] = result["height_units"]
+            row["error"] = None
+            rows.append(row)
+    else:
+        for i in range(len(plot_set.polygons)):
+            row = {**base, "plot": i, **_attributes(plot_set, i)}
+            row.update({column: None for column in VALUE_COLUMNS})
+            row["error"] = result["error"]
+            rows.append(row)
+    return rows
+
+
+def _attributes(plot_set, i):
+    return {_attribute_column(name): plot_set.attributes[i].get(name) for name in plot_set.fields}
+
+
+def _attribute_column(name):
+    """An attribute's column; one named like a table column is prefixed so nothing is overwritten."""
+    return f"attr_{name}" if name in LEAD_COLUMNS or name in VALUE_COLUMNS else name
+
+
+def _columns(plot_set):
+    return (*LEAD_COLUMNS, *(_attribute_column(n) for n in plot_set.fields), *VALUE_COLUMNS)
+
+
+def _date_record(job, result, out):
+    record = {
+        "date": job.date,
+        "date_source": job.date_source,
+        "image": job.path,
+        "dsm": job.dsm,
+        "key": job.key,
+        "error": None if result["ok"] else result["error"],
+    }
+    if result["ok"]:
+        record.update(
+            {
+                "arrays": f"cache/{job.key}.npz",
+                "grid": result["grid"],
+                "height_mode": result["height_mode"],
+                "height_units": result["height_units"],
+                "seconds": round(result["seconds"], 3),
+            }
+        )
+    return record
+
+
+def _cell(value):
+    """One CSV cell, the same text whichever process computed it."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return "" if value != value else f"{value:.6g}"
+    return str(value)
+
+
+def _write_csv(path, rows, columns):
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([_cell(row.get(column)) for column in columns])
+    tmp = path.with_name(f".{path.name}.{os.getpid()}")
+    tmp.write_text(buffer.getvalue())
+    os.replace(tmp, path)
+
+
+def _typed(rows):
+    """Rows as the chart wants them: values as in the CSV (rounded), so the chart shows the table."""
+    return [{k: (_cell(v) if isinstance(v, float) else v) for k, v in row.items()} for row in rows]
+
+
+class _Bar:
+    """A one-line progress bar on stderr: ``season [#####-----] 3/7 20180829.tif``."""
+
+    WIDTH = 30
+
+    def __init__(self, total, *, enabled):
+        self.total, self.done, self.failed = total, 0, 0
+        self.enabled = enabled and total > 0
+        self.tty = sys.stderr.isatty()
+        self.started = time.perf_counter()
+        if self.enabled:
+            self._draw("")
+
+    def step(self, name, *, ok):
+        self.done += 1
+        self.failed += not ok
+        if self.enabled:
+            self._draw(name)
+
+    def _draw(self, name):
+        filled = self.WIDTH * self.done // max(self.total, 1)
+        bar = "#" * filled + "-" * (self.WIDTH - filled)
+        failed = f", {self.failed} failed" if self.failed else ""
+        line = (
+            f"season [{bar}] {self.done}/{self.total} images{failed} "
+            f"{time.perf_counter() - self.started:5.1f} s {name}"
+        )
+        if self.tty:
+            sys.stderr.write("\r" + line[:120].ljust(120))
+        else:
+            sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+    def close(self):
+        if self.enabled and self.tty:
+            sys.stderr.write("\n")
+            sys.stderr.flush()

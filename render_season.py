@@ -1,0 +1,178 @@
+"""Animate a season of flights in Blender: one relief per date, aligned by georeference, one date per frame.
+
+    python render_season.py SEASON_DIR [--out DIR] [options]              (Python 3.11 with the bpy wheel)
+    blender -b -P render_season.py -- SEASON_DIR [--out DIR] [options]    (Blender 4.2 or newer)
+
+SEASON_DIR is what ``cliff-terrain season ... --out SEASON_DIR`` wrote; this script reads its
+``season.json`` and cached height grids and never runs Dask. It writes into ``--out`` (default
+``SEASON_DIR/animation``): ``frames/date_0001.png`` ... (one per date, the date stamped in each),
+``season.mp4`` (Blender's FFmpeg output, each date held ``--hold`` frames) and ``season.blend``.
+The sidebar's Season Animation button does the same with the default options. Bad input exits
+with status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+PACKAGE = "cliff_terrain_addon"
+PROG = "render_season.py"
+_START = time.perf_counter()
+# Inside Blender (blender -b -P) bpy is loaded before this script runs; with the bpy wheel it is not.
+INSIDE_BLENDER = "bpy" in sys.modules
+
+
+class InputError(Exception):
+    """Bad input the user can fix: one line on stderr, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see --help)\n")
+
+
+def _size(text):
+    try:
+        cols, rows = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected COLSxROWS such as 1280x720, got {text!r}") from None
+    if not (16 <= cols <= 8192 and 16 <= rows <= 8192):
+        raise argparse.ArgumentTypeError(f"each side must be 16 to 8192, got {text!r}")
+    return cols, rows
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def build_parser():
+    parser = _Parser(
+        prog=PROG,
+        description="Render a season computed by `cliff-terrain season` as an animation, one date per frame.",
+        epilog="With an installed Blender: blender -b -P render_season.py -- SEASON_DIR [options]",
+    )
+    parser.add_argument("season", metavar="SEASON_DIR", help="the folder `cliff-terrain season --out` wrote")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default: SEASON_DIR/animation)")
+    parser.add_argument("--no-plots", action="store_true", help="leave out the plot outlines")
+    parser.add_argument(
+        "--size", type=_size, default=(1280, 720), help="frame size COLSxROWS (default 1280x720)"
+    )
+    parser.add_argument("--engine", choices=("WORKBENCH", "CYCLES"), default="WORKBENCH")
+    parser.add_argument("--hold", type=_positive_int, default=12, help="video frames per date (default 12)")
+    parser.add_argument("--fps", type=_positive_int, default=12, help="video frame rate (default 12)")
+    parser.add_argument("--no-video", action="store_true", help="the PNG frames only")
+    return parser
+
+
+def script_args(argv=None):
+    """The script's own arguments: after ``--`` inside Blender, else the command line's."""
+    if argv is None:
+        argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
+    return build_parser().parse_args(argv)
+
+
+def log(message):
+    print(f"[{time.perf_counter() - _START:6.1f} s] {message}", flush=True)
+
+
+def start_blender():
+    """Import bpy, start from an empty scene and register the extension from this folder."""
+    try:
+        import bpy
+    except ImportError:
+        raise InputError(
+            "Blender's Python module is missing: run `blender -b -P render_season.py -- SEASON_DIR` "
+            "or install the bpy wheel (pip install -r requirements-dev.txt)"
+        ) from None
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    addon = sys.modules.get(PACKAGE)
+    if addon is None:
+        spec = importlib.util.spec_from_file_location(
+            PACKAGE, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
+        )
+        addon = importlib.util.module_from_spec(spec)
+        sys.modules[PACKAGE] = addon
+        spec.loader.exec_module(addon)
+    if not hasattr(bpy.types.Scene, "cliff_terrain"):
+        addon.register()
+    return bpy
+
+
+def run(args):
+    season_dir = Path(args.season)
+    out = Path(args.out) if args.out else season_dir / "animation"
+    bpy = start_blender()
+    errors = importlib.import_module(f"{PACKAGE}.cliff_terrain.errors")
+    outputs = importlib.import_module(f"{PACKAGE}.cliff_terrain.season.outputs")
+    plots_module = importlib.import_module(f"{PACKAGE}.cliff_terrain.plots")
+    scene_season = importlib.import_module(f"{PACKAGE}.scene.season")
+    try:
+        season = outputs.read_season(season_dir)
+        plots = None if args.no_plots or not season.plots else plots_module.read_plots(season.plots)
+    except errors.CliffTerrainError as exc:
+        raise InputError(str(exc)) from None
+    for date, image, error in season.failed:
+        log(f"left out {date} ({image}): {error}")
+    built = scene_season.build_season_scene(
+        bpy.context, season, plots=plots, size=args.size, engine=args.engine
+    )
+    log(
+        f"scene: {len(built.dates)} reliefs ({built.dates[0]} to {built.dates[-1]}), frames 1-{len(built.dates)}"
+    )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create {str(out)!r}: {exc}") from None
+    result = scene_season.render_season(
+        built, out, hold=args.hold, fps=args.fps, video=not args.no_video, log=log
+    )
+    blend = out / "season.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False, compress=True)
+    log(f"wrote {blend}")
+    return result
+
+
+def main(argv=None):
+    args = script_args(argv)
+    try:
+        run(args)
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def leave(code):
+    """Exit with `code`.
+
+    bpy 4.2-4.5 as a Python module segfaults while the interpreter shuts down once a PropertyGroup
+    has been registered (as render_views.py explains): there, flush, remove Blender's session
+    folder and leave without the teardown, so the exit code is ours.
+    """
+    bpy = sys.modules.get("bpy")
+    if INSIDE_BLENDER or bpy is None or bpy.app.version >= (5, 0, 0):
+        sys.exit(code)
+    import os
+    import shutil
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if bpy.app.tempdir:
+        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    leave(main())

@@ -1,0 +1,364 @@
+"""The Blender side of the sidebar's GUI test: runs inside a real Blender window (started by
+``gui_driver.py`` under Xvfb) and never blocks it.
+
+    blender -p 0 0 W H --python tests/app/gui_sidebar.py -- --work DIR --photo PHOTO [--source REPO]
+
+A timer walks through the test one phase at a time and writes what it needs from the outside
+world into ``DIR/state.json``; the driver (a separate process: a blocking timer would stop the
+window from handling its clicks) answers with xdotool and xwd:
+
+1. ``category``: the sidebar is open; the driver Ctrl+scrolls over it until the "Cliff Terrain"
+   tab is active (``Region.active_panel_category`` is read-only in Blender 4.3).
+2. ``shot``: the driver saves screenshots; two of the sidebar, with the photo set and unset, show
+   where the Build Relief button is (the only full-width control that changes when it greys out).
+3. ``click``: the driver clicks it; the build runs as a user's would.
+4. Checks from inside Blender: the relief exists at the 3D cursor, selected and active; the 3D view
+   frames it; Solid shading shows its texture; then a final screenshot (the README's sidebar.png)
+   must show the photo's colours in the 3D view.
+
+The verdict goes to ``DIR/result.json``; Blender then quits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import json
+import math
+import os
+import sys
+import time
+import traceback
+
+import bpy
+
+CATEGORY = "Cliff Terrain"
+# A UI unit (a row of widgets) in pixels at resolution scale 1; the Build row is 1.4 of it.
+UNIT = 20
+TIMEOUT_S = 240
+
+
+def parse_args():
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
+    parser = argparse.ArgumentParser(prog="gui_sidebar.py")
+    parser.add_argument("--work", required=True, help="folder shared with the driver")
+    parser.add_argument("--photo", required=True)
+    parser.add_argument("--source", help="register the add-on from this source folder (no installed zip)")
+    parser.add_argument("--max-size", type=int, default=400)
+    return parser.parse_args(argv)
+
+
+ARGS = parse_args()
+STATE = os.path.join(ARGS.work, "state.json")
+RESULT = os.path.join(ARGS.work, "result.json")
+
+
+class Test:
+    def __init__(self):
+        self.phase = "start"
+        self.seq = 0
+        self.started = time.monotonic()
+        self.checks = {}
+        self.notes = []
+        self.waiting_for = None
+
+    # ---- talking to the driver ---------------------------------------------------------------
+
+    def ask(self, phase, **fields):
+        """Publish a request for the driver (a new sequence number each time)."""
+        self.seq += 1
+        self.phase = phase
+        state = {"seq": self.seq, "phase": phase, **fields}
+        tmp = STATE + ".tmp"
+        with open(tmp, "w") as stream:
+            json.dump(state, stream)
+        os.replace(tmp, STATE)
+        self.waiting_for = fields.get("done")
+
+    def answered(self):
+        return self.waiting_for is None or os.path.exists(self.waiting_for)
+
+    def finish(self, error=None):
+        passed = error is None and all(self.checks.values())
+        verdict = {"passed": passed, "checks": self.checks, "notes": self.notes, "error": error}
+        with open(RESULT, "w") as stream:
+            json.dump(verdict, stream, indent=2)
+        self.ask("done", passed=passed)
+        bpy.app.timers.register(quit_blender, first_interval=0.5)
+
+    # ---- the window --------------------------------------------------------------------------
+
+    def view3d(self):
+        window = bpy.context.window_manager.windows[0]
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                regions = {r.type: r for r in area.regions}
+                return window, area, regions["WINDOW"], regions["UI"]
+        raise RuntimeError("no 3D view in the window")
+
+    def to_screen(self, window, x, y):
+        """Window pixel (origin bottom-left) to X screen pixel (origin top-left); the window is at 0, 0."""
+        return int(round(x)), int(round(window.height - 1 - y))
+
+    # ---- the phases --------------------------------------------------------------------------
+
+    def step(self):
+        if time.monotonic() - self.started > TIMEOUT_S:
+            self.finish(f"timed out in phase {self.phase!r}")
+            return None
+        if not self.answered():
+            return 0.2
+        return getattr(self, f"phase_{self.phase}")()
+
+    def phase_start(self):
+        ensure_addon()
+        window, area, region, ui = self.view3d()
+        scene = bpy.context.scene
+        settings = scene.cliff_terrain
+        settings.filepath = ARGS.photo
+        settings.max_size = ARGS.max_size
+        area.spaces.active.show_region_ui = True
+        self.checks["window_is_the_screen"] = window.x == 0 and window.width >= 800
+        self.ask("category", point=self.to_screen(window, ui.x + ui.width - 6, ui.y + ui.height / 2))
+        self.category_tries = 0
+        return 0.5
+
+    def phase_category(self):
+        _, _, _, ui = self.view3d()
+        if ui.active_panel_category == CATEGORY:
+            self.notes.append(f"sidebar tab {CATEGORY!r} active after {self.category_tries} scroll steps")
+            # The category changes before the region redraws: shoot after a redraw.
+            self.redraw()
+            self.delay_then("shoot_enabled")
+            return 1.0
+        self.category_tries += 1
+        if self.category_tries > 40:
+            self.finish(f"the sidebar never showed the {CATEGORY!r} tab (last {ui.active_panel_category!r})")
+            return None
+        window, _, _, ui = self.view3d()
+        self.ask("category", point=self.to_screen(window, ui.x + ui.width - 6, ui.y + ui.height / 2))
+        return 0.5
+
+    def shoot(self, name):
+        path = os.path.join(ARGS.work, f"{name}.png")
+        self.shot_name = name
+        self.ask("shot", path=path, done=path + ".done")
+        self.phase = f"shot_{name}"
+
+    def phase_shoot_enabled(self):
+        self.shoot("enabled")
+        return 0.3
+
+    def phase_shot_enabled(self):
+        # The same sidebar with the Build button greyed out (no photo).
+        bpy.context.scene.cliff_terrain.filepath = ""
+        self.redraw()
+        self.delay_then("shoot_disabled")
+        return 1.0
+
+    def phase_shoot_disabled(self):
+        self.shoot("disabled")
+        return 0.3
+
+    def phase_shot_disabled(self):
+        bpy.context.scene.cliff_terrain.filepath = ARGS.photo
+        self.redraw()
+        window, _, _, ui = self.view3d()
+        button = find_button(
+            os.path.join(ARGS.work, "enabled.png"), os.path.join(ARGS.work, "disabled.png"), window, ui
+        )
+        if button is None:
+            self.finish("could not find the Build Relief button in the sidebar")
+            return None
+        x, y, height = button
+        self.notes.append(f"Build Relief button at screen ({x}, {y}), {height} px high")
+        self.checks["build_button_found"] = True
+        self.objects_before = set(bpy.data.objects.keys())
+        self.cursor = tuple(bpy.context.scene.cursor.location)
+        self.delay_then("click", point=(x, y))
+        return 0.5
+
+    def phase_click(self):
+        self.ask("click", point=self.click_point)
+        self.phase = "wait_relief"
+        self.clicked = time.monotonic()
+        return 0.5
+
+    def phase_wait_relief(self):
+        new = [
+            obj for obj in bpy.data.objects if obj.name not in self.objects_before and "cliff_terrain" in obj
+        ]
+        if not new:
+            if time.monotonic() - self.clicked > 120:
+                self.finish("clicking Build Relief made no relief in 120 s")
+                return None
+            return 0.5
+        self.relief = new[0]
+        self.notes.append(f"relief {self.relief.name!r} after {time.monotonic() - self.clicked:.1f} s")
+        self.delay_then("check")
+        return 1.0
+
+    def phase_check(self):
+        obj = self.relief
+        context = bpy.context
+        window, area, region, _ = self.view3d()
+        space = area.spaces.active
+        self.checks["relief_at_cursor"] = all(
+            math.isclose(a, b, abs_tol=1e-6) for a, b in zip(obj.location, self.cursor, strict=True)
+        )
+        self.checks["relief_selected_and_active"] = (
+            obj.select_get() and context.view_layer.objects.active == obj
+        )
+        self.checks["solid_shading_shows_texture"] = (
+            space.shading.type != "SOLID" or space.shading.color_type == "TEXTURE"
+        )
+        image = relief_image(obj)
+        self.checks["material_shows_the_photo"] = image is not None and os.path.samefile(
+            bpy.path.abspath(image.filepath), ARGS.photo
+        )
+        inside, share, offset = framing(obj, region, space.region_3d)
+        self.notes.append(
+            f"framing: corners inside the view {inside}, relief spans {share:.0%} of the view, "
+            f"view centre {offset:.1%} of its size from the relief's centre"
+        )
+        self.checks["view_frames_relief"] = inside and share >= 0.5 and offset <= 0.05
+        self.shoot("sidebar")
+        return 0.3
+
+    def phase_shot_sidebar(self):
+        window, area, region, _ = self.view3d()
+        chroma = viewport_chroma(os.path.join(ARGS.work, "sidebar.png"), window, region)
+        self.notes.append(f"mean chroma of the 3D view in the screenshot: {chroma:.1f} (grey slab: < 5)")
+        self.checks["screenshot_shows_the_photo"] = chroma >= 12.0
+        self.finish()
+        return None
+
+    # ---- helpers -----------------------------------------------------------------------------
+
+    def delay_then(self, phase, point=None):
+        """Go to `phase` at the next tick (after the window has redrawn)."""
+        if point is not None:
+            self.click_point = point
+        self.phase = phase
+        self.waiting_for = None
+
+    def redraw(self):
+        for window in bpy.context.window_manager.windows:
+            for area in window.screen.areas:
+                area.tag_redraw()
+
+
+def ensure_addon():
+    """The add-on must be registered: installed (the zip, as users get it) or, with --source, from a
+    source folder loaded the way render_views.py loads it."""
+    if hasattr(bpy.types.Scene, "cliff_terrain"):
+        return
+    if not ARGS.source:
+        raise RuntimeError("Cliff Terrain is not installed and enabled in this Blender (and no --source)")
+    name = "cliff_terrain_addon"
+    spec = importlib.util.spec_from_file_location(
+        name, os.path.join(ARGS.source, "__init__.py"), submodule_search_locations=[ARGS.source]
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    module.register()
+    importlib.import_module(f"{name}.cliff_terrain")
+
+
+def relief_image(obj):
+    material = obj.active_material
+    if material is None or material.node_tree is None:
+        return None
+    node = material.node_tree.nodes.active
+    return node.image if node is not None and node.bl_idname == "ShaderNodeTexImage" else None
+
+
+def framing(obj, region, rv3d):
+    """(every bounding-box corner inside the region, share of the region the box spans, distance of
+    the view's centre from the box's centre as a share of the box's size)."""
+    from bpy_extras.view3d_utils import location_3d_to_region_2d
+    from mathutils import Vector
+
+    corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
+    points = [location_3d_to_region_2d(region, rv3d, c) for c in corners]
+    if any(p is None for p in points):
+        return False, 0.0, math.inf
+    xs, ys = [p.x for p in points], [p.y for p in points]
+    inside = min(xs) >= 0 and min(ys) >= 0 and max(xs) <= region.width and max(ys) <= region.height
+    share = max((max(xs) - min(xs)) / region.width, (max(ys) - min(ys)) / region.height)
+    centre = sum(corners, Vector()) / 8
+    size = max(obj.dimensions)
+    offset = (rv3d.view_location - centre).length / size
+    return inside, share, offset
+
+
+def load_pixels(path):
+    """A PNG as a numpy (rows, cols, 3) float array, top row first."""
+    import numpy as np
+
+    image = bpy.data.images.load(path, check_existing=False)
+    try:
+        width, height = image.size
+        pixels = np.empty(width * height * 4, dtype=np.float32)
+        image.pixels.foreach_get(pixels)
+    finally:
+        bpy.data.images.remove(image)
+    return pixels.reshape(height, width, 4)[::-1, :, :3]
+
+
+def find_button(enabled_path, disabled_path, window, ui):
+    """Screen centre (x, y) and height of the Build Relief button: the tallest band of rows where both a
+    column near the sidebar's left and one near its right change when the button greys out."""
+    import numpy as np
+
+    on, off = load_pixels(enabled_path), load_pixels(disabled_path)
+    top = window.height - (ui.y + ui.height)
+    rows = slice(top, top + ui.height)
+    columns = [int(ui.x + ui.width * f) for f in (0.15, 0.8)]
+    changed = np.all([np.abs(on[rows, c] - off[rows, c]).max(axis=-1) > 0.02 for c in columns], axis=0)
+    best, start = (0, 0), None
+    for i, flag in enumerate([*changed, False]):
+        if flag and start is None:
+            start = i
+        elif not flag and start is not None:
+            best = max(best, (i - start, start))
+            start = None
+    height, first = best
+    scale = bpy.context.preferences.system.ui_scale
+    if height < 0.9 * UNIT * scale:
+        return None
+    x = int(ui.x + ui.width * 0.5)
+    return x, top + first + height // 2, height
+
+
+def viewport_chroma(path, window, region):
+    """Mean chroma (max - min of R, G, B, 8-bit) of the 3D view's region in a screenshot."""
+    pixels = load_pixels(path) * 255.0
+    top = window.height - (region.y + region.height)
+    view = pixels[top : top + region.height, region.x : region.x + region.width]
+    return float((view.max(axis=-1) - view.min(axis=-1)).mean())
+
+
+def quit_blender():
+    window = bpy.context.window_manager.windows[0]
+    with bpy.context.temp_override(window=window):
+        bpy.ops.wm.quit_blender()
+
+
+TEST = Test()
+
+
+def tick():
+    try:
+        return TEST.step()
+    except Exception:
+        TEST.finish(traceback.format_exc())
+        return None
+
+
+# No splash screen: on a fresh user folder it is the Quick Setup dialog, which swallows the clicks.
+bpy.context.preferences.view.show_splash = False
+# Windows exist once the event loop runs: start from a timer, never block in it.
+bpy.app.timers.register(tick, first_interval=2.0)

@@ -1,0 +1,162 @@
+"""The adaptive mesh in Blender: the Build Relief operator, the evaluation's slope map, and
+render_views.py ``--mesh adaptive`` (top views against the photo and against the grid's)."""
+
+import importlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cliff_terrain import synthetic_field
+
+pytestmark = pytest.mark.blender
+bpy = pytest.importorskip("bpy")
+
+ROOT = Path(__file__).resolve().parents[1]
+UAV = ROOT.parent / "shared" / "data" / "uav"
+BROCCOLI = UAV / "broccoli" / "01_clip_raw_test.jpg"  # no EXIF: normalised units
+MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # GeoTIFF, 2.2 cm/px: metres
+ADDON = "cliff_terrain_addon"
+
+needs_uav = pytest.mark.skipif(not UAV.is_dir(), reason=f"real UAV images not found at {UAV}")
+
+
+@pytest.fixture(scope="module")
+def core(addon):
+    return importlib.import_module(f"{ADDON}.cliff_terrain")
+
+
+def build(**kwargs):
+    result = bpy.ops.cliff_terrain.build_relief(
+        **{k: (str(v) if k == "filepath" else v) for k, v in kwargs.items()}
+    )
+    assert result == {"FINISHED"}
+    return bpy.context.active_object
+
+
+def mesh_arrays(mesh):
+    co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.vertices.foreach_get("co", co)
+    sizes = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", sizes)
+    corners = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", corners)
+    uvs = np.empty(2 * len(mesh.loops), dtype=np.float32)
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uvs)
+    return co.reshape(-1, 3), sizes, corners, uvs.reshape(-1, 2)
+
+
+@needs_uav
+def test_the_operator_builds_the_cores_adaptive_mesh(core, scene):
+    obj = build(filepath=BROCCOLI, max_size=300, mesh="adaptive")
+    record = obj["cliff_terrain"]
+    ref = core.build_relief(str(BROCCOLI), max_size=300, mesh="adaptive")
+    assert record["params"]["mesh"] == "adaptive"
+    assert record["max_error"] == pytest.approx(ref.max_error) and ref.max_error > 0
+    assert record["front_faces"] == ref.mesh.n_front_faces
+    co, sizes, corners, uvs = mesh_arrays(obj.data)
+    scale = record["blender_units_per_unit"]
+    np.testing.assert_allclose(co, ref.mesh.vertices * scale, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(sizes, ref.mesh.face_sizes)
+    np.testing.assert_array_equal(corners, ref.mesh.corner_verts)
+    np.testing.assert_array_equal(uvs, ref.mesh.uvs)
+    # Blender finds nothing to repair, and every edge has two faces (a closed solid).
+    assert obj.data.validate(verbose=False) is False
+    assert len(obj.data.edges) == ref.mesh.edge_face_counts().size
+    assert np.all(ref.mesh.edge_face_counts() == 2)
+    # Fewer triangles than the grid the same settings give (10x at the default size: test_tin.py;
+    # at 300 px the plants' edges are a larger share of the grid).
+    grid = build(filepath=BROCCOLI, max_size=300, mesh="grid")
+    assert 2 * grid["cliff_terrain"]["front_faces"] >= 5 * record["front_faces"]
+    assert grid["cliff_terrain"]["max_error"] == 0.0
+
+
+@needs_uav
+def test_max_error_reaches_the_core_and_zero_means_automatic(core, scene):
+    auto = build(filepath=MAIZE, mesh="adaptive", max_error=0.0)
+    assert auto["cliff_terrain"]["units"] == "m"
+    assert auto["cliff_terrain"]["max_error"] == pytest.approx(0.005)
+    coarse = build(filepath=MAIZE, mesh="adaptive", max_error=0.05)
+    assert coarse["cliff_terrain"]["max_error"] == pytest.approx(0.05)
+    assert len(coarse.data.polygons) < len(auto.data.polygons)
+
+
+def test_the_slope_map_of_an_adaptive_relief_samples_its_triangles(core, scene):
+    views = importlib.import_module(f"{ADDON}.scene.views")
+    mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
+    rows, cols = np.indices((30, 40))
+    heights = np.clip(9.0 - np.hypot(rows - 15, cols - 20), 0, None).astype(np.float32)
+    arrays = core.mesh.adaptive_mesh(heights, max_error=0.05)
+    obj = bpy.data.objects.new("relief", mesh_data.mesh_from_arrays("relief", arrays, scale=0.25))
+    z = views.front_corner_heights(obj, heights.shape) / 0.25
+    assert z.shape == (31, 41)
+    # The pixel corners of a cone: within the error bound plus the cone's rise over half a diagonal.
+    corner_r, corner_c = np.indices((31, 41)) - 0.5
+    cone = np.clip(9.0 - np.hypot(corner_r - 15, corner_c - 20), 0, None)
+    assert np.abs(z - cone).max() <= 0.05 + np.sqrt(0.5) + 1e-6
+    assert np.abs(z - cone).mean() < 0.2
+
+
+def _render(photo, out, *args):
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "render_views.py"),
+            str(photo),
+            "--out",
+            str(out),
+            "--samples",
+            "8",
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return json.loads((out / "metrics.json").read_text())
+
+
+@pytest.mark.slow
+def test_render_views_adaptive_keeps_the_top_views(tmp_path):
+    image, _ = synthetic_field(shape=(240, 320), seed=1)
+    photo = tmp_path / "field.png"
+    Image.fromarray(image).save(photo)
+    grid = _render(photo, tmp_path / "grid", "--mesh", "grid")
+    adaptive = _render(photo, tmp_path / "adaptive", "--mesh", "adaptive")
+    assert adaptive["params"]["mesh"] == "adaptive" and adaptive["max_error"] > 0
+    assert grid["max_error"] is None
+    assert adaptive["faces"] * 5 < grid["faces"]
+    # The flat top view is still the photo pixel for pixel; the lit one loses at most 0.5 dB.
+    assert adaptive["psnr_xy_flat"] >= 40.0
+    flat = np.asarray(Image.open(tmp_path / "adaptive" / "xy_flat.png").convert("RGB")).astype(float)
+    assert 10 * np.log10(255.0**2 / np.mean((flat - image) ** 2)) == pytest.approx(adaptive["psnr_xy_flat"])
+    assert adaptive["psnr_xy"] >= grid["psnr_xy"] - 0.5
+    assert adaptive["ssim_xy"] >= grid["ssim_xy"] - 0.01
+    assert (tmp_path / "adaptive" / "scene.blend").stat().st_size * 2 < (
+        tmp_path / "grid" / "scene.blend"
+    ).stat().st_size
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["--max-error", "0"], "argument --max-error: must be > 0.0, got 0.0"),
+        (["--max-error", "nan"], "argument --max-error: must be finite, got nan"),
+        (["--mesh", "tin"], "argument --mesh: invalid choice: 'tin'"),
+    ],
+)
+def test_bad_mesh_options_fail_before_blender_starts(tmp_path, args, fragment):
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "render_views.py"), str(tmp_path / "x.png"), *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 2 and fragment in proc.stderr, proc.stderr

@@ -1,0 +1,234 @@
+"""Orthomosaics larger than memory: windows of a tiled GeoTIFF, the striped refusal, tiles without seams.
+
+The big mosaic (>= 400 MP) is generated in a temporary folder and never committed.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+from conftest import uav_image
+from scipy.ndimage import label as _label
+
+from cliff_terrain import synthetic_field
+from cliff_terrain.errors import ImageTooLargeError
+from cliff_terrain.image_io import load_image
+from cliff_terrain.mosaic import (
+    MosaicReader,
+    mosaic_settings,
+    relief_tile,
+    relief_tiles,
+    tile_windows,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+EPSG_UTM33N = 32633
+
+
+def geo_tags(x0, y0, gsd, crs=EPSG_UTM33N):
+    """GeoTIFF tags: north-up, top-left corner at (x0, y0), `gsd` metres per pixel, a projected CRS."""
+    keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, crs, 3076, 0, 1, 9001)
+    return [
+        (33550, 12, 3, (gsd, gsd, 0.0), True),
+        (33922, 12, 6, (0.0, 0.0, 0.0, x0, y0, 0.0), True),
+        (34735, 3, len(keys), keys, True),
+    ]
+
+
+def write_mosaic(path, rgb, *, tile=(128, 128), gsd=0.01):
+    kwargs = {"tile": tile} if tile else {"rowsperstrip": 16}
+    tifffile.imwrite(
+        path, rgb, photometric="rgb", compression="zlib", extratags=geo_tags(500000.0, 5200000.0, gsd), **kwargs
+    )
+    return path
+
+
+def label(mask):
+    return _label(mask)[0]
+
+
+def stitched(reader, tiles):
+    mask = np.zeros(reader.shape, bool)
+    heights = np.zeros(reader.shape, np.float32)
+    labels = np.zeros(reader.shape, np.int64)
+    offset = 0
+    for tile in tiles:
+        r0, r1, c0, c1 = tile.core
+        mask[r0:r1, c0:c1], heights[r0:r1, c0:c1] = tile.mask, tile.heights
+        # Labels made unique across tiles, so a plant split in two shows as two labels.
+        labels[r0:r1, c0:c1] = np.where(tile.labels > 0, tile.labels + offset, 0)
+        offset += int(tile.labels.max(initial=0))
+    return mask, heights, labels
+
+
+def test_a_window_decodes_only_the_tiles_it_overlaps(tmp_path, monkeypatch):
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (700, 900, 3), dtype=np.uint8)
+    path = write_mosaic(tmp_path / "m.tif", rgb)
+    with MosaicReader(path) as reader:
+        assert reader.shape == (700, 900) and reader.tile_shape == (128, 128)
+        assert reader.gsd == pytest.approx(0.01) and reader.crs == EPSG_UTM33N
+        decoded = []
+        original = reader._decode_tile
+        monkeypatch.setattr(reader, "_decode_tile", lambda index: decoded.append(index) or original(index))
+        window, valid = reader.read(130, 300, 250, 899)
+        np.testing.assert_array_equal(window, rgb[130:300, 250:899])
+        assert valid is None
+        # Rows 130-299 are tile rows 1-2, columns 250-898 tile columns 1-7 (8 tiles across).
+        assert sorted(decoded) == sorted(r * 8 + c for r in (1, 2) for c in range(1, 8))
+        overview, _, step = reader.overview(max_pixels=50_000)
+        np.testing.assert_array_equal(overview, rgb[::step, ::step])
+
+
+def test_a_striped_mosaic_too_big_to_read_in_windows_says_how_to_tile_it(tmp_path):
+    rgb = np.zeros((300, 400, 3), np.uint8)
+    path = write_mosaic(tmp_path / "striped.tif", rgb, tile=None)
+    with pytest.raises(ImageTooLargeError, match=r"striped \(untiled\).*gdal_translate -co TILED=YES"):
+        MosaicReader(path, max_striped_pixels=100_000)
+    # Small enough: read whole, served in windows.
+    with MosaicReader(path, max_striped_pixels=200_000) as reader:
+        window, _ = reader.read(10, 20, 30, 50)
+        assert window.shape == (10, 20, 3)
+
+
+def _check_no_seams(rgb, tmp_path, *, tile, overlap):
+    path = write_mosaic(tmp_path / "field.tif", rgb, tile=(64, 64))
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader, tile=tile)
+        whole = relief_tile(reader, tile_windows(reader.shape, tile=max(reader.shape), overlap=0)[0], settings)
+        tiles = list(relief_tiles(reader, tile=tile, overlap=overlap, settings=settings))
+        assert len(tiles) > 4
+        mask, heights, labels = stitched(reader, tiles)
+    # Plants that cross a tile border.
+    border = np.zeros(mask.shape, bool)
+    border[tile::tile] = True
+    border[:, tile::tile] = True
+    crossing = np.unique(whole.labels[border & (whole.labels > 0)])
+    # The promise holds for plants whose patch of canopy (connected mask) fits in the margin: a
+    # wider patch is cut by some window's edge, and its split into regions may differ there.
+    components = label(whole.mask)
+    small = []
+    for plant in crossing:
+        patch = components == components[whole.labels == plant][0]
+        rows, cols = np.nonzero(patch)
+        if max(np.ptp(rows), np.ptp(cols)) < overlap:
+            small.append(plant)
+    assert len(small) >= 5, (len(small), len(crossing))
+    for plant in small:
+        pixels = whole.labels == plant
+        top = float(whole.heights[pixels].max())
+        # Same mask, one region per tile over exactly the same pixels, heights within 1 % of its height.
+        assert mask[pixels].all()
+        pieces = np.unique(labels[pixels])
+        assert 0 not in pieces
+        for piece in pieces:
+            assert np.array_equal(labels == piece, pixels & (labels == piece))
+        assert np.isin(labels, pieces).sum() == pixels.sum()
+        assert np.abs(heights[pixels] - whole.heights[pixels]).max() <= 0.01 * top
+    return whole, len(small), len(crossing)
+
+
+def test_plants_across_tile_borders_match_the_whole_image_run(tmp_path):
+    rgb, truth = synthetic_field(shape=(600, 900), seed=2)
+    whole, n_small, n_crossing = _check_no_seams(rgb, tmp_path, tile=200, overlap=96)
+    assert whole.labels.max() >= truth.n_plants * 0.8
+    assert n_small == n_crossing  # every plant of the field is narrower than the margin
+
+
+def test_a_real_photo_in_tiles_matches_the_whole_image_run(tmp_path):
+    rgb, _ = load_image(uav_image("broccoli/01_clip_raw_test.jpg"), max_size=1000)
+    # Broccoli heads are up to ~150 px across at this size: the margin must be wider.
+    _check_no_seams(rgb, tmp_path, tile=300, overlap=200)
+
+
+def test_tiles_without_plants_are_flat(tmp_path):
+    rgb = np.empty((300, 400, 3), np.uint8)
+    rgb[:] = (120, 90, 60)  # bare soil
+    path = write_mosaic(tmp_path / "soil.tif", rgb)
+    with MosaicReader(path) as reader:
+        tiles = list(relief_tiles(reader, tile=128, overlap=32))
+    assert len(tiles) == 12
+    assert all(not t.mask.any() and not t.heights.any() for t in tiles)
+
+
+def test_a_tile_runs_from_the_path_alone(tmp_path):
+    rgb, _ = synthetic_field(shape=(300, 400), seed=4)
+    path = write_mosaic(tmp_path / "field.tif", rgb)
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader, tile=200)
+        window = tile_windows(reader.shape, tile=200, overlap=64)[1]
+        expected = relief_tile(reader, window, settings)
+    got = relief_tile(str(path), window, settings)  # what a Dask task would run
+    np.testing.assert_array_equal(got.heights, expected.heights)
+
+
+BIG_SCRIPT = textwrap.dedent(
+    """
+    import json, resource, sys, time
+    import numpy as np
+    from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tiles
+    path, tiles_wanted = sys.argv[1], int(sys.argv[2])
+    start = time.perf_counter()
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader)
+        done, plants, pixels = 0, 0, 0
+        for tile in relief_tiles(reader, settings=settings):
+            plants += int(tile.labels.max(initial=0))
+            pixels += tile.heights.size
+            done += 1
+            if done == tiles_wanted:
+                break
+        shape = reader.shape
+    print(json.dumps({
+        "shape": shape, "tiles": done, "plants": plants, "pixels": pixels,
+        "seconds": time.perf_counter() - start,
+        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+    }))
+    """
+)
+
+
+def write_big_mosaic(path, rows, cols, tile=512):
+    """A tiled GeoTIFF of rows x cols, written tile by tile from one synthetic field (never whole)."""
+    field, _ = synthetic_field(shape=(2048, 2048), seed=5)
+
+    def tiles():
+        for r in range(0, rows, tile):
+            for c in range(0, cols, tile):
+                yield field[r % 2048 : r % 2048 + tile, c % 2048 : c % 2048 + tile]
+
+    tifffile.imwrite(
+        path,
+        tiles(),
+        shape=(rows, cols, 3),
+        dtype=np.uint8,
+        tile=(tile, tile),
+        photometric="rgb",
+        compression="zlib",
+        compressionargs={"level": 1},
+        extratags=geo_tags(500000.0, 5200000.0, 0.01),
+        bigtiff=True,
+    )
+
+
+@pytest.mark.slow
+def test_a_400_megapixel_mosaic_is_read_in_windows_within_4_gb(tmp_path):
+    path = tmp_path / "big.tif"
+    write_big_mosaic(path, 20480, 20480)  # 419 MP, 1.26 GB as RGB
+    assert path.stat().st_size < 1e9  # compressed: never decoded whole here either
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # The overview reads every tile once; then the first tiles of the relief (all would take minutes).
+    proc = subprocess.run(
+        [sys.executable, "-c", BIG_SCRIPT, str(path), "3"], capture_output=True, text=True, env=env, timeout=1800
+    )
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["shape"] == [20480, 20480] and result["tiles"] == 3
+    assert result["plants"] > 0
+    assert result["peak_rss_gb"] <= 4.0, result

@@ -1,0 +1,145 @@
+"""The season as a Blender animation: render_season.py (bpy wheel, in a subprocess) and the sidebar's
+Season Animation operator, on three real soybean dates computed serially (no Dask, no matplotlib).
+
+The frames are checked against the photos (greener on the green date), the date label against the
+stamp's own pixels, the alignment against the georeference, the video by loading it back in Blender.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import REPO, SHARED_UAV
+
+pytestmark = pytest.mark.blender
+
+SOYBEAN = SHARED_UAV / "lamberton_soybean"
+NAMES = ("20180815_Lamberton_clipped.tif", "20180829_Lamberton_clipped.tif", "20180925_Lamberton_clipped.tif")
+
+
+@pytest.fixture(scope="module")
+def season_dir(tmp_path_factory):
+    if not (SOYBEAN / "plots.geojson").is_file():
+        pytest.skip(f"the Lamberton soybean season is not at {SOYBEAN} (../shared is absent)")
+    from cliff_terrain.season.runner import plan_season, run_season
+
+    photos = tmp_path_factory.mktemp("photos")
+    for name in NAMES:
+        shutil.copyfile(SOYBEAN / name, photos / name)
+    out = tmp_path_factory.mktemp("season")
+    jobs, plots = plan_season([photos], plots=SOYBEAN / "plots.geojson", max_size=400)
+    done = run_season(jobs, plots, out=out, workers=0, progress=False, chart=False)
+    assert not done.failures
+    return out
+
+
+def _png(path):
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB")).astype(np.float64)
+
+
+def _excess_green(rgb):
+    total = rgb.sum(axis=2) + 1e-9
+    r, g, b = (rgb[..., i] / total for i in range(3))
+    return float(np.mean(2 * g - r - b))
+
+
+def test_render_season_script(season_dir, tmp_path):
+    out = tmp_path / "anim"
+    done = subprocess.run(
+        [sys.executable, str(REPO / "render_season.py"), str(season_dir), "--out", str(out)]
+        + ["--size", "480x270", "--hold", "2", "--fps", "4"],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    frames = sorted((out / "frames").glob("*.png"))
+    assert [f.name for f in frames] == ["date_0001.png", "date_0002.png", "date_0003.png"]
+    images = [_png(f) for f in frames]
+    assert all(im.shape == (270, 480, 3) for im in images)
+    # The field in the middle of the frame follows its photo: green canopy in mid-August, stubble
+    # by late September (excess green of the frame's centre against that of the photo).
+    photos = [_png(SOYBEAN / name) for name in NAMES]
+    frame_green = [_excess_green(im[100:170, 120:360]) for im in images]
+    photo_green = [_excess_green(p) for p in photos]
+    assert np.argsort(frame_green).tolist() == np.argsort(photo_green).tolist()
+    assert frame_green[0] > frame_green[2] + 0.05
+    # The date label: Blender's stamp, light text on a dark band at the bottom-left, different each date.
+    corner = [im[-60:, :240].mean(axis=2) for im in images]
+    band = corner[0] < 150  # 80 % black over the light background (231)
+    rows, cols = np.nonzero(band)
+    assert band.sum() > 1000 and cols.min() == 0 and rows.max() == band.shape[0] - 1
+    box = (slice(rows.min(), None), slice(0, cols.max() + 1))
+    for label in corner:
+        assert (label[box] > 200).sum() > 40  # white text inside the band
+    assert np.abs(corner[0][box] - corner[1][box]).max() > 100
+    assert np.abs(corner[1][box] - corner[2][box]).max() > 100
+    assert (out / "season.mp4").stat().st_size > 10_000
+    assert (out / "season.blend").is_file()
+
+
+def test_bad_season_folder_is_one_line(tmp_path):
+    done = subprocess.run(
+        [sys.executable, str(REPO / "render_season.py"), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"render_season.py: error: no season in {str(tmp_path)!r}: season.json is missing "
+        "(run `cliff-terrain season` first)"
+    ]
+
+
+def test_sidebar_operator_builds_and_renders_the_season(addon, scene, season_dir):
+    import bpy
+
+    from cliff_terrain.season.outputs import read_season
+
+    result = bpy.ops.cliff_terrain.season_animation(directory=str(season_dir), show_plots=True, render=True)
+    assert result == {"FINISHED"}
+    season = read_season(season_dir)
+    dates = [d.date for d in season.dates]
+    assert [m.name for m in sorted(scene.timeline_markers, key=lambda m: m.frame)] == dates
+    assert (scene.frame_start, scene.frame_end) == (1, 3)
+    reliefs = [bpy.data.objects[f"Season {d}"] for d in dates]
+    assert bpy.data.objects["Season plots"].type == "CURVE"
+    assert scene.camera.name == "Season Camera"
+
+    # Aligned by georeference: every relief's corner vertices land where its grid's corners are on
+    # the map, less one common origin.
+    origin = None
+    for obj, date in zip(reliefs, season.dates, strict=True):
+        rows, cols = date.heights.shape
+        t = date.transform
+        world = np.array([obj.matrix_world @ v.co for v in obj.data.vertices])[:, :2]
+        expected = np.array([[0, 0, 1], [cols, 0, 1], [0, rows, 1], [cols, rows, 1]], float) @ t.T
+        corners = world[[0, cols, rows * (cols + 1), rows * (cols + 1) + cols]]
+        offset = expected - corners
+        np.testing.assert_allclose(offset, offset[[0]].repeat(4, axis=0), atol=1e-3)
+        origin = offset[0] if origin is None else origin
+        np.testing.assert_allclose(offset[0], origin, atol=1e-3)
+
+    # One date per frame.
+    for frame in (1, 2, 3):
+        scene.frame_set(frame)
+        assert [not obj.hide_render for obj in reliefs] == [i + 1 == frame for i in range(3)]
+
+    frames = sorted((season_dir / "animation" / "frames").glob("*.png"))
+    assert len(frames) == 3
+    clip = bpy.data.movieclips.load(str(season_dir / "animation" / "season.mp4"))
+    try:
+        assert tuple(clip.size) == (1280, 720)
+        assert clip.frame_duration == 3 * 12
+    finally:
+        bpy.data.movieclips.remove(clip)
+    manifest = json.loads((season_dir / "season.json").read_text())
+    assert [d["date"] for d in manifest["dates"]] == dates

@@ -1,0 +1,377 @@
+"""`cliff-terrain season` on the 7 dated Lamberton soybean orthophotos: the table against an independent
+reference, serial against Dask (a local cluster and a scheduler this test starts on loopback), the
+cache surviving a killed run, failures on their rows, the growth chart, and bad input.
+
+Dask and matplotlib are imported inside the tests only: this module must import without them.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO, SHARED_UAV
+
+SOYBEAN = SHARED_UAV / "lamberton_soybean"
+DATES = (
+    "2018-08-15",
+    "2018-08-22",
+    "2018-08-29",
+    "2018-09-05",
+    "2018-09-14",
+    "2018-09-17",
+    "2018-09-25",
+)
+
+
+@pytest.fixture(scope="module")
+def soybean():
+    if not (SOYBEAN / "plots.geojson").is_file():
+        pytest.skip(f"the Lamberton soybean season is not at {SOYBEAN} (../shared is absent)")
+    return SOYBEAN
+
+
+def season(*args, timeout=600):
+    """Run ``python -m cliff_terrain season ARGS`` (a fresh process, as a user would)."""
+    return subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", "season", *map(str, args), "--no-progress"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def read_table(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def serial(soybean, tmp_path_factory):
+    """The whole season run serially (``--workers 0``): the reference of the other runs."""
+    out = tmp_path_factory.mktemp("serial")
+    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", out, "--workers", "0")
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+def test_table_is_tidy_and_dated(serial, soybean):
+    rows = read_table(serial / "season.csv")
+    n_plots = len(json.loads((soybean / "plots.geojson").read_text())["features"])
+    assert len(rows) == len(DATES) * n_plots
+    assert list(rows[0])[:6] == ["date", "date_source", "image", "plot", "fid", "ID"]
+    for column in ("cover", "volume_m3", "height_p50", "height_p90", "height_max", "height_mode", "error"):
+        assert column in rows[0]
+    assert sorted({r["date"] for r in rows}) == list(DATES)
+    assert {r["date_source"] for r in rows} == {"filename"}  # the files hold no EXIF or TIFF date
+    assert {r["height_mode"] for r in rows} == {"inflated"}
+    assert all(r["error"] == "" and r["reason"] == "" for r in rows)
+    # One row per date and plot, in date order then plot order.
+    assert [(r["date"], int(r["plot"])) for r in rows] == [(d, p) for d in DATES for p in range(n_plots)]
+    # The canopy closes then senesces: green cover in August, none on bare stubble in late September.
+    cover = {d: np.median([float(r["cover"]) for r in rows if r["date"] == d]) for d in DATES}
+    assert cover["2018-08-15"] > 0.4 and cover["2018-09-25"] < 0.01
+
+
+def test_plot_figures_against_an_independent_reference(serial, soybean):
+    """Cover, p90 and volume of each plot on one date, recomputed with matplotlib's point-in-polygon."""
+    from matplotlib.path import Path as Polygon
+
+    from cliff_terrain import build_relief
+    from cliff_terrain.season.outputs import read_season
+
+    outputs = read_season(serial)
+    date = outputs.dates[0]
+    relief = build_relief(date.image, two_sided=False)
+    # The cached grid is the relief's (the season passes the GeoTIFF's GSD in float64; the photo
+    # reader's own is a hair different).
+    np.testing.assert_allclose(date.heights, relief.heights, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(date.mask, relief.mask)
+    rows, cols = relief.heights.shape
+    t = date.transform
+    cc, rr = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
+    centres = np.column_stack(
+        [(t[0, 0] * cc + t[0, 1] * rr + t[0, 2]).ravel(), (t[1, 0] * cc + t[1, 1] * rr + t[1, 2]).ravel()]
+    )
+    pixel_area = abs(t[0, 0] * t[1, 1] - t[0, 1] * t[1, 0])
+    table = [r for r in read_table(serial / "season.csv") if r["date"] == date.date]
+    features = json.loads((soybean / "plots.geojson").read_text())["features"]
+    for row, feature in zip(table, features, strict=True):
+        inside = Polygon(feature["geometry"]["coordinates"][0]).contains_points(centres).reshape(rows, cols)
+        assert inside.sum() > 1000  # a whole plot: ~5.3 m x 1.6 m at 4.4 cm
+        assert float(row["cover"]) == pytest.approx(relief.mask[inside].mean(), rel=1e-5, abs=1e-6)
+        h = relief.heights[inside].astype(np.float64)
+        assert float(row["height_p90"]) == pytest.approx(np.percentile(h, 90), rel=1e-4, abs=1e-6)
+        assert float(row["height_max"]) == pytest.approx(h.max(), rel=1e-5)
+        assert float(row["volume_m3"]) == pytest.approx(h.sum() * pixel_area, rel=1e-4)
+        assert float(row["area_m2"]) == pytest.approx(inside.sum() * pixel_area, rel=1e-5)
+
+
+@pytest.mark.slow
+def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
+    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--workers", "2")
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+    assert "7 images computed, 0 from the cache" in done.stdout
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def scheduler(tmp_path):
+    """A dask.distributed scheduler and one worker process on loopback, as separate processes."""
+    pytest.importorskip("distributed", reason="the `season` extra (dask[distributed]) is not installed")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    bin_dir = Path(sys.executable).parent
+    procs = [
+        subprocess.Popen(
+            [bin_dir / "dask", "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
+    try:
+        procs.append(
+            subprocess.Popen(
+                [bin_dir / "dask", "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+                env=env,
+                cwd=tmp_path,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
+        from distributed import Client
+
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(1, timeout=60)
+        yield address
+    finally:
+        for proc in reversed(procs):
+            proc.send_signal(signal.SIGINT)
+        for proc in reversed(procs):
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
+@pytest.mark.slow
+def test_existing_scheduler_on_loopback(serial, soybean, scheduler, tmp_path):
+    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--scheduler", scheduler)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+
+
+def test_unreachable_scheduler_is_one_line(soybean, tmp_path):
+    pytest.importorskip("distributed", reason="the `season` extra (dask[distributed]) is not installed")
+    address = f"tcp://127.0.0.1:{_free_port()}"  # nothing listens there
+    done = season(
+        soybean,
+        "--plots",
+        soybean / "plots.geojson",
+        "--out",
+        tmp_path,
+        "--scheduler",
+        address,
+        "--timeout",
+        "2",
+        timeout=120,
+    )
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert re.fullmatch(
+        rf"cliff-terrain season: error: cannot reach the Dask scheduler `{address}` within 2 s \(\w+\)",
+        lines[0],
+    )
+
+
+def test_killed_run_resumes_without_recomputing(serial, soybean, tmp_path):
+    command = [
+        sys.executable,
+        "-m",
+        "cliff_terrain",
+        "season",
+        str(soybean),
+        "--plots",
+        str(soybean / "plots.geojson"),
+    ]
+    command += ["--out", str(tmp_path), "--workers", "0", "--no-progress"]
+    proc = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    cache = tmp_path / "cache"
+    deadline = time.monotonic() + 300
+    while (
+        not (cache.is_dir() and any(cache.glob("*.json")))
+        and proc.poll() is None
+        and time.monotonic() < deadline
+    ):
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = len(list(cache.glob("*.json")))
+    assert 1 <= finished < len(DATES), "the run was not killed part-way"
+    assert not (tmp_path / "season.csv").exists()
+    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--workers", "0")
+    assert done.returncode == 0, done.stderr
+    assert f"{len(DATES) - finished} images computed, {finished} from the cache" in done.stdout
+    assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+
+
+def _subset(soybean, folder, names):
+    folder.mkdir()
+    for name in names:
+        shutil.copyfile(soybean / name, folder / name)
+    return folder
+
+
+def test_failed_image_gets_its_error_on_its_rows(serial, soybean, tmp_path):
+    names = sorted(p.name for p in soybean.glob("*.tif"))[:3]
+    photos = _subset(soybean, tmp_path / "photos", names)
+    broken = photos / names[1]
+    broken.write_bytes(broken.read_bytes()[:200_000])  # the header survives, the pixels do not
+    done = season(photos, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", "--workers", "0")
+    assert done.returncode == 1
+    assert "1 of 3 images failed" in done.stderr and names[1] in done.stderr
+    rows = read_table(tmp_path / "out" / "season.csv")
+    reference = read_table(serial / "season.csv")
+    bad = [r for r in rows if r["image"] == names[1]]
+    assert len(bad) == 40 and all(r["error"] and r["cover"] == "" and r["height_p90"] == "" for r in bad)
+    good = [r for r in rows if r["image"] != names[1]]
+    assert good == [r for r in reference if r["image"] in (names[0], names[2])]
+    # The failure is not cached: once the file is whole again only it is computed.
+    shutil.copyfile(soybean / names[1], broken)
+    done = season(photos, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", "--workers", "0")
+    assert done.returncode == 0 and "1 images computed, 2 from the cache" in done.stdout
+
+
+def _plots_with(soybean, path, *, crs=None, extra_feature=None, treatment=False):
+    data = json.loads((soybean / "plots.geojson").read_text())
+    if crs is not None:
+        data["crs"]["properties"]["name"] = f"urn:ogc:def:crs:EPSG::{crs}"
+    if treatment:
+        for i, feature in enumerate(data["features"]):
+            feature["properties"]["treatment"] = "early" if i % 2 else "late"
+    if extra_feature is not None:
+        data["features"].append(extra_feature)
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_plot_outside_the_photos_gets_an_empty_row_with_a_reason(soybean, tmp_path):
+    far = {
+        "type": "Feature",
+        "properties": {"fid": 99, "ID": 99},
+        "geometry": {
+            "type": "Polygon",
+            "coordinates": [[[300000, 4800000], [300005, 4800000], [300005, 4800002], [300000, 4800000]]],
+        },
+    }
+    plots = _plots_with(soybean, tmp_path / "plots.geojson", extra_feature=far)
+    photos = _subset(soybean, tmp_path / "photos", ["20180815_Lamberton_clipped.tif"])
+    done = season(photos, "--plots", plots, "--out", tmp_path / "out", "--workers", "0")
+    assert done.returncode == 0, done.stderr
+    rows = read_table(tmp_path / "out" / "season.csv")
+    assert len(rows) == 41
+    last = rows[-1]
+    assert last["plot"] == "40" and last["ID"] == "99"
+    assert (
+        last["reason"].startswith("outside the raster") and last["cover"] == "" and last["height_p90"] == ""
+    )
+
+
+def test_growth_chart_coloured_by_an_attribute(soybean, serial, tmp_path):
+    from PIL import Image
+
+    plots = _plots_with(soybean, tmp_path / "plots.geojson", treatment=True)
+    # The cache of the serial run is keyed by the plots file too, so this run computes afresh.
+    done = season(
+        soybean, "--plots", plots, "--out", tmp_path / "out", "--workers", "0", "--color-by", "treatment"
+    )
+    assert done.returncode == 0, done.stderr
+    assert read_table(tmp_path / "out" / "season.csv")[0]["treatment"] == "late"
+    png = np.asarray(Image.open(tmp_path / "out" / "growth.png").convert("RGB")).astype(int)
+    assert png.shape[0] > 400 and png.shape[1] > 1000
+
+    def pixels_of(rgb):
+        return int((np.abs(png - np.array(rgb)).sum(axis=2) <= 6).sum())
+
+    # The two groups' bold medians in matplotlib's first two tab10 colours; no other colour is used.
+    assert pixels_of((31, 119, 180)) > 500 and pixels_of((255, 127, 14)) > 500
+    assert pixels_of((44, 160, 44)) == 0
+    bad = season(
+        soybean, "--plots", plots, "--out", tmp_path / "out", "--workers", "0", "--color-by", "genotype"
+    )
+    assert (
+        bad.returncode == 2
+        and "`color_by` must be one of the plots' attributes (fid, ID, treatment), got 'genotype'"
+        in bad.stderr
+    )
+
+
+def test_bad_input_messages(soybean, tmp_path):
+    plots = soybean / "plots.geojson"
+    undated = _subset(soybean, tmp_path / "undated", [])
+    shutil.copyfile(soybean / "20180815_Lamberton_clipped.tif", undated / "north_field.tif")
+    done = season(undated, "--plots", plots, "--out", tmp_path / "o1", "--workers", "0")
+    assert done.returncode == 2
+    assert (
+        "no date for" in done.stderr
+        and "north_field.tif" in done.stderr
+        and "--dates north_field.tif=" in done.stderr
+    )
+    done = season(
+        undated,
+        "--plots",
+        plots,
+        "--out",
+        tmp_path / "o1",
+        "--workers",
+        "0",
+        "--dates",
+        "north_field.tif=2018-08-15",
+    )
+    assert done.returncode == 0, done.stderr
+    assert {r["date_source"] for r in read_table(tmp_path / "o1" / "season.csv")} == {"option"}
+
+    shutil.copyfile(soybean / "20180815_Lamberton_clipped.tif", undated / "copy_2018-08-15.tif")
+    done = season(
+        undated,
+        "--plots",
+        plots,
+        "--out",
+        tmp_path / "o2",
+        "--workers",
+        "0",
+        "--dates",
+        "north_field.tif=2018-08-15",
+    )
+    assert done.returncode == 2 and "two photos of 2018-08-15" in done.stderr
+
+    (tmp_path / "empty").mkdir()
+    done = season(tmp_path / "empty", "--plots", plots, "--out", tmp_path / "o3")
+    assert done.returncode == 2 and "no images in folder" in done.stderr
+
+    other = _plots_with(soybean, tmp_path / "utm16.geojson", crs=32616)
+    done = season(soybean, "--plots", other, "--out", tmp_path / "o4", "--workers", "0")
+    assert done.returncode == 2
+    assert "EPSG:32616" in done.stderr and "EPSG:32615" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1

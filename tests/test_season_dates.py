@@ -1,0 +1,109 @@
+"""The date of each photo of a season (cliff_terrain.season.dates), and the per-image cache's keys."""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cliff_terrain.errors import CliffTerrainError
+from cliff_terrain.season.cache import Cache, cache_key, file_hash
+from cliff_terrain.season.dates import date_in_name, parse_given_dates, photo_date
+
+RGB = np.full((8, 8, 3), 90, dtype=np.uint8)
+
+
+def _jpeg_with_exif(path, original=None, stamp=None):
+    exif = Image.Exif()
+    if stamp is not None:
+        exif[0x0132] = stamp
+    if original is not None:
+        exif.get_ifd(0x8769)[0x9003] = original
+    Image.fromarray(RGB).save(path, exif=exif)
+    return path
+
+
+def test_exif_original_wins_over_the_tiff_tag_and_the_name(tmp_path):
+    path = _jpeg_with_exif(
+        tmp_path / "20180101.jpg", original="2018:08:15 10:31:02", stamp="2019:01:02 00:00:00"
+    )
+    # Pillow reads back what it wrote, so the reference is independent of our reader.
+    with Image.open(path) as im:
+        assert im.getexif().get_ifd(0x8769)[0x9003] == "2018:08:15 10:31:02"
+    assert photo_date(path) == (dt.date(2018, 8, 15), "exif")
+
+
+def test_tiff_datetime_when_no_exif_original(tmp_path):
+    path = tmp_path / "20180101_field.tif"
+    Image.fromarray(RGB).save(path, tiffinfo={306: "2018:09:05 12:00:00"})
+    assert photo_date(path) == (dt.date(2018, 9, 5), "tiff")
+
+
+def test_file_name_then_the_option(tmp_path):
+    named = tmp_path / "flight_2018-09-25_rgb.png"
+    Image.fromarray(RGB).save(named)
+    assert photo_date(named) == (dt.date(2018, 9, 25), "filename")
+    bare = tmp_path / "flight_a.png"
+    Image.fromarray(RGB).save(bare)
+    given = parse_given_dates(["flight_a.png=2018-08-22"])
+    assert photo_date(bare, given=given) == (dt.date(2018, 8, 22), "option")
+    # The option never overrides a date the file holds.
+    assert photo_date(named, given={"flight_2018-09-25_rgb.png": dt.date(2000, 1, 1)})[1] == "filename"
+
+
+def test_unset_camera_clock_is_no_date(tmp_path):
+    path = _jpeg_with_exif(tmp_path / "dji_0001.jpg", original="0000:00:00 00:00:00")
+    with pytest.raises(CliffTerrainError, match=r"no date for '.*dji_0001\.jpg'.*--dates dji_0001\.jpg="):
+        photo_date(path)
+
+
+@pytest.mark.parametrize(
+    ("name", "expected"),
+    [
+        ("20180815_Lamberton_clipped.tif", dt.date(2018, 8, 15)),
+        ("field-2018-09-14.tif", dt.date(2018, 9, 14)),
+        ("IMG_12345678_20180917.tif", dt.date(2018, 9, 17)),  # 12345678 is no date
+        ("201808150.tif", None),  # nine digits: part of a longer number
+        ("2018-0815.tif", None),  # mixed separators
+    ],
+)
+def test_date_in_name(name, expected):
+    assert date_in_name(name) == expected
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("2018-08-15", "must be NAME=YYYY-MM-DD, got '2018-08-15'"),
+        ("a.tif=15/08/2018", "'15/08/2018' is not a date"),
+    ],
+)
+def test_bad_dates_option(item, message):
+    with pytest.raises(CliffTerrainError, match=message):
+        parse_given_dates([item])
+
+
+def test_cache_key_follows_content_params_and_version(tmp_path):
+    a, b = tmp_path / "a.bin", tmp_path / "b.bin"
+    a.write_bytes(b"one flight")
+    b.write_bytes(b"one flight")
+    assert file_hash(a) == hashlib.sha256(b"one flight").hexdigest()
+    key = cache_key(image_hash=file_hash(a), params={"max_size": 1000}, version="0.1.0")
+    assert key == cache_key(image_hash=file_hash(b), params={"max_size": 1000}, version="0.1.0")
+    assert key != cache_key(image_hash=file_hash(a), params={"max_size": 999}, version="0.1.0")
+    assert key != cache_key(image_hash=file_hash(a), params={"max_size": 1000}, version="0.1.1")
+    b.write_bytes(b"another flight")
+    assert key != cache_key(image_hash=file_hash(b), params={"max_size": 1000}, version="0.1.0")
+
+    cache = Cache(tmp_path / "cache")
+    assert not cache.has(key)
+    heights = np.arange(6, dtype=np.float32).reshape(2, 3)
+    cache.store(key, {"ok": True, "rows": [1, 2]}, {"heights": heights})
+    assert cache.has(key)
+    assert cache.load_record(key) == {"ok": True, "rows": [1, 2]}
+    np.testing.assert_array_equal(cache.load_arrays(key)["heights"], heights)
+    # Only the two entry files are left: the temporary files were renamed into place.
+    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == [f"{key}.json", f"{key}.npz"]

@@ -1,0 +1,227 @@
+"""The adaptive mesh: a TIN whose vertical error at every pixel centre is bounded, closed into a solid.
+
+The error is measured at every pixel centre, against the height raster, by two independent routes:
+cliff_terrain.tin.tin_error (integer edge functions, vectorised) and, on small rasters, a plain
+per-pixel loop written here.
+"""
+
+import numpy as np
+import pytest
+from conftest import uav_image
+
+from cliff_terrain import CliffTerrainError, build_relief
+from cliff_terrain.mesh import adaptive_mesh, grid_mesh
+from cliff_terrain.settings import DEFAULT_MAX_ERROR_M, DEFAULT_MAX_ERROR_SHARE
+from cliff_terrain.tin import Tin, default_max_error, sample_tin, tin_error, triangulate
+
+
+def _loop_error(heights, tin):
+    """Reference: for each pixel centre, the triangles containing it (barycentric coordinates by a
+    2x2 solve, tolerance 1e-9) and the largest |interpolated - height| among them."""
+    error = np.full(heights.shape, np.nan)
+    pts = np.stack([tin.rows, tin.cols], axis=1).astype(np.float64)
+    for r in range(heights.shape[0]):
+        for c in range(heights.shape[1]):
+            for tri in tin.triangles:
+                p0, p1, p2 = pts[tri]
+                m = np.array([p1 - p0, p2 - p0]).T
+                b1, b2 = np.linalg.solve(m, np.array([r, c], float) - p0)
+                b0 = 1.0 - b1 - b2
+                if min(b0, b1, b2) >= -1e-9:
+                    z = b0 * tin.z[tri[0]] + b1 * tin.z[tri[1]] + b2 * tin.z[tri[2]]
+                    e = abs(float(z) - float(heights[r, c]))
+                    error[r, c] = e if np.isnan(error[r, c]) else max(error[r, c], e)
+    return error
+
+
+def _rough_raster(shape, seed):
+    rng = np.random.default_rng(seed)
+    rows, cols = np.indices(shape)
+    dome = np.clip(8.0 - np.hypot(rows - shape[0] / 2, cols - shape[1] / 3), 0, None)
+    return (dome + rng.normal(0, 0.3, shape) * (dome > 0)).astype(np.float32)
+
+
+def test_the_error_measure_agrees_with_a_per_pixel_loop():
+    heights = _rough_raster((17, 23), seed=1)
+    tin = triangulate(heights, max_error=0.5)
+    assert 4 < len(tin.z) < heights.size  # simplified, not the whole raster
+    fast, slow = tin_error(heights, tin), _loop_error(heights, tin)
+    assert not np.isnan(slow).any()
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-9)
+    assert np.nanmax(fast) <= 0.5
+
+
+def test_the_error_measure_sees_a_wrong_vertex():
+    heights = _rough_raster((17, 23), seed=2)
+    tin = triangulate(heights, max_error=0.3)
+    z = tin.z.copy()
+    k = int(np.argmax(z))
+    z[k] += 2.0  # one vertex 2 units too high: its pixel is 2 off
+    error = tin_error(heights, tin._replace(z=z))
+    assert error[tin.rows[k], tin.cols[k]] == pytest.approx(2.0)
+    np.testing.assert_allclose(error, _loop_error(heights, tin._replace(z=z)), atol=1e-9)
+
+
+def test_a_plane_needs_two_triangles_and_a_flat_raster_has_no_error():
+    rows, cols = np.indices((30, 45))
+    plane = (0.25 * rows - 0.5 * cols + 3).astype(np.float32)
+    tin = triangulate(plane, max_error=1e-3)
+    assert len(tin.triangles) == 2 and len(tin.z) == 4
+    assert np.nanmax(tin_error(plane, tin)) <= 1e-5
+    # The vertices are the corner pixels with their own heights.
+    assert sorted(zip(tin.rows.tolist(), tin.cols.tolist(), strict=True)) == [
+        (0, 0),
+        (0, 44),
+        (29, 0),
+        (29, 44),
+    ]
+    np.testing.assert_array_equal(tin.z, plane[tin.rows, tin.cols])
+
+
+@pytest.mark.parametrize(
+    "relative",
+    ["broccoli/01_clip_raw_test.jpg", "caliterra/IMG_9370.jpg", "seneca_nir/IMG_0505.jpg"],
+)
+def test_real_reliefs_stay_within_max_error_at_every_pixel_centre(relative):
+    relief = build_relief(uav_image(relative), max_size=600)
+    heights = relief.heights
+    assert heights.max() > 0
+    for share in (DEFAULT_MAX_ERROR_SHARE, 0.002):
+        max_error = share * float(heights.max())
+        tin = triangulate(heights, max_error=max_error)
+        error = tin_error(heights, tin)
+        assert not np.isnan(error).any(), "every pixel centre is covered"
+        assert error.max() <= max_error
+        # The bound is used, not met by keeping every pixel: far fewer vertices than pixels.
+        assert len(tin.z) < 0.2 * heights.size
+        np.testing.assert_array_equal(tin.z, heights[tin.rows, tin.cols])
+
+
+def _front_at_pixel_centres(mesh):
+    """The mesh's front surface at every pixel centre: its triangles on the half-pixel lattice, where
+    every vertex (pixel centres and the border's corners) has integer coordinates."""
+    rows, cols = mesh.grid_shape
+    n = 3 * mesh.n_front_faces
+    assert np.all(mesh.face_sizes[: mesh.n_front_faces] == 3)
+    x, y, z = mesh.vertices.astype(np.float64).T
+    width, height = x.max() - x.min(), y.max() - y.min()
+    lattice_c = np.rint(2 * x * cols / width).astype(np.int32)
+    lattice_r = np.rint(2 * (height - y) * rows / height).astype(np.int32)
+    np.testing.assert_allclose(lattice_c, 2 * x * cols / width, atol=1e-3)
+    tin = Tin(lattice_r, lattice_c, z, mesh.corner_verts[:n].reshape(-1, 3), (2 * rows + 1, 2 * cols + 1))
+    return sample_tin(tin)[1::2, 1::2]
+
+
+@pytest.mark.parametrize("two_sided", [True, False])
+def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertight(two_sided):
+    heights = _rough_raster((40, 57), seed=3) * 0.05  # metres
+    mesh = adaptive_mesh(heights, max_error=0.01, pixel_size=0.02, two_sided=two_sided, base_depth=0.1)
+    surface = _front_at_pixel_centres(mesh)
+    assert not np.isnan(surface).any()
+    assert np.abs(surface - heights).max() <= 0.01 + 1e-6  # float32 vertices
+    assert mesh.n_front_faces < 0.5 * 2 * heights.size
+
+    # Front faces point up and cover the image's rectangle exactly once.
+    v = mesh.vertices.astype(np.float64)
+    front = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
+    normal_z = np.cross(v[front[:, 1]] - v[front[:, 0]], v[front[:, 2]] - v[front[:, 0]])[:, 2]
+    assert normal_z.min() > 0
+    assert normal_z.sum() / 2 == pytest.approx(40 * 57 * 0.02**2, rel=1e-5)
+    assert v[:, 0].min() == 0 and v[:, 0].max() == pytest.approx(57 * 0.02)
+    assert v[:, 1].min() == 0 and v[:, 1].max() == pytest.approx(40 * 0.02)
+    # Planar front UVs: a top view shows the texture pixel for pixel.
+    front_uv = mesh.uvs[: 3 * mesh.n_front_faces]
+    np.testing.assert_allclose(front_uv, v[front.ravel(), :2] / [57 * 0.02, 40 * 0.02], atol=1e-6)
+
+    counts = mesh.edge_face_counts()
+    if not two_sided:
+        assert mesh.n_faces == mesh.n_front_faces and counts.min() == 1
+        return
+    # A closed, consistently oriented solid: every edge is used once in each direction.
+    assert np.all(counts == 2)
+    starts = mesh.face_offsets
+    nxt = np.arange(1, mesh.corner_verts.size + 1)
+    nxt[starts + mesh.face_sizes - 1] = starts
+    directed = mesh.corner_verts.astype(np.int64) * mesh.n_vertices + mesh.corner_verts[nxt]
+    assert np.unique(directed).size == directed.size
+    back = mesh.uvs[3 * mesh.n_front_faces :]
+    assert back[:, 0].min() > 1 and back[:, 0].max() <= 2
+    base = mesh.vertices[mesh.corner_verts[starts[-1] : starts[-1] + mesh.face_sizes[-1]]]
+    np.testing.assert_allclose(base[:, 2], -0.1, rtol=1e-6)
+    # Edges and corner edges describe the same faces.
+    pairs = np.sort(np.stack([mesh.corner_verts, mesh.corner_verts[nxt]], axis=1), axis=1)
+    np.testing.assert_array_equal(np.sort(mesh.edges, axis=1)[mesh.corner_edges], pairs)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 6), (5, 1), (2, 2)])
+def test_tiny_rasters_still_close_into_a_solid(shape):
+    heights = np.arange(np.prod(shape), dtype=np.float32).reshape(shape)
+    mesh = adaptive_mesh(heights, max_error=0.01)
+    assert np.all(mesh.edge_face_counts() == 2)
+    front = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
+    v = mesh.vertices.astype(np.float64)
+    area = np.cross(v[front[:, 1]] - v[front[:, 0]], v[front[:, 2]] - v[front[:, 0]])[:, 2].sum() / 2
+    assert area == pytest.approx(shape[0] * shape[1])
+    surface = _front_at_pixel_centres(mesh)
+    np.testing.assert_allclose(surface, heights, atol=0.01)
+
+
+def test_build_relief_adaptive_has_ten_times_fewer_triangles_within_the_default_error():
+    path = uav_image("broccoli/01_clip_raw_test.jpg")
+    grid = build_relief(path, max_size=600)
+    adaptive = build_relief(path, max_size=600, mesh="adaptive")
+    assert grid.max_error is None and grid.params["mesh"] == "grid"
+    np.testing.assert_array_equal(adaptive.heights, grid.heights)
+    assert adaptive.max_error == pytest.approx(DEFAULT_MAX_ERROR_SHARE * grid.max_height)
+    # The grid draws two triangles per pixel.
+    assert 2 * grid.mesh.n_front_faces >= 10 * adaptive.mesh.n_front_faces
+    surface = _front_at_pixel_centres(adaptive.mesh)
+    assert np.abs(surface - adaptive.heights).max() <= adaptive.max_error * (1 + 1e-6)
+    assert np.all(adaptive.mesh.edge_face_counts() == 2)
+    # The grid is unchanged by the option.
+    np.testing.assert_array_equal(grid.mesh.vertices, grid_mesh(grid.heights).vertices)
+
+
+def test_the_default_error_is_five_millimetres_with_a_gsd():
+    path = uav_image("broccoli/01_clip_raw_test.jpg")
+    relief = build_relief(path, max_size=300, mesh="adaptive", gsd=0.01)
+    assert relief.units == "m" and relief.max_error == DEFAULT_MAX_ERROR_M
+    assert default_max_error(relief.heights, units="m") == DEFAULT_MAX_ERROR_M
+    # A flat relief in pixels: a share of a pixel.
+    assert default_max_error(np.zeros((3, 3))) == pytest.approx(DEFAULT_MAX_ERROR_SHARE)
+    explicit = build_relief(path, max_size=300, mesh="adaptive", gsd=0.01, max_error=0.02)
+    assert explicit.max_error == 0.02 and explicit.mesh.n_faces < relief.mesh.n_faces
+
+
+def test_a_flat_relief_is_two_triangles_and_its_frame():
+    mesh = adaptive_mesh(np.zeros((60, 90), np.float32), max_error=0.01, two_sided=False)
+    assert mesh.n_faces == 2 + 4 * 2 + 4 * 2
+
+
+@pytest.mark.parametrize(
+    ("max_error", "match"),
+    [
+        (0.0, r"`max_error` must be > 0.0, got 0.0"),
+        (-1, r"`max_error` must be > 0.0, got -1.0"),
+        (float("nan"), r"`max_error` must be finite, got nan"),
+        (float("inf"), r"`max_error` must be finite, got inf"),
+        ("1", r"`max_error` must be a number, got '1'"),
+    ],
+)
+def test_bad_max_error_is_refused_by_name(max_error, match):
+    with pytest.raises(CliffTerrainError, match=match):
+        triangulate(np.zeros((4, 4)), max_error=max_error)
+    with pytest.raises(CliffTerrainError, match=match):
+        build_relief(np.zeros((20, 20, 3), np.uint8), mesh="adaptive", max_error=max_error)
+
+
+def test_bad_mesh_choice_is_refused_by_name():
+    with pytest.raises(CliffTerrainError, match=r"`mesh` must be one of 'grid', 'adaptive', got 'tin'"):
+        build_relief(np.zeros((20, 20, 3), np.uint8), mesh="tin")
+
+
+def test_non_finite_heights_are_refused():
+    heights = np.zeros((5, 5))
+    heights[2, 2] = np.nan
+    with pytest.raises(CliffTerrainError, match="`heights` must be finite"):
+        triangulate(heights, max_error=0.1)
