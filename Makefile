@@ -6,17 +6,18 @@ PYTHON313 ?= $(shell for p in python3.13 $$HOME/.pyenv/versions/3.13*/bin/python
 	"$$p" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null && { command -v "$$p" || echo "$$p"; } && break; done)
 VENV := .venv
 VENV42 := .venv-bpy42
+VENV45 := .venv-bpy45
 VENV52 := .venv-bpy52
 BIN := $(VENV)/bin
 DEMO_DIR := demo
 
-.PHONY: help venv venv42 venv52 demo test test-core test-bpy42 test-bpy52 test-app lint format bench extension clean
+.PHONY: help venv venv42 venv45 venv52 demo test test-core test-bpy42 test-bpy45 test-bpy52 test-app lint format bench extension clean
 
 help:
 	@echo "make demo       - set up .venv, make the synthetic field, render its figures into $(DEMO_DIR)/"
 	@echo "make test       - lint, then the whole suite three times: bpy 5.0.1 with the pinned libraries"
 	@echo "                  (numpy 1.26), bpy 4.2 with the oldest supported ones, bpy 5.2.3 on Python 3.13"
-	@echo "                  with the newest (numpy 2, OpenCV 5)"
+	@echo "                  with the newest (numpy 2, OpenCV 5); and the Blender tests on bpy 4.5 LTS"
 	@echo "make test-app   - the extension zip in a real blender executable (Debian 13's, in a chroot, if"
 	@echo "                  none is on PATH): install, Build Relief, render_views.py, the sidebar in a window"
 	@echo "make bench      - run the benchmarks (ratios against named peers)"
@@ -37,6 +38,14 @@ $(VENV42)/.installed: requirements-bpy42.txt
 	$(VENV42)/bin/pip install -q -r requirements-bpy42.txt
 	@touch $@
 
+# Blender 4.5 LTS with the pinned libraries, for the Blender tests.
+$(VENV45)/.installed: requirements.txt requirements-bpy45.txt
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed for bpy 4.5; set PYTHON=/path/to/python3.11")'
+	$(PYTHON) -m venv $(VENV45)
+	$(VENV45)/bin/pip install -q --upgrade pip
+	$(VENV45)/bin/pip install -q -r requirements-bpy45.txt
+	@touch $@
+
 # Blender 5.1-5.2 LTS: Python 3.13, numpy 2, and the newest OpenCV, scikit-image and SciPy.
 $(VENV52)/.installed: requirements-bpy52.txt
 	@if [ -z "$(PYTHON313)" ]; then \
@@ -51,6 +60,7 @@ $(VENV52)/.installed: requirements-bpy52.txt
 
 venv: $(VENV)/.installed
 venv42: $(VENV42)/.installed
+venv45: $(VENV45)/.installed
 venv52: $(VENV52)/.installed
 
 demo: venv
@@ -72,10 +82,13 @@ test-core: venv
 test-bpy42: venv42
 	$(VENV42)/bin/python -m pytest
 
+test-bpy45: venv45
+	$(VENV45)/bin/python -m pytest -m blender
+
 test-bpy52: venv52
 	$(VENV52)/bin/python -m pytest
 
-test: lint test-core test-bpy42 test-bpy52
+test: lint test-core test-bpy42 test-bpy45 test-bpy52
 
 test-app: venv
 	PY=$(BIN)/python bash tools/test_app.sh

@@ -140,6 +140,13 @@ def build_parser():
         help="height factor",
     )
     build.add_argument(
+        "--max-height",
+        type=_number(float, "--max-height", minimum=0.0, strict_minimum=True),
+        default=settings.DEFAULT_MAX_HEIGHT,
+        help="canopy height: where the plateau profile levels off (a cap for the others); metres with "
+        "a GSD, else processing pixels (default: the radius of a typical isolated plant)",
+    )
+    build.add_argument(
         "--gsd",
         type=_number(float, "--gsd", minimum=0.0, strict_minimum=True),
         help="ground sampling distance of the photo in m/px (default: from its metadata, if any)",
@@ -156,6 +163,20 @@ def build_parser():
         type=_number(float, "--max-error", minimum=0.0, strict_minimum=True),
         help="adaptive mesh: largest vertical error, in metres with a GSD, else in processing pixels "
         "(default: 5 mm with a GSD, else 1%% of the relief's height)",
+    )
+    build.add_argument(
+        "--dsm", metavar="DSM", help="surface model GeoTIFF of the orthophoto: measured heights"
+    )
+    build.add_argument(
+        "--dtm", metavar="DTM", help="terrain model GeoTIFF (default: ground estimated from the DSM)"
+    )
+    build.add_argument(
+        "--heights",
+        choices=settings.ids(settings.HEIGHT_MODES),
+        help="where heights come from (default: measured with --dsm, else inflated)",
+    )
+    build.add_argument(
+        "--plots", metavar="FILE", help="plot polygons (GeoJSON or Shapefile): writes plots.csv (needs --dsm)"
     )
     render = parser.add_argument_group("rendering")
     render.add_argument(
@@ -245,6 +266,16 @@ def check_inputs(args):
         if existing:
             more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
             raise InputError(f"{existing[0]} exists{more}; use --overwrite to replace it")
+    args.plot_set = None
+    if args.dtm and not args.dsm:
+        raise InputError("--dtm needs --dsm (the surface model)")
+    if args.plots:
+        if not args.dsm:
+            raise InputError("--plots needs --dsm (plot heights are measured on the surface model)")
+        try:
+            args.plot_set = core_module("plots").read_plots(args.plots)
+        except core_module("errors").CliffTerrainError as exc:
+            raise InputError(str(exc)) from None
     args.transect_strip = None
     if args.transect is not None:
         # Checked against the photo's header now, not after the pipeline's seconds of work.
@@ -463,10 +494,14 @@ def run(args):
             segmentation=args.segmentation,
             profile=args.profile,
             exaggeration=args.exaggeration,
+            max_height=args.max_height,
             gsd=args.gsd,
             two_sided=not args.one_sided,
             mesh=args.mesh,
             max_error=args.max_error,
+            dsm=args.dsm,
+            dtm=args.dtm,
+            heights=args.heights or ("measured" if args.dsm else core_module("settings").DEFAULT_HEIGHT_MODE),
             progress=lambda fraction, name: log(f"pipeline: {name}"),
         )
     except core.CliffTerrainError as exc:
@@ -523,6 +558,16 @@ def run(args):
     start = time.perf_counter()
     write_maps(relief, out)
     stage("maps", start)
+
+    if args.dsm or args.plots:
+        log("writing the region and plot tables")
+        start = time.perf_counter()
+        try:
+            tables = core_module("canopy").relief_tables(relief, plots=args.plot_set, source=path)
+            core_module("tables").write_files({out / name: text for name, text in tables.items()})
+        except core.CliffTerrainError as exc:
+            raise InputError(str(exc)) from None
+        stage("tables", start)
 
     log("drawing the figures")
     start = time.perf_counter()

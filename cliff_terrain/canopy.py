@@ -225,3 +225,48 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration):
         "ground": canopy.ground_source,
     }
     return canopy, np.ascontiguousarray(heights, dtype=np.float32), pixel_size, georeference
+
+
+def relief_tables(relief, *, plots=None, source=""):
+    """The tables of a :class:`~cliff_terrain.pipeline.Relief`: {file name: text}.
+
+    ``regions.csv`` always (heights NaN without a surface model; areas in m² with a GSD),
+    ``regions.geojson`` when georeferenced, ``plots.csv`` and ``plots.geojson`` with `plots`
+    (a :class:`~cliff_terrain.plots.PlotSet` in the orthophoto's CRS; needs a surface model).
+    `source` names the orthophoto in errors.
+    """
+    from .errors import CliffTerrainError
+    from .plots import check_plot_crs, plot_table, rasterize_plots, table_columns
+    from .tables import (
+        REGION_COLUMNS,
+        point_geometries,
+        polygon_geometries,
+        region_table,
+        table_csv,
+        table_geojson,
+    )
+
+    canopy = relief.canopy
+    if canopy is None:
+        if plots is not None:
+            raise CliffTerrainError("plot tables need a surface model (`dsm`), got none")
+        size = relief.pixel_size if relief.units == "m" else None
+        return {"regions.csv": table_csv(region_table(relief.labels, pixel_size=size), REGION_COLUMNS)}
+    regions = region_table(
+        relief.labels, heights=canopy.chm, pixel_size=canopy.pixel_size, transform=canopy.transform
+    )
+    files = {
+        "regions.csv": table_csv(regions, REGION_COLUMNS),
+        "regions.geojson": table_geojson(regions, point_geometries(regions), crs=canopy.crs),
+    }
+    if plots is not None:
+        check_plot_crs(plots, canopy.crs, raster=source)
+        labels = rasterize_plots(plots, transform=canopy.transform, shape=canopy.chm.shape)
+        if not labels.any():
+            raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
+        rows = plot_table(
+            plots, labels, mask=relief.mask, heights=canopy.chm, pixel_area_m2=canopy.pixel_area_m2
+        )
+        files["plots.csv"] = table_csv(rows, table_columns(plots))
+        files["plots.geojson"] = table_geojson(rows, polygon_geometries(plots), crs=canopy.crs)
+    return files

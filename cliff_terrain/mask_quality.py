@@ -90,7 +90,9 @@ def mask_agreement(mask, reference):
     mask = np.asarray(mask, dtype=bool)
     reference = np.asarray(reference, dtype=bool)
     if mask.shape != reference.shape:
-        raise CliffTerrainError(f"`mask` must have the shape of `reference` {reference.shape}, got {mask.shape}")
+        raise CliffTerrainError(
+            f"`mask` must have the shape of `reference` {reference.shape}, got {mask.shape}"
+        )
     both = float(np.count_nonzero(mask & reference))
     n_mask, n_ref = float(np.count_nonzero(mask)), float(np.count_nonzero(reference))
     union = n_mask + n_ref - both

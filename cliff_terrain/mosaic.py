@@ -121,11 +121,15 @@ class MosaicReader:
         """
         rows, cols = self.shape
         if not (0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols):
-            raise CliffTerrainError(f"window [{r0}:{r1}, {c0}:{c1}] is not inside the mosaic's {rows} x {cols}")
+            raise CliffTerrainError(
+                f"window [{r0}:{r1}, {c0}:{c1}] is not inside the mosaic's {rows} x {cols}"
+            )
         raw = self._raw(r0, r1, c0, c1)
         from .georaster import photo_bands
 
-        return photo_bands(raw, self.path, nodata=self._nodata, planar=self.planar and not self._page.is_tiled)
+        return photo_bands(
+            raw, self.path, nodata=self._nodata, planar=self.planar and not self._page.is_tiled
+        )
 
     def _raw(self, r0, r1, c0, c1):
         page = self._page
@@ -210,7 +214,12 @@ def tile_windows(shape, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP):
     for r0 in range(0, rows, tile):
         for c0 in range(0, cols, tile):
             r1, c1 = min(rows, r0 + tile), min(cols, c0 + tile)
-            window = (max(0, r0 - overlap), min(rows, r1 + overlap), max(0, c0 - overlap), min(cols, c1 + overlap))
+            window = (
+                max(0, r0 - overlap),
+                min(rows, r1 + overlap),
+                max(0, c0 - overlap),
+                min(cols, c1 + overlap),
+            )
             out.append(TileWindow((r0, r1, c0, c1), window))
     return out
 
@@ -224,6 +233,8 @@ class MosaicSettings:
     min_region: int
     profile: str
     exaggeration: float
+    radius: float
+    edge_scale: float
 
 
 def mosaic_settings(reader, *, profile="circular", exaggeration=1.0, min_region=None, tile=DEFAULT_TILE):
@@ -244,17 +255,33 @@ def mosaic_settings(reader, *, profile="circular", exaggeration=1.0, min_region=
     -------
     MosaicSettings
     """
+    from scipy import ndimage
+
     from .heights import PROFILES
-    from .segmentation import segment
+    from .quaternion import quaternion_filter
+    from .segmentation import colour_edges, distance_map, label_max, segment
 
     check_choice("profile", profile, PROFILES)
     exaggeration = check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True)
     if min_region is None:
         min_region = max(4, int(2e-5 * tile * tile))
     min_region = check_int("min_region", min_region, minimum=0)
-    rgb, valid, _ = reader.overview()
+    rgb, valid, step = reader.overview()
     seg = segment(rgb, method="vegetation", valid=valid)
-    return MosaicSettings(seg.index, float(seg.threshold), min_region, profile, exaggeration)
+    # What split_regions would take from the whole image: the regions' typical radius and the
+    # colour edges' scale (distances measured on the overview, in mosaic pixels).
+    components, n = ndimage.label(seg.mask)
+    if n:
+        dmax = step * label_max(distance_map(seg.mask.astype(np.int32)), components)[1:]
+        edges = colour_edges(quaternion_filter(rgb))
+        sample = edges.ravel()[::7][seg.mask.ravel()[::7]]
+        edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
+        radius = float(np.median(dmax))
+    else:
+        radius, edge_scale = 3.0, 0.0
+    return MosaicSettings(
+        seg.index, float(seg.threshold), min_region, profile, exaggeration, radius, edge_scale
+    )
 
 
 @dataclass
@@ -304,7 +331,9 @@ def relief_tile(reader, window, settings):
         mask = remove_small_objects(mask, settings.min_region)
         mask = remove_small_holes(mask, settings.min_region)
     edges = colour_edges(quaternion_filter(rgb))
-    labels = split_regions(mask, distance_map(mask), edges=edges)
+    labels = split_regions(
+        mask, distance_map(mask), edges=edges, radius=settings.radius, edge_scale=settings.edge_scale
+    )
     heights = inflate(labels, profile=settings.profile, exaggeration=settings.exaggeration)
     r0, r1, c0, c1 = window.core
     cut = (slice(r0 - wr0, r1 - wr0), slice(c0 - wc0, c1 - wc0))

@@ -437,7 +437,8 @@ def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units
     full_areas = [polygon_area(rings) for rings in plots.polygons]
     rows = []
     for index in range(n):
-        row = {"plot": index, **plots.attributes[index], **figures[index]}
+        attributes = plots.attributes[index]
+        row = {"plot": index, **{_attribute_name(k): v for k, v in attributes.items()}, **figures[index]}
         if figures[index]["pixels"] == 0:
             row["error"] = "outside the raster (or smaller than a pixel)"
         elif heights is not None and figures[index]["valid_pixels"] == 0:
@@ -450,6 +451,20 @@ def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units
         del row["pixels"], row["valid_pixels"]
         rows.append(row)
     return rows
+
+
+def _attribute_name(name):
+    """An attribute's column: its own name, unless it is one of ours (then with ``_attr``)."""
+    return f"{name}_attr" if name in PLOT_COLUMNS or name in ("pixels", "valid_pixels") else name
+
+
+def table_columns(plots):
+    """Columns of :func:`plot_table`'s rows: ``plot``, the attributes, then the figures.
+
+    An attribute named like one of the figures (a plot file's own ``plot`` field, say) keeps its
+    value under its name with ``_attr`` appended.
+    """
+    return ["plot", *(_attribute_name(name) for name in plots.fields), *PLOT_COLUMNS[1:]]
 
 
 def polygon_area(rings):

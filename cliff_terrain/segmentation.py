@@ -437,7 +437,7 @@ def colour_edges(filtered):
     return np.sqrt(cv2.transform(chroma * chroma, np.ones((1, 3), np.float32)))
 
 
-def split_regions(mask, distance, *, edges=None):
+def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     """Label `mask`, splitting touching blobs by a marker-controlled watershed of the distance map.
 
     Parameters
@@ -447,6 +447,9 @@ def split_regions(mask, distance, *, edges=None):
         Distance map of `mask`.
     edges : (rows, cols) float array, optional
         Colour-edge strength added to the watershed landscape (scaled to the distance range).
+    radius, edge_scale : float, optional
+        The markers' neighbourhood radius and the edges' scale; by default from this image's
+        regions and edges. Tiles of one mosaic share the whole mosaic's (cliff_terrain.mosaic).
 
     Returns
     -------
@@ -462,7 +465,7 @@ def split_regions(mask, distance, *, edges=None):
     # about a typical region's radius), so a necked blob splits at the neck while the flat ridge
     # of one long plant stays one marker. Much cheaper than h-maxima by reconstruction.
     smooth = cv2.GaussianBlur(distance.astype(np.float32), (0, 0), 1.0)
-    radius = int(np.clip(np.median(dmax), 3, 200))
+    radius = int(np.clip(np.median(dmax) if radius is None else radius, 3, 200))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     local_max = cv2.dilate(smooth, kernel)
     peaks = mask & (smooth >= local_max - 1.0) & (smooth >= 1.0)
@@ -479,8 +482,9 @@ def split_regions(mask, distance, *, edges=None):
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
         # The edge strength's 99th percentile over the mask, from every 7th pixel.
-        sample = e.ravel()[::7][mask.ravel()[::7]]
-        edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
+        if edge_scale is None:
+            sample = e.ravel()[::7][mask.ravel()[::7]]
+            edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
         landscape = np.multiply(e, np.float32(edge_scale))
         landscape -= smooth
     else:

@@ -38,6 +38,9 @@ PROFILES = (
     ),
 )
 DEFAULT_PROFILE = "circular"
+# Canopy height of the plateau profile (a ceiling for the others), in metres with a GSD, else in
+# processing pixels; None: estimated from the photo (the radius of a typical isolated plant).
+DEFAULT_MAX_HEIGHT = None
 
 DEFAULT_EXAGGERATION = 1.0
 MIN_EXAGGERATION = 0.0  # exclusive

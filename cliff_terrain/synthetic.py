@@ -227,7 +227,9 @@ def _closed_field(shape, n_rows, spacing, radius_range, seed):
     cv2.floodFill(flood, None, (0, 0), 0)
     strips = flood[1:-1, 1:-1] > 0
     canopy_height = float(np.median(radii[np.asarray(isolated)]))
-    return image, FieldTruth(centres=centres, radii=radii, mask=mask, strips=strips, canopy_height=canopy_height)
+    return image, FieldTruth(
+        centres=centres, radii=radii, mask=mask, strips=strips, canopy_height=canopy_height
+    )
 
 
 def _draw_plants(image, centres, radii, rng):

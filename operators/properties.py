@@ -16,6 +16,7 @@ PARAMETER_NAMES = (
     "profile",
     "max_size",
     "exaggeration",
+    "max_height",
     "gsd",
     "two_sided",
     "mesh",
@@ -60,6 +61,16 @@ class ReliefParameters:
         min=0.01,  # the core takes any value > 0; the panel offers from 0.01
         soft_max=10.0,
         default=settings.DEFAULT_EXAGGERATION,
+    )
+    max_height: FloatProperty(
+        name="Canopy Height",
+        description="Where the Plateau profile levels closed canopy off (a cap for the other profiles), "
+        "in metres when the GSD is known, else in processing pixels. 0 = estimated from the photo "
+        "(the radius of a typical isolated plant)",
+        min=0.0,
+        soft_max=100.0,
+        default=0.0,
+        precision=3,
     )
     gsd: FloatProperty(
         name="GSD (m/px)",
@@ -121,6 +132,7 @@ class ReliefParameters:
         """Keyword arguments for ``cliff_terrain.pipeline.build_relief`` (GSD 0 means unknown)."""
         kwargs = {name: getattr(self, name) for name in PARAMETER_NAMES}
         kwargs["gsd"] = kwargs["gsd"] if kwargs["gsd"] > 0.0 else None
+        kwargs["max_height"] = kwargs["max_height"] if kwargs["max_height"] > 0.0 else None
         # Max Error 0 means the core's default (5 mm with a GSD, else 1 % of the relief's height).
         kwargs["max_error"] = kwargs["max_error"] if kwargs["max_error"] > 0.0 else None
         for name in ("dsm", "dtm"):

@@ -120,6 +120,12 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         col.prop(settings, "profile")
         col.prop(settings, "max_size")
         col.prop(settings, "exaggeration")
+        # 0: estimated from the photo (the radius of a typical isolated plant).
+        col.prop(
+            settings,
+            "max_height",
+            text="Canopy Height (auto)" if settings.max_height == 0.0 else "Canopy Height",
+        )
         # 0 means "from the photo": say so, rather than let "0.0000" read as a ground size.
         col.prop(settings, "gsd", text="GSD Override" if settings.gsd == 0.0 else "GSD (m/px)")
         gsd_note(col, settings)
@@ -134,6 +140,8 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         # Greyed out until the photo exists; the operator then takes its parameters from here.
         row.enabled = bool(settings.filepath) and os.path.isfile(bpy.path.abspath(settings.filepath))
         row.operator(BUILD_OPERATOR, text="Build Relief", icon="MESH_GRID")
+        # A tiled GeoTIFF orthomosaic of any size: one adaptive-mesh object per tile.
+        layout.operator("cliff_terrain.import_mosaic", icon="IMPORT")
 
         info = relief_info(context.active_object)
         if info is not None:

@@ -63,7 +63,9 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
         if image is not None:
             created = len(bpy.data.images) > n_before
             trusted = getattr(metadata, "format", None) in LAZY_FORMATS
-            if expected is None or trusted or tuple(image.size) == expected:
+            # Blender reads float TIFFs (OpenDroneMap's orthophotos hold 0-255 floats) unscaled.
+            unscaled = image.is_float and getattr(metadata, "format", None) == "TIFF"
+            if (expected is None or trusted or tuple(image.size) == expected) and not unscaled:
                 return image, created
             if created:
                 bpy.data.images.remove(image)

@@ -160,3 +160,47 @@ def test_bad_mesh_options_fail_before_blender_starts(tmp_path, args, fragment):
         cwd=ROOT,
     )
     assert proc.returncode == 2 and fragment in proc.stderr, proc.stderr
+
+
+def test_a_mosaic_comes_in_as_adaptive_tiles_under_one_georeferenced_empty(addon, scene, tmp_path):
+    import tifffile
+
+    image, _ = synthetic_field(shape=(600, 700), seed=6)
+    keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32633, 3076, 0, 1, 9001)
+    path = tmp_path / "mosaic.tif"
+    tifffile.imwrite(
+        path,
+        image,
+        tile=(128, 128),
+        photometric="rgb",
+        compression="zlib",
+        extratags=[
+            (33550, 12, 3, (0.02, 0.02, 0.0), True),
+            (33922, 12, 6, (0.0, 0.0, 0.0, 500000.0, 5200000.0, 0.0), True),
+            (34735, 3, len(keys), keys, True),
+        ],
+    )
+    assert bpy.ops.cliff_terrain.import_mosaic(filepath=str(path), tile=256, overlap=96) == {"FINISHED"}
+    root = bpy.context.active_object
+    info = root["cliff_terrain_mosaic"]
+    assert root.type == "EMPTY" and info["crs"] == 32633
+    assert list(info["origin"]) == [500000.0, 5200000.0] and info["gsd"] == pytest.approx(0.02)
+    tiles = sorted(root.children, key=lambda o: o.name)
+    assert len(tiles) == 3 * 3
+    covered = 0.0
+    for obj in tiles:
+        r0, r1, c0, c1 = obj["cliff_terrain_tile"]["core"]
+        co, sizes, _, uvs = mesh_arrays(obj.data)
+        assert np.all(sizes == 3)  # adaptive, one-sided
+        assert co[:, 0].max() == pytest.approx((c1 - c0) * 0.02) and co[:, 1].max() == pytest.approx(
+            (r1 - r0) * 0.02
+        )
+        assert obj.location.x == pytest.approx(c0 * 0.02) and obj.location.y == pytest.approx(
+            (600 - r1) * 0.02
+        )
+        covered += (r1 - r0) * (c1 - c0)
+        images = [n.image for n in obj.active_material.node_tree.nodes if n.type == "TEX_IMAGE"]
+        assert images and tuple(images[0].size) == (c1 - c0, r1 - r0)
+        assert max(images[0].size) <= 16384
+    assert covered == 600 * 700
+    assert sum(len(o.data.polygons) for o in tiles) < 0.2 * 2 * 600 * 700

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import uav_image
 from scipy import ndimage as ndi
 
 from cliff_terrain import CliffTerrainError, build_relief, distance_map, inflate, segment
@@ -17,8 +18,6 @@ from cliff_terrain.mask_quality import mask_agreement, reference_mask, volume_fr
 from cliff_terrain.quaternion import quaternion_filter
 from cliff_terrain.segmentation import plant_holes
 from cliff_terrain.synthetic import synthetic_field
-
-from conftest import uav_image
 
 
 @pytest.fixture(scope="module")
@@ -149,7 +148,9 @@ def test_bad_max_height_is_refused_naming_it(bad):
     image, _ = synthetic_field(shape=(64, 64), n_rows=1, radius_range=(5, 8), spacing=20)
     with pytest.raises(CliffTerrainError, match=r"`max_height` must be"):
         build_relief(image, max_height=bad)
-    with pytest.raises(CliffTerrainError, match=r"`max_height` must be .*" + str(float(bad)).replace("+", "")):
+    with pytest.raises(
+        CliffTerrainError, match=r"`max_height` must be .*" + str(float(bad)).replace("+", "")
+    ):
         inflate(np.ones((5, 5), np.int32), profile="plateau", max_height=bad)
     with pytest.raises(CliffTerrainError, match=r"`max_height` must be a number, got 'tall'"):
         build_relief(image, max_height="tall")
@@ -192,7 +193,9 @@ def test_dense_real_canopies_agree_with_an_independent_mask_and_stay_on_it(relat
         import cv2
 
         size = relief.working.shape[1::-1]
-        valid = cv2.resize(relief.metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        valid = (
+            cv2.resize(relief.metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        )
     reference = reference_mask(relief.working, index="lab_a", valid=valid)
     assert mask_agreement(relief.mask, reference)["iou"] > 0.8
     assert volume_fraction(relief.heights, reference) > 0.9

@@ -44,7 +44,12 @@ def geo_tags(x0, y0, gsd, crs=EPSG_UTM33N):
 def write_mosaic(path, rgb, *, tile=(128, 128), gsd=0.01):
     kwargs = {"tile": tile} if tile else {"rowsperstrip": 16}
     tifffile.imwrite(
-        path, rgb, photometric="rgb", compression="zlib", extratags=geo_tags(500000.0, 5200000.0, gsd), **kwargs
+        path,
+        rgb,
+        photometric="rgb",
+        compression="zlib",
+        extratags=geo_tags(500000.0, 5200000.0, gsd),
+        **kwargs,
     )
     return path
 
@@ -101,7 +106,9 @@ def _check_no_seams(rgb, tmp_path, *, tile, overlap):
     path = write_mosaic(tmp_path / "field.tif", rgb, tile=(64, 64))
     with MosaicReader(path) as reader:
         settings = mosaic_settings(reader, tile=tile)
-        whole = relief_tile(reader, tile_windows(reader.shape, tile=max(reader.shape), overlap=0)[0], settings)
+        whole = relief_tile(
+            reader, tile_windows(reader.shape, tile=max(reader.shape), overlap=0)[0], settings
+        )
         tiles = list(relief_tiles(reader, tile=tile, overlap=overlap, settings=settings))
         assert len(tiles) > 4
         mask, heights, labels = stitched(reader, tiles)
@@ -225,7 +232,11 @@ def test_a_400_megapixel_mosaic_is_read_in_windows_within_4_gb(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     # The overview reads every tile once; then the first tiles of the relief (all would take minutes).
     proc = subprocess.run(
-        [sys.executable, "-c", BIG_SCRIPT, str(path), "3"], capture_output=True, text=True, env=env, timeout=1800
+        [sys.executable, "-c", BIG_SCRIPT, str(path), "3"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=1800,
     )
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout)

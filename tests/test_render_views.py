@@ -376,7 +376,7 @@ def test_blender_command_line_takes_the_arguments_after_the_double_dash(field, t
 TINY_RELIEFS = OPERATORS_HEAD + textwrap.dedent(
     r"""
     settings = rv.core_module("settings")
-    resolution = bpy.types.CLIFF_TERRAIN_OT_evaluate.bl_rna.properties["resolution"]
+    resolution = bpy.ops.cliff_terrain.evaluate.get_rna_type().properties["resolution"]
     out = {"same_limits": resolution.hard_max == settings.MAX_RESOLUTION}
     bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2])
     out["evaluate"] = sorted(bpy.ops.cliff_terrain.evaluate(samples=1))

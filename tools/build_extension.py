@@ -80,6 +80,9 @@ PACKAGES = (
     "packaging",
     "pillow",
     "opencv-python-headless",
+    # Surface models and orthophotos (LZW/Deflate GeoTIFFs) and plot polygons (ESRI Shapefiles).
+    "imagecodecs",
+    "pyshp",
 )
 # Versions of the packages requirements.txt does not pin (the ones pip resolved for the .venv).
 EXTRA_PINS = {

@@ -43,7 +43,7 @@ def run(args):
     from ..canopy import measure_orthophoto
     from ..errors import CliffTerrainError, GeoreferenceError
     from ..georaster import write_geotiff
-    from ..plots import PLOT_COLUMNS, check_plot_crs, plot_table, rasterize_plots, read_plots
+    from ..plots import check_plot_crs, plot_table, rasterize_plots, read_plots, table_columns
     from ..tables import (
         REGION_COLUMNS,
         point_geometries,
@@ -86,8 +86,7 @@ def run(args):
         if not plot_labels.any():
             raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {str(args.ortho)!r}")
         rows = plot_table(plots, plot_labels, mask=plants, heights=chm, pixel_area_m2=canopy.pixel_area_m2)
-        columns = ["plot", *plots.fields, *PLOT_COLUMNS[1:]]
-        files[out / "plots.csv"] = table_csv(rows, columns)
+        files[out / "plots.csv"] = table_csv(rows, table_columns(plots))
         files[out / "plots.geojson"] = table_geojson(rows, polygon_geometries(plots), crs=canopy.crs)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -35,6 +35,13 @@ def configure(parser):
         "--profile", choices=settings.ids(settings.PROFILES), default=settings.DEFAULT_PROFILE
     )
     parser.add_argument("--exaggeration", type=float, default=settings.DEFAULT_EXAGGERATION)
+    parser.add_argument(
+        "--max-height",
+        type=float,
+        default=settings.DEFAULT_MAX_HEIGHT,
+        help="canopy height of the plateau profile (a cap for the others): metres with a GSD, else "
+        "processing pixels (default: the radius of a typical isolated plant)",
+    )
     parser.add_argument("--gsd", type=float, default=None, help="metres per pixel of the photo")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
@@ -58,6 +65,7 @@ def run(args):
         segmentation=args.segmentation,
         profile=args.profile,
         exaggeration=args.exaggeration,
+        max_height=args.max_height,
         gsd=args.gsd,
         two_sided=False,
     )

@@ -19,6 +19,7 @@ import json
 import os
 import sys
 import time
+import uuid
 from pathlib import Path
 
 from .. import settings
@@ -67,7 +68,9 @@ class Job:
     plots: str
     params: dict
     dsm: str | None = None
-    key: str = ""
+    cache: str = ""  # the cache folder (set by run_season)
+    plots_hash: str = ""
+    version: str = ""
 
     def as_dict(self):
         return dataclasses.asdict(self)
@@ -241,21 +244,46 @@ def plan_season(
 
 
 def process_image(job):
-    """One task: a photo's relief, its plots' statistics and its height grid (runs on a worker).
+    """One task (on a worker, or in this process): an image's cache entry, computed if missing.
 
-    Never raises: a failure comes back as ``{"ok": False, "error": ...}`` so the others go on.
+    The task hashes the photo (and its DSM), looks its key up in the cache folder and, if the entry
+    is missing, builds the relief, computes the plots' statistics and writes the entry itself, so
+    neither the hashing nor the height grids pass through the client. It returns the entry's
+    record (table rows, grid, timings) with ``key`` and ``cached``.
+
+    Never raises: a failure comes back as ``{"ok": False, "error": ...}`` so the others go on; it
+    is not cached, so the next run tries that image again.
     """
     started = time.perf_counter()
+    cpu = time.process_time()
+    key = None
     try:
-        result = _process(job)
+        extra = [job["plots_hash"]] + ([file_hash(job["dsm"])] if job.get("dsm") else [])
+        key = cache_key(
+            image_hash=file_hash(job["path"]),
+            params=job["params"],
+            version=job["version"],
+            extra_hashes=extra,
+        )
+        cache = Cache(job["cache"])
+        record = cache.load_record(key) if cache.has(key) else None
+        if record is not None:
+            return {**record, "key": key, "cached": True}
+        record = _process(job)
+        arrays = record.pop("arrays")
+        record.update(
+            ok=True,
+            seconds=time.perf_counter() - started,
+            cpu_seconds=time.process_time() - cpu,
+            peak_rss=_peak_rss(),
+            worker=f"{os.uname().nodename}:{os.getpid()}",
+        )
+        cache.store(key, record, arrays)
     except Exception as exc:  # a task's failure is its image's rows, not the run's end
         message = str(exc) or type(exc).__name__
-        return {"ok": False, "error": f"{type(exc).__name__}: {message}".replace("\n", " ")}
-    result["seconds"] = time.perf_counter() - started
-    result["peak_rss"] = _peak_rss()
-    result["worker"] = f"{os.uname().nodename}:{os.getpid()}"
-    result["ok"] = True
-    return result
+        error = f"{type(exc).__name__}: {message}".replace("\n", " ")
+        return {"ok": False, "error": error, "key": key, "cached": False}
+    return {**record, "key": key, "cached": False}
 
 
 def _process(job):
@@ -434,46 +462,37 @@ def run_season(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CliffTerrainError(f"cannot create `out` {str(out)!r}: {exc}") from None
-    cache = Cache(out / "cache")
+    cache_dir = (out / "cache").resolve()
     plots_hash = file_hash(jobs[0].plots) if jobs else ""
     for job in jobs:
-        extra = [plots_hash] + ([file_hash(job.dsm)] if job.dsm else [])
-        job.key = cache_key(
-            image_hash=file_hash(job.path), params=job.params, version=__version__, extra_hashes=extra
-        )
-    todo = [job for job in jobs if not cache.has(job.key)]
-    bar = _Bar(len(todo), enabled=progress)
+        job.cache, job.plots_hash, job.version = str(cache_dir), plots_hash, __version__
+    bar = _Bar(len(jobs), enabled=progress)
     results = {}
     peaks = {}
 
-    def finished(job, result):
-        if result["ok"]:
-            arrays = result.pop("arrays")
-            cache.store(job.key, result, arrays)
+    def finished(index, result):
+        if result.get("ok") and not result.get("cached"):
             peaks[result["worker"]] = max(peaks.get(result["worker"], 0), result["peak_rss"] or 0)
-        results[job.key] = result
-        bar.step(Path(job.path).name, ok=result["ok"])
+        results[index] = result
+        bar.step(Path(jobs[index].path).name, ok=result.get("ok", False))
 
-    if todo:
-        if scheduler is None and workers == 0:
-            for job in todo:
-                finished(job, process_image(job.as_dict()))
-        else:
-            _run_on_dask(
-                todo,
-                finished,
-                workers=workers,
-                scheduler=scheduler,
-                timeout=timeout,
-                memory_limit=memory_limit,
-            )
+    if scheduler is None and workers == 0:
+        for index, job in enumerate(jobs):
+            finished(index, process_image(job.as_dict()))
+    elif jobs:
+        _run_on_dask(
+            jobs,
+            finished,
+            workers=workers,
+            scheduler=scheduler,
+            timeout=timeout,
+            memory_limit=memory_limit,
+        )
     bar.close()
 
     rows, failures, dates = [], [], []
-    for job in jobs:
-        result = results.get(job.key) or cache.load_record(job.key)
-        if result is None:
-            result = {"ok": False, "error": "no result (the task was lost)"}
+    for index, job in enumerate(jobs):
+        result = results.get(index) or {"ok": False, "error": "no result (the task was lost)", "key": None}
         if not result["ok"]:
             failures.append((job.path, result["error"]))
         rows.extend(_rows(job, result, plot_set))
@@ -493,19 +512,20 @@ def run_season(
         from .charts import growth_chart
 
         growth_chart(_typed(rows), out / "growth.png", color_by=color_by)
+    cached = sum(1 for r in results.values() if r.get("cached"))
     return Season(
         rows=rows,
         failures=failures,
-        computed=len(todo),
-        cached=len(jobs) - len(todo),
+        computed=len(jobs) - cached,
+        cached=cached,
         out=out,
         seconds=time.perf_counter() - started,
         worker_peaks=peaks,
     )
 
 
-def _run_on_dask(todo, finished, *, workers, scheduler, timeout, memory_limit):
-    """Submit one task per image and hand each result to `finished` as it arrives."""
+def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
+    """Submit one task per image and hand each result to `finished(index, result)` as it arrives."""
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -537,16 +557,16 @@ def _run_on_dask(todo, finished, *, workers, scheduler, timeout, memory_limit):
             client.run(_single_threaded_opencv)
         with client:
             futures = {}
-            for job in todo:
-                future = client.submit(process_image, job.as_dict(), key=f"season-{job.key}", pure=False)
-                futures[future] = job
+            run = uuid.uuid4().hex[:8]  # task names of this run only, whoever else uses the scheduler
+            for index, job in enumerate(jobs):
+                name = f"season-{run}-{index}-{Path(job.path).name}"
+                futures[client.submit(process_image, job.as_dict(), key=name, pure=False)] = index
             for future in as_completed(futures, loop=client.loop):
-                job = futures[future]
                 try:
                     result = future.result()
                 except Exception as exc:  # the worker died (memory limit) or the task was lost
                     result = {"ok": False, "error": f"{type(exc).__name__}: {exc}".replace("\n", " ")}
-                finished(job, result)
+                finished(futures[future], result)
     finally:
         if cluster is not None:
             cluster.close()
@@ -601,13 +621,13 @@ def _date_record(job, result, out):
         "date_source": job.date_source,
         "image": job.path,
         "dsm": job.dsm,
-        "key": job.key,
+        "key": result.get("key"),
         "error": None if result["ok"] else result["error"],
     }
     if result["ok"]:
         record.update(
             {
-                "arrays": f"cache/{job.key}.npz",
+                "arrays": f"cache/{result['key']}.npz",
                 "grid": result["grid"],
                 "height_mode": result["height_mode"],
                 "height_units": result["height_units"],

@@ -153,8 +153,9 @@ def drive(blender, work, shot):
             run("xdotool", "mousemove", str(x), str(y))
             time.sleep(0.3)
             run("xdotool", "click", "1")
+            time.sleep(1.0)
+            screenshot(work / "after_click.png")  # for the log when the build never comes
             # Move away so the final screenshot shows no hover highlight.
-            time.sleep(0.2)
             run("xdotool", "mousemove", str(x), "5")
         elif phase == "done":
             deadline = min(deadline, time.monotonic() + 30)

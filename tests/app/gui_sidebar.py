@@ -309,27 +309,29 @@ def load_pixels(path):
 
 
 def find_button(enabled_path, disabled_path, window, ui):
-    """Screen centre (x, y) and height of the Build Relief button: the tallest band of rows where both a
-    column near the sidebar's left and one near its right change when the button greys out."""
+    """Screen centre (x, y) and height of the Build Relief button: the tallest band of rows that change
+    across most of the sidebar's width when the button greys out (text that changes, such as the
+    GSD note, changes only where its letters are)."""
     import numpy as np
 
     on, off = load_pixels(enabled_path), load_pixels(disabled_path)
     top = window.height - (ui.y + ui.height)
-    rows = slice(top, top + ui.height)
-    columns = [int(ui.x + ui.width * f) for f in (0.15, 0.8)]
-    changed = np.all([np.abs(on[rows, c] - off[rows, c]).max(axis=-1) > 0.02 for c in columns], axis=0)
+    left, right = int(ui.x + 0.05 * ui.width), int(ui.x + 0.85 * ui.width)  # short of the tab strip
+    band = (slice(top, top + ui.height), slice(left, right))
+    changed = np.abs(on[band] - off[band]).max(axis=-1) > 0.02
+    wide = changed.mean(axis=1) > 0.6
     best, start = (0, 0), None
-    for i, flag in enumerate([*changed, False]):
+    for i, flag in enumerate([*wide, False]):
         if flag and start is None:
             start = i
         elif not flag and start is not None:
-            best = max(best, (i - start, start))
+            best = max(best, (i - start, -start))  # the tallest; the topmost of equals
             start = None
-    height, first = best
+    height, first = best[0], -best[1]
     scale = bpy.context.preferences.system.ui_scale
     if height < 0.9 * UNIT * scale:
         return None
-    x = int(ui.x + ui.width * 0.5)
+    x = int(ui.x + ui.width * 0.45)
     return x, top + first + height // 2, height
 
 

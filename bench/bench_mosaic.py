@@ -1,0 +1,142 @@
+"""Benchmark: a big tiled GeoTIFF orthomosaic (>= 400 MP) built in tiles: throughput and peak memory.
+
+The mosaic is generated in a temporary folder (a synthetic field repeated, written tile by tile,
+zlib-compressed; never decoded whole, never committed). Ours: cliff_terrain.mosaic (overview for
+the shared settings, then every 4096-pixel tile with a 512-pixel margin: mask, regions, heights)
+plus an adaptive mesh per tile, in a subprocess whose peak resident memory is read from the OS.
+The peer, in the same run: the single-photo pipeline (``build_relief``) on a 12 MP photo at full
+resolution (``max_size=4000``), the route that holds the whole image in memory.
+
+    python bench/bench_mosaic.py [--side 20480] [--tiles N]
+
+`main(argv=None)` returns the figures as a dict (for bench/run_all.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine_info import describe, machine  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PHOTO_12MP = ROOT.parent / "shared" / "data" / "uav" / "caliterra" / "IMG_9370.jpg"
+MEMORY_GOAL_GB = 4.0
+
+WRITE = textwrap.dedent(
+    """
+    import sys
+    import numpy as np, tifffile
+    from cliff_terrain.synthetic import synthetic_field
+    path, side, tile = sys.argv[1], int(sys.argv[2]), 512
+    field, _ = synthetic_field(shape=(2048, 2048), seed=5)
+    keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32633, 3076, 0, 1, 9001)
+    def tiles():
+        for r in range(0, side, tile):
+            for c in range(0, side, tile):
+                yield field[r % 2048 : r % 2048 + tile, c % 2048 : c % 2048 + tile]
+    tifffile.imwrite(path, tiles(), shape=(side, side, 3), dtype=np.uint8, tile=(tile, tile),
+        photometric="rgb", compression="zlib", compressionargs={"level": 1}, bigtiff=True,
+        extratags=[(33550, 12, 3, (0.01, 0.01, 0.0), True),
+                   (33922, 12, 6, (0.0, 0.0, 0.0, 500000.0, 5200000.0, 0.0), True),
+                   (34735, 3, len(keys), keys, True)])
+    """
+)
+
+RUN = textwrap.dedent(
+    """
+    import json, resource, sys, time
+    import numpy as np
+    from cliff_terrain.mesh import adaptive_mesh
+    from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tile, tile_windows
+    path, limit = sys.argv[1], int(sys.argv[2])
+    start = time.perf_counter()
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader)
+        settings_s = time.perf_counter() - start
+        windows = tile_windows(reader.shape)
+        windows = windows[:limit] if limit else windows
+        pixels = plants = triangles = 0
+        for window in windows:
+            tile = relief_tile(reader, window, settings)
+            mesh = adaptive_mesh(tile.heights * np.float32(0.01), max_error=0.005, pixel_size=0.01, two_sided=False)
+            pixels += tile.heights.size
+            plants += int(tile.labels.max(initial=0))
+            triangles += mesh.n_front_faces
+        shape = reader.shape
+    seconds = time.perf_counter() - start
+    print(json.dumps({"shape": shape, "tiles": len(windows), "pixels": pixels, "plants": plants,
+        "triangles": triangles, "settings_s": settings_s, "seconds": seconds,
+        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6}))
+    """
+)
+
+PEER = textwrap.dedent(
+    """
+    import json, resource, sys, time
+    from cliff_terrain.pipeline import build_relief
+    start = time.perf_counter()
+    relief = build_relief(sys.argv[1], max_size=4000)
+    seconds = time.perf_counter() - start
+    rows, cols = relief.heights.shape
+    print(json.dumps({"pixels": rows * cols, "seconds": seconds,
+        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6}))
+    """
+)
+
+
+def _python(script, *args):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(
+        [sys.executable, "-c", script, *map(str, args)], capture_output=True, text=True, env=env
+    )
+    if proc.returncode:
+        raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed")
+    return json.loads(proc.stdout.strip().splitlines()[-1]) if proc.stdout.strip() else None
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--side", type=int, default=20480, help="the mosaic's side in pixels (20480: 419 MP)")
+    parser.add_argument("--tiles", type=int, default=0, help="process only the first N tiles (0: all)")
+    args = parser.parse_args(argv)
+    info = machine()
+    print(f"machine: {describe(info)}")
+    with tempfile.TemporaryDirectory(prefix="cliff_terrain_mosaic_") as tmp:
+        path = Path(tmp) / "mosaic.tif"
+        start = time.perf_counter()
+        _python(WRITE, path, args.side)
+        print(
+            f"mosaic: {args.side} x {args.side} ({args.side**2 / 1e6:.0f} MP), {path.stat().st_size / 1e6:.0f} MB "
+            f"on disk, written in {time.perf_counter() - start:.1f} s"
+        )
+        ours = _python(RUN, path, args.tiles)
+    mps = ours["pixels"] / 1e6 / ours["seconds"]
+    print(
+        f"ours: {ours['tiles']} tiles, {ours['pixels'] / 1e6:.0f} MP in {ours['seconds']:.1f} s "
+        f"(overview and settings {ours['settings_s']:.1f} s): {mps:.2f} MP/s, peak memory "
+        f"{ours['peak_rss_gb']:.2f} GB (goal <= {MEMORY_GOAL_GB:g} GB), {ours['plants']} plants, "
+        f"{ours['triangles']} triangles"
+    )
+    result = {"machine": info, "side": args.side, "ours": ours, "ours_mp_per_s": mps}
+    if PHOTO_12MP.is_file():
+        peer = _python(PEER, PHOTO_12MP)
+        peer_mps = peer["pixels"] / 1e6 / peer["seconds"]
+        print(
+            f"peer (build_relief, 12 MP photo whole at max_size=4000): {peer_mps:.2f} MP/s, peak memory "
+            f"{peer['peak_rss_gb']:.2f} GB; ratio ours/peer {mps / peer_mps:.2f}x"
+        )
+        result.update(peer=peer, peer_mp_per_s=peer_mps, ratio=mps / peer_mps)
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,154 @@
+"""The Import Mosaic operator: a tiled GeoTIFF orthomosaic of any size -> one relief object per tile.
+
+The core reads the mosaic in windows and builds it tile by tile (cliff_terrain.mosaic); each tile
+becomes an adaptive mesh (cliff_terrain.mesh.adaptive_mesh) in metres with its own part of the
+photo as texture (never larger than the tile, at most 16384 pixels: GPUs' texture limit). The tiles
+are parented to one empty that carries the georeference (EPSG code and the map coordinates of the
+mosaic's top-left corner, as custom properties: map coordinates in metres are too large for
+Blender's single-precision positions). Tiles are one-sided surfaces, side by side.
+"""
+
+import traceback
+from pathlib import Path
+
+import bpy
+import numpy as np
+from bpy.props import FloatProperty, IntProperty, StringProperty
+
+from ..scene.material import image_from_array, relief_material
+from ..scene.mesh_data import mesh_from_arrays
+
+GPU_TEXTURE_LIMIT = 16384
+
+
+class CLIFF_TERRAIN_OT_import_mosaic(bpy.types.Operator):
+    """Build the relief of a tiled GeoTIFF orthomosaic as one adaptive-mesh object per tile"""
+
+    bl_idname = "cliff_terrain.import_mosaic"
+    bl_label = "Import Mosaic"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="Mosaic", description="A tiled GeoTIFF orthomosaic", subtype="FILE_PATH")
+    tile: IntProperty(
+        name="Tile",
+        description="Side of each tile in mosaic pixels (one object and one texture each)",
+        min=256,
+        max=GPU_TEXTURE_LIMIT,
+        default=4096,
+    )
+    overlap: IntProperty(
+        name="Overlap",
+        description="Margin read around each tile: plants narrower than this get no seam",
+        min=0,
+        max=4096,
+        default=512,
+    )
+    max_error: FloatProperty(
+        name="Max Error",
+        description="Largest vertical error of each tile's mesh in metres (0 = 5 mm)",
+        min=0.0,
+        default=0.0,
+        precision=4,
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return context.mode == "OBJECT"
+
+    def invoke(self, context, event):
+        if not self.filepath:
+            context.window_manager.fileselect_add(self)
+            return {"RUNNING_MODAL"}
+        return self.execute(context)
+
+    def execute(self, context):
+        try:
+            from ..cliff_terrain import CliffTerrainError
+            from ..cliff_terrain.mesh import adaptive_mesh
+            from ..cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tile, tile_windows
+            from ..cliff_terrain.settings import DEFAULT_MAX_ERROR_M
+        except ImportError as exc:
+            self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
+            return {"CANCELLED"}
+        path = bpy.path.abspath(self.filepath)
+        created = []
+        try:
+            with MosaicReader(path) as reader:
+                gsd = reader.gsd
+                if gsd is None:
+                    raise CliffTerrainError(f"mosaic {path!r} has no georeference: its pixel size is unknown")
+                max_error = self.max_error if self.max_error > 0 else DEFAULT_MAX_ERROR_M
+                settings = mosaic_settings(reader, tile=self.tile)
+                rows = reader.shape[0]
+                name = Path(path).stem or "mosaic"
+                root = bpy.data.objects.new(name, None)
+                created.append(root)
+                context.collection.objects.link(root)
+                root["cliff_terrain_mosaic"] = {
+                    "source": path,
+                    "crs": int(reader.crs),
+                    # Map (x, y) of the mosaic's top-left corner, and the 3x3 pixel -> map transform.
+                    "origin": [float(reader.transform[0, 2]), float(reader.transform[1, 2])],
+                    "transform": [float(v) for v in np.asarray(reader.transform).ravel()],
+                    "gsd": gsd,
+                    "shape": list(reader.shape),
+                    "max_error": max_error,
+                }
+                for k, window in enumerate(tile_windows(reader.shape, tile=self.tile, overlap=self.overlap)):
+                    tile = relief_tile(reader, window, settings)
+                    r0, r1, c0, c1 = window.core
+                    mesh = adaptive_mesh(
+                        tile.heights * np.float32(gsd), max_error=max_error, pixel_size=gsd, two_sided=False
+                    )
+                    part = f"{name}_{k:04d}"
+                    data = mesh_from_arrays(part, mesh)
+                    created.append(data)
+                    rgb, _ = reader.read(r0, r1, c0, c1)
+                    image = image_from_array(part, rgb)
+                    created.append(image)
+                    material = relief_material(part, image)
+                    created.append(material)
+                    data.materials.append(material)
+                    obj = bpy.data.objects.new(part, data)
+                    created.append(obj)
+                    context.collection.objects.link(obj)
+                    obj.parent = root
+                    # The tile's bottom-left corner, y up from the mosaic's last row, in metres.
+                    obj.location = (c0 * gsd, (rows - r1) * gsd, 0.0)
+                    obj["cliff_terrain_tile"] = {"core": [r0, r1, c0, c1], "triangles": mesh.n_front_faces}
+        except CliffTerrainError as exc:
+            _remove(created)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        except Exception as exc:
+            _remove(created)
+            traceback.print_exc()
+            self.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
+            return {"CANCELLED"}
+        for other in context.view_layer.objects.selected:
+            other.select_set(False)
+        root.select_set(True)
+        context.view_layer.objects.active = root
+        self.report({"INFO"}, f"Imported {name}: {len(root.children)} tiles")
+        return {"FINISHED"}
+
+
+def _remove(datablocks):
+    """Remove what a failed import made, newest first."""
+    collections = (
+        (bpy.types.Object, bpy.data.objects),
+        (bpy.types.Mesh, bpy.data.meshes),
+        (bpy.types.Material, bpy.data.materials),
+        (bpy.types.Image, bpy.data.images),
+    )
+    while datablocks:
+        block = datablocks.pop()
+        for kind, collection in collections:
+            if isinstance(block, kind):
+                collection.remove(block)
+                break
+
+
+CLASSES = (CLIFF_TERRAIN_OT_import_mosaic,)
+
+register, unregister = bpy.utils.register_classes_factory(CLASSES)
