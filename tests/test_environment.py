@@ -3,6 +3,7 @@ never the photo, naming the package and its version."""
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 import textwrap
@@ -244,3 +245,34 @@ def test_package_import_is_cheap_and_lists_its_public_names():
         assert getattr(cliff_terrain, name) is not None
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         cliff_terrain.nonexistent  # noqa: B018
+
+
+@pytest.mark.blender
+def test_the_build_operator_reports_a_broken_library_by_name(monkeypatch, tmp_path):
+    # The add-on imports the core when Build Relief runs; a library that fails there is one line in
+    # Blender's report naming the package and its version, and nothing is created.
+    pytest.importorskip("bpy")
+    import bpy
+    from conftest import load_addon
+
+    addon = load_addon()
+    if not hasattr(bpy.types.Scene, "cliff_terrain"):
+        addon.register()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    core = importlib.import_module(f"{addon.__name__}.cliff_terrain")
+    deps = importlib.import_module(f"{addon.__name__}.cliff_terrain._deps")
+
+    def broken(name):
+        raise core.DependencyError(f"Cliff Terrain cannot import {deps.describe('cv2')}: ImportError: boom")
+
+    monkeypatch.delattr(core, "build_relief", raising=False)  # as before the first build
+    monkeypatch.setattr(deps, "_checked", [])
+    monkeypatch.setattr(deps, "import_required", broken)
+    photo = tmp_path / "field.png"
+    Image.fromarray(np.zeros((20, 20, 3), np.uint8)).save(photo)
+    objects = len(bpy.data.objects)
+    with pytest.raises(
+        RuntimeError, match=rf"cannot import opencv-python-headless {cv2.__version__}: ImportError: boom"
+    ):
+        bpy.ops.cliff_terrain.build_relief(filepath=str(photo))
+    assert len(bpy.data.objects) == objects

@@ -269,7 +269,8 @@ def process_image(job):
         record = cache.load_record(key) if cache.has(key) else None
         if record is not None:
             return {**record, "key": key, "cached": True}
-        record = _process(job)
+        with _one_opencv_thread():
+            record = _process(job)
         arrays = record.pop("arrays")
         record.update(
             ok=True,
@@ -284,6 +285,23 @@ def process_image(job):
         error = f"{type(exc).__name__}: {message}".replace("\n", " ")
         return {"ok": False, "error": error, "key": key, "cached": False}
     return {**record, "key": key, "cached": False}
+
+
+class _one_opencv_thread:
+    """OpenCV on one thread for the task: its results differ in the last bits with the number of
+    threads (rows split differently), and the table must be the same from any machine. It also
+    keeps workers, one per core, from fighting over the cores."""
+
+    def __enter__(self):
+        import cv2
+
+        self.saved = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+
+    def __exit__(self, *exc):
+        import cv2
+
+        cv2.setNumThreads(self.saved)
 
 
 def _process(job):
@@ -552,9 +570,6 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
                 host="127.0.0.1",
             )
             client = Client(cluster, set_as_default=False)
-            # Each worker owns one core and runs one image at a time: OpenCV's own thread pool would
-            # only make the workers fight over the cores.
-            client.run(_single_threaded_opencv)
         with client:
             futures = {}
             run = uuid.uuid4().hex[:8]  # task names of this run only, whoever else uses the scheduler
@@ -570,12 +585,6 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
     finally:
         if cluster is not None:
             cluster.close()
-
-
-def _single_threaded_opencv():
-    import cv2
-
-    cv2.setNumThreads(1)
 
 
 def _rows(job, result, plot_set):
