@@ -464,7 +464,10 @@ def write_figures(relief, out, side, metrics, *, transect=None):
     save("summary.png", figures.contact_sheet(panels, facts=facts, title=Path(meta.path).name))
     return {
         **crop,
-        "side_view": {key: side[key] for key in ("exaggeration", "ground_row", "rows_per_unit", "transect")},
+        "side_view": {
+            key: side[key]
+            for key in ("exaggeration", "ground_row", "rows_per_unit", "strip_columns", "transect")
+        },
         "figures": {"raw_renders": "unchanged", "annotated": list(FIGURES), "height_label_unit": unit},
     }
 

@@ -172,13 +172,14 @@ def run_peer(heights, target_triangles):
     return seconds, len(tris) // 3, error, float(1.0 - covered.mean())
 
 
-def measure(path, tmp, *, peer):
+def measure(path, tmp, *, peer, max_size=None):
     import bpy  # noqa: F401  (the operator needs Blender)
 
     core = sys.modules[f"{ADDON}.cliff_terrain"]
     mesh_mod = sys.modules[f"{ADDON}.cliff_terrain.mesh"]
     tin = sys.modules[f"{ADDON}.cliff_terrain.tin"]
-    relief = core.build_relief(str(path), mesh="adaptive")
+    sizes = {} if max_size is None else {"max_size": max_size}
+    relief = core.build_relief(str(path), mesh="adaptive", **sizes)
     heights = relief.heights
     rows, cols = heights.shape
     grid_triangles = 2 * rows * cols
@@ -188,8 +189,8 @@ def measure(path, tmp, *, peer):
     front = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
     centres = tin.sample_front(mesh.vertices, front, (rows, cols))[1::2, 1::2]
     max_error = float(np.abs(centres - heights).max())
-    grid_s, grid_faces, grid_blend = run_operator(path, "grid", tmp)
-    ours_s, ours_faces, ours_blend = run_operator(path, "adaptive", tmp)
+    grid_s, grid_faces, grid_blend = run_operator(path, "grid", tmp, **sizes)
+    ours_s, ours_faces, ours_blend = run_operator(path, "adaptive", tmp, **sizes)
     row = {
         "photo": str(path.relative_to(SHARED)),
         "grid": [rows, cols],
@@ -226,6 +227,7 @@ def main(argv=None):
     parser.add_argument("--only", help="photos whose path contains this text")
     parser.add_argument("--no-peer", action="store_true", help="skip Blender's Decimate")
     parser.add_argument("--no-12mp", action="store_true", help="skip the 12 MP photo at max_size=4000")
+    parser.add_argument("--max-size", type=int, default=None, help="processing size (default: the default)")
     args = parser.parse_args(argv)
 
     import bpy
@@ -245,7 +247,7 @@ def main(argv=None):
                 bpy.ops.cliff_terrain.build_relief(filepath=str(photos[0]), max_size=64)
             for path in photos:
                 try:
-                    row = measure(path, tmp, peer=not args.no_peer)
+                    row = measure(path, tmp, peer=not args.no_peer, max_size=args.max_size)
                 except Exception as exc:  # one unreadable photo must not hide the others
                     print(f"{path.name}: {type(exc).__name__}: {exc}")
                     continue

@@ -23,6 +23,7 @@ import argparse
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -48,7 +49,9 @@ CRS = 32616
 def block_mean(data, factor):
     rows, cols = data.shape[0] // factor * factor, data.shape[1] // factor * factor
     blocks = data[:rows, :cols].reshape(rows // factor, factor, cols // factor, factor)
-    return np.nanmean(blocks, axis=(1, 3)).astype(np.float32)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # blocks inside a no-data hole stay NaN
+        return np.nanmean(blocks, axis=(1, 3)).astype(np.float32)
 
 
 def field(rows, cols):
@@ -66,7 +69,10 @@ def field(rows, cols):
             polygons.append([np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]])])
             attributes.append({"range": i, "row": j})
     plots = PlotSet(polygons, attributes, ("range", "row"), CRS, "plots")
-    return image, transform, GeoRaster(coarse, dsm_transform, CRS, None, "dsm"), truth, plots
+    # The early-season flight of the bare field, at the DSM's resolution and noise: the two-flight reference.
+    noise = np.random.default_rng(12).normal(0.0, 0.004, size=truth.ground.shape)
+    early = GeoRaster(block_mean(truth.ground + noise, DSM_FACTOR), dsm_transform, CRS, None, "early")
+    return image, transform, GeoRaster(coarse, dsm_transform, CRS, None, "dsm"), truth, plots, early
 
 
 def ours(image, transform, dsm, plots):
@@ -102,10 +108,18 @@ def main(argv=None):
     cols, rows = (int(v) for v in args.size.lower().split("x"))
     print(f"machine: {machine()}")
     print(f"building the synthetic field {cols}x{rows} at {GSD * 100:.0f} cm/px ...", flush=True)
-    image, transform, dsm, truth, plots = field(rows, cols)
+    image, transform, dsm, truth, plots, early = field(rows, cols)
     labels = rasterize_plots(plots, transform=transform, shape=(rows, cols))
-    truth_chm = np.where(truth.holes, np.nan, truth.chm)
-    truth_p90 = np.array([np.nanpercentile(truth_chm[labels == k], 90) for k in range(1, len(plots) + 1)])
+    # Judged as the issue will be: against the difference of the two flights (same DSM grid).
+    from cliff_terrain.georaster import resample
+
+    shape = (rows, cols)
+    two_flights = canopy_height(
+        resample(dsm, transform=transform, shape=shape), resample(early, transform=transform, shape=shape)
+    )
+    truth_p90 = np.array([np.nanpercentile(two_flights[labels == k], 90) for k in range(1, len(plots) + 1)])
+    fine = np.where(truth.holes, np.nan, truth.chm)
+    fine_p90 = np.array([np.nanpercentile(fine[labels == k], 90) for k in range(1, len(plots) + 1)])
 
     def timed(function):
         times = []
@@ -146,11 +160,16 @@ def main(argv=None):
         assert len(table) == len(plots)
 
     ratio = peer_err.mean() / ours_err.mean()
+    fine_err = p90_errors(ours_table, fine_p90)
+    print(
+        f"per-plot p90 vs the 1 cm truth (the 3 cm DSM blurs plant edges): mean {fine_err.mean() * 100:.2f} cm,"
+        f" max {fine_err.max() * 100:.2f} cm"
+    )
     print(f"ours (mask, resample, ground, CHM, plot table): {ours_s:.2f} s median of {args.repeat}")
     print(f"ours from LZW GeoTIFF files: {files_s:.2f} s")
     print(f"peer (block percentile ground, per-plot numpy): {peer_s:.2f} s")
     print(
-        f"per-plot p90 error vs truth: ours mean {ours_err.mean() * 100:.2f} cm, max {ours_err.max() * 100:.2f} cm;"
+        f"per-plot p90 error vs the two-flight difference: ours mean {ours_err.mean() * 100:.2f} cm, max {ours_err.max() * 100:.2f} cm;"
         f" peer mean {peer_err.mean() * 100:.2f} cm, max {peer_err.max() * 100:.2f} cm ({ratio:.1f}x)"
     )
     met = ours_s <= GOAL_SECONDS
@@ -164,7 +183,7 @@ def main(argv=None):
             f"<= {GOAL_SECONDS:.0f} s ({'met' if met else 'not met'})",
         ),
         (
-            "per-plot p90 canopy height error vs truth (same run)",
+            "per-plot p90 canopy height vs the two-flight difference (same run)",
             f"mean {ours_err.mean() * 100:.2f} cm, max {ours_err.max() * 100:.2f} cm",
             f"mean {peer_err.mean() * 100:.2f} cm, max {peer_err.max() * 100:.2f} cm",
             f"{ratio:.1f}x smaller",
@@ -182,6 +201,7 @@ def main(argv=None):
         "ours_p90_error_max_m": float(ours_err.max()),
         "peer_p90_error_mean_m": float(peer_err.mean()),
         "peer_p90_error_max_m": float(peer_err.max()),
+        "ours_p90_error_vs_1cm_truth_mean_m": float(fine_err.mean()),
         "machine": machine(),
     }
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import platform
 import subprocess
 import sys
 import tempfile
@@ -81,7 +80,7 @@ def write_readme(rows, readme=README):
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)
     block = (
-        f"Measured by `make bench` on {date.today().isoformat()}: {describe()}, {platform.system()}, "
+        f"Measured by `make bench` on {date.today().isoformat()}: {describe()}, "
         f"numpy {np.__version__}, OpenCV {cv2.__version__}. The load average is the machine's as the run "
         "ended (other processes may share its cores: absolute times move with the load, ratios "
         "less).\n\n" + table(rows)

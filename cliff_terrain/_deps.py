@@ -28,6 +28,7 @@ REQUIRED = {
 OPTIONAL = {
     "tifffile": "tifffile",
     "imagecodecs": "imagecodecs",
+    "pydelatin": "pydelatin",
 }
 
 

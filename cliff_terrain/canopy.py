@@ -67,7 +67,7 @@ def load_surfaces(dsm, dtm=None):
 
 
 def measure_canopy(
-    dsm, *, plants, transform, crs, dtm=None, grid_name="the orthophoto", block_m=DEFAULT_BLOCK_M
+    dsm, *, plants, transform, crs, dtm=None, grid_name="the orthophoto", block_m=DEFAULT_BLOCK_M, valid=None
 ):
     """DSM (and DTM) resampled onto a grid, the ground, and the canopy height there.
 
@@ -87,6 +87,8 @@ def measure_canopy(
         Name of the grid (its file) for error messages.
     block_m : float, optional
         Block size of the ground's trend (see :func:`cliff_terrain.ground.estimate_ground`).
+    valid : (rows, cols) bool array, optional
+        Pixels where the photo has data: only there can soil be told from plants.
 
     Returns
     -------
@@ -116,7 +118,8 @@ def measure_canopy(
         ground = resample(dtm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
         source = "dtm"
     else:
-        ground = estimate_ground(surface, soil=~plants, pixel_size=pixel_size, block_m=block_m)
+        soil = ~plants if valid is None else ~plants & np.asarray(valid, dtype=bool)
+        ground = estimate_ground(surface, soil=soil, pixel_size=pixel_size, block_m=block_m)
         source = "estimated"
     chm = canopy_height(surface, ground)
     return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size)
@@ -172,7 +175,14 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
                 valid = cv2.resize(valid.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     plants = plant_mask(rgb, valid=valid)
     canopy = measure_canopy(
-        dsm, plants=plants, transform=transform, crs=ortho.crs, dtm=dtm, grid_name=ortho.path, block_m=block_m
+        dsm,
+        plants=plants,
+        transform=transform,
+        crs=ortho.crs,
+        dtm=dtm,
+        grid_name=ortho.path,
+        block_m=block_m,
+        valid=valid,
     )
     has_data = np.isfinite(canopy.chm) if valid is None else (valid & np.isfinite(canopy.chm))
     return rgb, has_data, plants, canopy
@@ -195,7 +205,16 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration):
     meta = stages.metadata
     transform = transform0 @ np.diag([meta.width / cols, meta.height / rows, 1.0])
     plants = stages.segmentation.mask
-    canopy = measure_canopy(dsm, plants=plants, transform=transform, crs=crs, dtm=dtm, grid_name=name)
+    valid = None
+    if meta.valid_mask is not None:  # an orthophoto's no-data area is neither soil nor plant
+        import cv2
+
+        valid = (
+            cv2.resize(meta.valid_mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
+        )
+    canopy = measure_canopy(
+        dsm, plants=plants, transform=transform, crs=crs, dtm=dtm, grid_name=name, valid=valid
+    )
     chm = np.nan_to_num(canopy.chm, nan=0.0)
     pixel_size = canopy.pixel_size
     if mode == "measured":

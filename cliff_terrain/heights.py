@@ -15,14 +15,16 @@ from .settings import ids
 PROFILES = ids(_PROFILE_CHOICES)
 
 
-def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None, max_height=None):
+def inflate(
+    labels, *, profile="circular", exaggeration=1.0, distance=None, max_height=None, mask_distance=None
+):
     """Heights of every region, in pixels.
 
     Parameters
     ----------
     labels : (rows, cols) int array
         0 on flat ground, 1..n for the regions.
-    profile : {"circular", "poisson"}, optional
+    profile : {"circular", "poisson", "plateau", "auto"}, optional
         ``"circular"``: the paper's H = sqrt(Dmax^2 - (Dmax - D)^2), with D the Euclidean distance
         to the region's edge and Dmax its largest value in the region: a circular cross-section
         that rises vertically at the edge. ``"poisson"``: solve the Poisson equation
@@ -33,14 +35,19 @@ def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None, max_
         like the circular profile of radius min(Dmax, canopy height) and then stays level, so an
         isolated plant narrower than twice the canopy height is the paper's dome, while a closed
         canopy (merged plants, a plot) is a plateau at canopy height instead of a dome as tall as
-        half its width (see :func:`plateau_profile`).
+        half its width (see :func:`plateau_profile`). ``"auto"`` is ``"plateau"`` here (it
+        means the paper's ``"circular"`` only to :func:`~cliff_terrain.pipeline.build_relief`
+        with ``segmentation="paper"``).
     exaggeration : float, optional
         Factor applied to the heights (> 0).
     distance : (rows, cols) float array, optional
         ``distance_map(labels)`` if already computed (circular and plateau profiles).
+    mask_distance : (rows, cols) float array, optional
+        ``distance_map(labels > 0)`` if already computed (plateau profile; :func:`segment` keeps
+        it as ``Segmentation.distance``).
     max_height : float, optional
         Canopy height in pixels (> 0, finite), before `exaggeration`. ``"plateau"``: the height of
-        the plateau, by default :func:`canopy_height` (the radius of a typical isolated plant).
+        the plateau, by default :func:`typical_plant_radius` (the radius of a typical isolated plant).
         ``"circular"`` and ``"poisson"``: a cap (heights above it are cut level); none by default.
 
     Returns
@@ -68,15 +75,15 @@ def inflate(labels, *, profile="circular", exaggeration=1.0, distance=None, max_
     mask = labels > 0
     if not mask.any():
         return np.zeros(labels.shape, dtype=np.float32)
-    if profile == "plateau":
-        h = plateau_profile(labels, max_height, region_distance=distance)
+    if profile in ("plateau", "auto"):
+        h = plateau_profile(labels, max_height, region_distance=distance, mask_distance=mask_distance)
     elif profile == "circular":
         if distance is None:
             distance = distance_map(labels)
         h = circular_profile(labels, distance)
     else:
         h = poisson_profile(region_interiors(labels))
-    if max_height is not None and profile != "plateau":
+    if max_height is not None and profile not in ("plateau", "auto"):
         np.minimum(h, np.float32(max_height), out=h)
     if exaggeration != 1.0:
         h *= np.float32(exaggeration)
@@ -99,7 +106,7 @@ def circular_profile(labels, distance):
     return out
 
 
-def plateau_profile(labels, canopy=None, *, region_distance=None):
+def plateau_profile(labels, canopy=None, *, region_distance=None, mask_distance=None):
     """The circular profile levelled off at the canopy height: a closed canopy is a plateau.
 
     With D the distance to flat ground (of the whole mask: touching plants form one canopy, with
@@ -116,9 +123,11 @@ def plateau_profile(labels, canopy=None, *, region_distance=None):
     labels : (rows, cols) int array
         0 on flat ground, 1..n for the regions.
     canopy : float, optional
-        Canopy height in pixels; default :func:`canopy_height` (estimated).
+        Canopy height in pixels; default :func:`typical_plant_radius` (estimated).
     region_distance : (rows, cols) float array, optional
         ``distance_map(labels)`` if already computed (for the default `canopy`).
+    mask_distance : (rows, cols) float array, optional
+        ``distance_map(labels > 0)`` if already computed.
 
     Returns
     -------
@@ -136,13 +145,16 @@ def plateau_profile(labels, canopy=None, *, region_distance=None):
     inside = np.flatnonzero(labels.ravel())
     if inside.size == 0:
         return out
-    distance = distance_map(labels > 0)
+    distance = distance_map(labels > 0) if mask_distance is None else mask_distance
     lab = labels.ravel()[inside]
     d = distance.ravel()[inside]
-    regions = _Regions(labels, label_max(d, lab))
+    regions = _Regions(labels, label_max(d, lab), lab)
     radius = regions.dmax.astype(np.float32)
     if canopy is None:  # estimated: isolated plants keep their domes, whatever their size
-        canopy = canopy_height(labels, region_distance, regions=regions)
+        if region_distance is None:
+            region_distance = distance_map(labels)
+        own_dmax = label_max(np.asarray(region_distance, dtype=np.float32).ravel()[inside], lab)
+        canopy = _typical_radius(own_dmax, regions, labels.shape)
         np.minimum(radius, np.float32(canopy), out=radius, where=~regions.isolated_plant)
     else:  # given: nothing rises above it
         np.minimum(radius, np.float32(canopy), out=radius)
@@ -169,25 +181,32 @@ _FALLBACK_FRACTION = 0.02
 class _Regions:
     """Per-region traits for the plateau profile: size, frame contact, contact with other regions."""
 
-    def __init__(self, labels, dmax):
-        n = int(labels.max(initial=0))
+    def __init__(self, labels, dmax, lab):
+        """`dmax` per label (0..n), `lab` the labels of the region pixels."""
+        n = len(dmax) - 1
         self.dmax = np.asarray(dmax, dtype=np.float64)
-        self.area = np.bincount(labels.ravel(), minlength=n + 1).astype(np.float64)
+        self.area = np.bincount(lab, minlength=n + 1).astype(np.float64)
         self.off_frame = np.ones(n + 1, dtype=bool)
         for edge in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
             self.off_frame[edge] = False
         self.off_frame[0] = False
         self.alone = np.ones(n + 1, dtype=bool)
-        for a, b in ((labels[:, 1:], labels[:, :-1]), (labels[1:, :], labels[:-1, :])):
-            pair = (a != b) & (a > 0) & (b > 0)
-            self.alone[a[pair]] = False
-            self.alone[b[pair]] = False
+        # Neighbours in the raveled image: right (the last column pairs with the next row's first,
+        # which only concerns regions on the frame, never isolated) and below. Only the pixels
+        # where the label changes are looked at.
+        flat = np.ascontiguousarray(labels).ravel()
+        for step in (1, labels.shape[1]):
+            change = np.flatnonzero(flat[:-step] != flat[step:])
+            a, b = flat[change], flat[change + step]
+            both = (a > 0) & (b > 0)
+            self.alone[a[both]] = False
+            self.alone[b[both]] = False
         self.alone[0] = False
         round_ = self.area <= _COMPACT * np.pi * self.dmax**2
         self.isolated_plant = self.alone & round_ & self.off_frame
 
 
-def canopy_height(labels, distance=None, *, regions=None):
+def typical_plant_radius(labels, distance=None):
     """The radius of a typical isolated plant, in pixels: the default canopy height of ``"plateau"``.
 
     The typical region is the area-weighted median of the regions' largest inscribed radii (Dmax,
@@ -217,21 +236,27 @@ def canopy_height(labels, distance=None, *, regions=None):
     >>> labels[np.hypot(rr - 40, cc - 70) <= 16] = 2
     >>> labels[np.hypot(rr - 40, cc - 115) <= 20] = 3
     >>> labels[38:41, 150:153] = 4   # a speck
-    >>> round(canopy_height(labels))
+    >>> round(typical_plant_radius(labels))
     16
     """
     labels = np.asarray(labels, dtype=np.int32)
-    if int(labels.max(initial=0)) == 0:
+    inside = np.flatnonzero(labels.ravel())
+    if inside.size == 0:
         return 0.0
     if distance is None:
         distance = distance_map(labels)
+    lab = labels.ravel()[inside]
+    dmax = label_max(np.asarray(distance, dtype=np.float32).ravel()[inside], lab)
+    return _typical_radius(dmax, _Regions(labels, dmax, lab), labels.shape)
+
+
+def _typical_radius(dmax, regions, shape):
+    """:func:`typical_plant_radius` from each region's own Dmax and its :class:`_Regions`."""
     # Each region's own Dmax (touching plants split by the watershed count one by one).
-    dmax = label_max(distance, labels).astype(np.float64)
-    if regions is None:
-        regions = _Regions(labels, dmax)
+    dmax = np.asarray(dmax, dtype=np.float64)
     off_frame = regions.off_frame
     if not off_frame.any():
-        return _FALLBACK_FRACTION * min(labels.shape)
+        return _FALLBACK_FRACTION * min(shape)
     typical = _weighted_median(dmax[off_frame], regions.area[off_frame])
     isolated = regions.isolated_plant & off_frame & (dmax >= _PLANT_SHARE * typical)
     return float(np.median(dmax[isolated])) if isolated.any() else typical

@@ -256,19 +256,27 @@ def _open_checked(path, max_size, gsd, height_above_ground, max_pixels, *, read_
         path, max_size, gsd, height_above_ground, max_pixels
     )
     with _reading(name):
+        # Float or planar orthophotos (OpenDroneMap's) that Pillow cannot open, or opens as one
+        # float band (Pillow 12+): tifffile reads them (None when the file is not such a photo).
+        from .tiff_photo import open_tiff_photo
+
         try:
             im = _open(name)
         except ImageReadError:
-            # Float or planar orthophotos (OpenDroneMap's) that Pillow cannot open: tifffile can.
-            from .tiff_photo import open_tiff_photo
-
             photo = open_tiff_photo(name, gsd, height_above_ground, max_pixels)
             if photo is None:
                 raise
             return photo
         try:
             info = _header(im, name, max_size, max_pixels)
-            _refuse_non_photo(im, name)
+            try:
+                _refuse_non_photo(im, name)
+            except ImageReadError:
+                photo = open_tiff_photo(name, gsd, height_above_ground, max_pixels)
+                if photo is None:
+                    raise
+                im.close()
+                return photo
             return OpenImage(name, im, info, gsd, height_above_ground, read_jpeg=read_jpeg)
         except BaseException:
             im.close()

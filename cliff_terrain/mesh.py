@@ -9,7 +9,10 @@ Conventions shared with the Blender side and the renderers:
   bottom-left corner). Back/base corners have u = x_uv + 1, so ``u > 1`` means "back" (on the left
   edge, x_uv = 0, the back corners take half a texel, u = 1 + 0.5 / cols, so the rule is strict).
 * Faces are stored the Blender way: ``face_sizes`` and a flat ``corner_verts`` array; the first
-  ``n_front_faces`` faces are the front quads in row-major pixel order.
+  ``n_front_faces`` faces are the front: quads in row-major pixel order for :func:`grid_mesh`,
+  triangles for :func:`adaptive_mesh` (a TIN with its vertices at pixel centres, within a
+  vertical error of every pixel's height, and a half-pixel frame out to the pixel corners of the
+  border).
 """
 
 from __future__ import annotations

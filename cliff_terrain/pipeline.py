@@ -126,16 +126,17 @@ def build_relief(
         ``"vegetation"``: plants rise and soil stays flat. ``"paper"``: the paper's Algorithm 2 as
         printed (Otsu on the filtered image's brightness; it may raise bright soil). See
         :mod:`cliff_terrain.segmentation`.
-    profile : {"circular", "poisson", "plateau"}, optional
+    profile : {"auto", "circular", "poisson", "plateau"}, optional
         Cross-section of each region (see :func:`cliff_terrain.heights.inflate`); ``"plateau"``
-        levels closed canopy off at `max_height`.
+        levels closed canopy off at `max_height`. ``"auto"``: ``"plateau"`` with the vegetation
+        segmentation, the paper's ``"circular"`` with the paper's.
     exaggeration : float, optional
         Height factor (> 0).
     max_height : float, optional
         Canopy height (> 0, finite), in metres when the ground sampling distance is known, else in
         processing pixels; before `exaggeration`. With ``profile="plateau"`` the height at which
         closed canopy levels off (default: the radius of a typical isolated plant, see
-        :func:`cliff_terrain.heights.canopy_height`); with the other profiles a cap.
+        :func:`cliff_terrain.heights.typical_plant_radius`); with the other profiles a cap.
     gsd : float, optional
         Ground sampling distance of the *original* photo in metres per pixel; wins over what
         the camera metadata gives. With a GSD the heights and the mesh are in metres.
@@ -180,6 +181,8 @@ def build_relief(
     max_size = check_int("max_size", max_size, minimum=MIN_SIZE, maximum=MAX_SIZE)
     check_choice("segmentation", segmentation, METHODS)
     check_choice("profile", profile, PROFILES)
+    if profile == "auto":  # the paper's Algorithm 3 with its Algorithm 2; closed canopy levelled else
+        profile = "plateau" if segmentation == "vegetation" else "circular"
     exaggeration = check_float("exaggeration", exaggeration, minimum=MIN_EXAGGERATION, strict_minimum=True)
     max_height = check_float("max_height", max_height, minimum=0.0, strict_minimum=True, allow_none=True)
     gsd = check_float("gsd", gsd, minimum=0.0, strict_minimum=True, allow_none=True)
@@ -228,7 +231,7 @@ def build_relief(
         mesh_arrays = grid_topology(grid_shape, two_sided=bool(two_sided)) if mesh == "grid" else None
     finally:
         timings["topology"] = time.perf_counter() - started
-        worker.relay(wait=True)
+        worker.relay()
         if isinstance(source, OpenImage):
             source.close()  # the worker has finished; it may have failed before decoding
     stages = worker.result()
@@ -328,13 +331,10 @@ class _Worker:
         self._future.add_done_callback(lambda _: self._events.put(None))  # the end of its events
         pool.shutdown(wait=False)  # the thread ends with its one task
 
-    def relay(self, *, wait=False):
-        """Pass the task's progress on; with `wait`, until the task has finished."""
+    def relay(self):
+        """Pass the task's progress on, until the task has finished."""
         while not self._done:
-            try:
-                event = self._events.get(block=wait)
-            except queue.Empty:
-                return
+            event = self._events.get()
             if event is None:
                 self._done = True
             elif self.progress is not None:
@@ -342,7 +342,7 @@ class _Worker:
 
     def result(self):
         """The task's result (or its exception), once all its progress is relayed."""
-        self.relay(wait=True)
+        self.relay()
         return self._future.result()
 
 
@@ -367,7 +367,12 @@ def _image_stages(source, max_size, segmentation, profile, exaggeration, max_hei
     if max_height is not None and metadata.gsd_m_per_px:  # metres -> processing pixels
         max_height /= float(metadata.gsd_m_per_px) * metadata.width / working.shape[1]
     heights_px = inflate(
-        seg.labels, profile=profile, exaggeration=exaggeration, distance=distance, max_height=max_height
+        seg.labels,
+        profile=profile,
+        exaggeration=exaggeration,
+        distance=distance,
+        max_height=max_height,
+        mask_distance=seg.distance,
     )
     clock.start(None, None)
     return _ImageStages(image, metadata, working, filtered, seg, distance, heights_px)

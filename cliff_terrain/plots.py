@@ -498,53 +498,54 @@ def region_figures(labels, n, *, mask, heights, pixel_area_m2, to_m=1.0):
     """Area, cover and height statistics of regions 1..n of `labels` (a list of n dicts).
 
     Height statistics are over the region's pixels with a finite height; percentiles are
-    numpy's linear ones. Used for plots and for the per-region table.
+    numpy's linear ones. Used for plots and for the per-region table. Each region is read in its
+    bounding box only (``scipy.ndimage.find_objects``), so the work follows the regions' extent.
     """
+    from scipy import ndimage
+
     labels = np.asarray(labels)
-    flat = labels.ravel()
-    inside = flat > 0
-    ids = flat[inside].astype(np.int64)
-    pixels = np.bincount(ids, minlength=n + 1)[: n + 1]
+    mask = np.asarray(mask, dtype=bool)
     if heights is not None:
-        values = np.asarray(heights, dtype=np.float64).ravel()[inside] * to_m
-        valid = np.isfinite(values)
-    else:
-        valid = np.ones(ids.shape, dtype=bool)
-    valid_pixels = np.bincount(ids[valid], minlength=n + 1)[: n + 1]
-    plants = np.bincount(ids[valid & mask.ravel()[inside]], minlength=n + 1)[: n + 1]
-    stats = np.full((n + 1, len(HEIGHT_COLUMNS) + 1), np.nan)
-    if heights is not None:
-        ids_valid, v = ids[valid], values[valid]
-        order = np.lexsort((v, ids_valid))
-        ids_sorted, v_sorted = ids_valid[order], v[order]
-        starts = np.searchsorted(ids_sorted, np.arange(n + 1), side="left")
-        stops = np.searchsorted(ids_sorted, np.arange(n + 1), side="right")
-        sums = np.bincount(ids_valid, weights=v, minlength=n + 1)[: n + 1]
-        for region in range(1, n + 1):
-            a, b = starts[region], stops[region]
-            if b > a:
-                values_r = v_sorted[a:b]
-                stats[region, 0] = sums[region] / (b - a)
-                stats[region, 1:4] = _sorted_percentiles(values_r, (50.0, 90.0, 99.0))
-                stats[region, 4] = values_r[-1]
-                stats[region, 5] = sums[region] * pixel_area_m2
+        heights = np.asarray(heights)
+    boxes = ndimage.find_objects(labels, max_label=n) if n else []
     result = []
-    for region in range(1, n + 1):
-        figure = {
-            "pixels": int(pixels[region]),
-            "valid_pixels": int(valid_pixels[region]),
-            "area_m2": float(pixels[region] * pixel_area_m2),
-            "cover": float(plants[region] / valid_pixels[region]) if valid_pixels[region] else math.nan,
-        }
-        figure.update({name: float(stats[region, k]) for k, name in enumerate(HEIGHT_COLUMNS)})
-        figure["volume_m3"] = float(stats[region, 5])
+    for region, box in enumerate(boxes, start=1):
+        figure = {"pixels": 0, "valid_pixels": 0, "area_m2": 0.0, "cover": math.nan}
+        figure.update(dict.fromkeys(HEIGHT_COLUMNS, math.nan))
+        figure["volume_m3"] = math.nan
+        if box is not None:
+            inside = labels[box] == region
+            pixels = int(np.count_nonzero(inside))
+            valid = None
+            if heights is not None:
+                values = heights[box][inside].astype(np.float64) * to_m
+                valid = np.isfinite(values)
+                values = values[valid]
+            plants = mask[box][inside]
+            n_valid = pixels if valid is None else int(np.count_nonzero(valid))
+            n_plants = int(np.count_nonzero(plants if valid is None else plants[valid]))
+            figure.update(pixels=pixels, valid_pixels=n_valid, area_m2=float(pixels * pixel_area_m2))
+            if n_valid:
+                figure["cover"] = n_plants / n_valid
+            if heights is not None and values.size:
+                total = float(values.sum())
+                p50, p90, p99, top = _percentiles(values, (50.0, 90.0, 99.0, 100.0))
+                figure.update(
+                    height_mean_m=total / values.size,
+                    height_p50_m=float(p50),
+                    height_p90_m=float(p90),
+                    height_p99_m=float(p99),
+                    height_max_m=float(top),
+                    volume_m3=total * pixel_area_m2,
+                )
         result.append(figure)
     return result
 
 
-def _sorted_percentiles(values, percents):
-    """numpy's linear percentiles of already sorted `values` (no sort per call)."""
+def _percentiles(values, percents):
+    """numpy's linear percentiles of `values`, by one partial sort (``np.partition``) for all of them."""
     positions = np.asarray(percents) / 100.0 * (len(values) - 1)
     low = np.floor(positions).astype(np.int64)
     high = np.minimum(low + 1, len(values) - 1)
-    return values[low] + (values[high] - values[low]) * (positions - low)
+    part = np.partition(values, np.unique(np.concatenate([low, high])))
+    return part[low] + (part[high] - part[low]) * (positions - low)

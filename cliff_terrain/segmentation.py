@@ -58,6 +58,9 @@ class Segmentation:
         The threshold used (on the index or on the grey level).
     index : str
         ``"green"``, ``"nir"`` or ``"grey"`` (paper mode).
+    distance : (rows, cols) float32
+        ``distance_map(mask)``: each plant pixel's distance to flat ground (the watershed's, kept
+        for the plateau profile).
     """
 
     mask: np.ndarray
@@ -65,6 +68,7 @@ class Segmentation:
     boundaries: np.ndarray
     threshold: float
     index: str
+    distance: np.ndarray | None = None
 
     @property
     def n_regions(self) -> int:
@@ -226,7 +230,12 @@ def segment(
     labels = split_regions(mask, distance, edges=edges)
     boundaries = inner_boundaries(labels)
     return Segmentation(
-        mask=mask, labels=labels, boundaries=boundaries, threshold=threshold, index=index_name
+        mask=mask,
+        labels=labels,
+        boundaries=boundaries,
+        threshold=threshold,
+        index=index_name,
+        distance=distance,
     )
 
 

@@ -276,15 +276,18 @@ def _soil(rows, cols, n_rows, rng):
 
 
 def main(argv=None):
-    """``python -m cliff_terrain.synthetic OUT.png [--seed N] [--size ROWSxCOLS]``: write the demo field."""
+    """``python -m cliff_terrain.synthetic OUT.png [--seed N] [--size RxC] [--canopy C]``: the demo field."""
     parser = argparse.ArgumentParser(prog="python -m cliff_terrain.synthetic", description=main.__doc__)
     parser.add_argument("out", type=Path, help="PNG file to write")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--size", default="600x900", help="ROWSxCOLS (default 600x900)")
+    parser.add_argument(
+        "--canopy", choices=CANOPIES, default="open", help="open or closed rows (default open)"
+    )
     args = parser.parse_args(argv)
     try:
         rows, cols = (int(v) for v in args.size.lower().split("x"))
-        image, truth = synthetic_field(shape=(rows, cols), seed=args.seed)
+        image, truth = synthetic_field(shape=(rows, cols), seed=args.seed, canopy=args.canopy)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

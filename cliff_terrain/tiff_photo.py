@@ -10,16 +10,19 @@ from __future__ import annotations
 from . import camera
 from .errors import GeoreferenceError, ImageTooLargeError, RasterReadError
 from .georaster import _quiet_tifffile, read_orthophoto
-from .image_io import OpenImage, _metadata
+from .image_io import OpenImage, _metadata, _reading
 
 _TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 
 
 def open_tiff_photo(name, gsd, height_above_ground, max_pixels):
     """An :class:`OpenImage` for a TIFF photo Pillow cannot read, or None when it is not a TIFF photo."""
-    with open(name, "rb") as file:
-        if file.read(4) not in _TIFF_SIGNATURES:
-            return None
+    try:
+        with open(name, "rb") as file:
+            if file.read(4) not in _TIFF_SIGNATURES:
+                return None
+    except OSError:
+        return None  # missing or unreadable: image_io's own message says which
     import tifffile
 
     try:
@@ -65,6 +68,10 @@ class TiffPhoto(OpenImage):
         if not self._open:
             raise RasterReadError(f"image {self._name!r} was already decoded or closed")
         self._open = False
+        with _reading(self._name):  # whatever a corrupt file makes the decoders raise: one clear error
+            return self._decode()
+
+    def _decode(self):
         try:
             raster = read_orthophoto(self._name)
             gsd = sum(raster.pixel_size) / 2

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._validate import check_float
-from .errors import CliffTerrainError, DependencyError
+from .errors import CliffTerrainError
 
 # pydelatin compares errors in single precision: asking it for slightly less than `max_error` keeps
 # the bound in double precision (measured errors stay below max_error; see tests/test_tin.py).
@@ -83,10 +83,9 @@ def triangulate(heights, *, max_error):
         # A line of pixel centres has no area to triangulate: keep every pixel.
         rows, cols = np.indices(heights.shape, dtype=np.int32).reshape(2, -1)
         return Tin(rows, cols, heights.ravel().copy(), np.empty((0, 3), np.int32), (n_rows, n_cols))
-    try:
-        from pydelatin import Delatin
-    except ImportError as exc:
-        raise DependencyError(f"the adaptive mesh needs pydelatin (pip install pydelatin): {exc}") from None
+    from ._deps import import_optional
+
+    Delatin = import_optional("pydelatin", feature="the adaptive mesh").Delatin
     tin = Delatin(heights, height=n_rows, width=n_cols, max_error=max_error * _FLOAT32_MARGIN)
     xy = np.asarray(tin.vertices)[:, :2]
     cols = np.rint(xy[:, 0]).astype(np.int32)

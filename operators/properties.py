@@ -152,6 +152,10 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
     # Results of the last Evaluate (shown in the panel, written by the evaluate operator).
     psnr: FloatProperty(name="PSNR (dB)", description="PSNR of the top view against the photo", default=0.0)
     ssim: FloatProperty(name="SSIM", description="SSIM of the top view against the photo", default=0.0)
+    # Folder of the views the last Render Views job wrote (listed in the panel).
+    last_views: StringProperty(
+        name="Last Views", description="Folder of the last rendered views", subtype="DIR_PATH"
+    )
 
 
 CLASSES = (CliffTerrainSettings,)

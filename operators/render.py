@@ -4,7 +4,8 @@ Both work on the active object when it is a relief built by Cliff Terrain (it ca
 ``cliff_terrain`` record: the photo, the grid size). They add the view rig (collection ``Cliff Terrain
 Views``: top, side and perspective cameras and the calibrated sun; the scene's world becomes the
 calibrated sky) and leave it, so the views can be rendered again by hand; the scene's camera and
-render settings are put back as they were. Rendering blocks Blender until it is done.
+render settings are put back as they were. Clicked in the sidebar, they run as a background job
+(``render_job``: the window keeps answering, Esc cancels); from scripts they render in place.
 
 Error policy as in the build operator: a bad photo or setting is reported as an ERROR and the
 operator returns CANCELLED; anything else is a bug, its traceback goes to the console.
@@ -22,6 +23,7 @@ from bpy.props import EnumProperty, IntProperty
 from ..cliff_terrain import settings as core_settings
 from ..cliff_terrain.evaluation import json_safe, metrics_summary, view_resolution
 from ..scene import render_settings, rig, views
+from . import render_job
 
 
 def active_relief(context):
@@ -84,13 +86,26 @@ class _ViewSettings:
             start = time.perf_counter()
             metrics = views.evaluate_relief(obj, view_rig, paths["xy"], paths["xy_flat"])
             seconds["metrics"] = time.perf_counter() - start
-        metrics.update(engine=engine, samples=self.samples, light=view_rig.light, timings_s=seconds)
+        metrics.update(
+            engine=engine,
+            samples=self.samples,
+            light=view_rig.light,
+            side_view=view_rig.side,
+            timings_s=seconds,
+        )
         settings = scene.cliff_terrain
         # An infinite PSNR (a view identical to the photo) is stored as float32's largest value
         # (Blender clamps it); the panel shows it as identical (evaluation.psnr_text).
         settings.psnr = metrics["psnr_xy"]
         settings.ssim = metrics["ssim_xy"]
         return metrics
+
+    def invoke(self, context, event):
+        # Clicked in the UI: render in a background Blender, so the window keeps answering.
+        return render_job.start(self, context, active_relief(context))
+
+    def modal(self, context, event):
+        return render_job.modal(self, context, event)
 
     def execute(self, context):
         from ..cliff_terrain import CliffTerrainError

@@ -4,9 +4,12 @@ import os
 
 import bpy
 
+from ..operators.render_job import rendered_views
+
 BUILD_OPERATOR = "cliff_terrain.build_relief"
 SEASON_OPERATOR = "cliff_terrain.season_animation"
 # The render operators (their own poll greys them out without a relief object).
+OPEN_VIEW_OPERATOR = "cliff_terrain.open_view"
 RENDER_OPERATORS = (
     ("cliff_terrain.render_views", "RENDER_STILL"),
     ("cliff_terrain.evaluate", "GRAPH"),
@@ -172,6 +175,17 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
 
             box.label(text=f"PSNR {psnr_text(settings.psnr)}", icon="INFO")
             box.label(text=f"SSIM {settings.ssim:.3f}")
+        # The views the last Render Views job wrote: each opens in an Image Editor.
+        names = rendered_views(bpy.path.abspath(settings.last_views)) if settings.last_views else []
+        if names:
+            box = layout.box()
+            box.label(
+                text=f"Views in {os.path.basename(os.path.normpath(settings.last_views))}", icon="IMAGE_DATA"
+            )
+            grid = box.grid_flow(columns=2, even_columns=True)
+            for name in names:
+                op = grid.operator(OPEN_VIEW_OPERATOR, text=os.path.splitext(name)[0], icon="IMAGE")
+                op.filepath = os.path.join(bpy.path.abspath(settings.last_views), name)
 
         # ---- A season of flights (the folder `cliff-terrain season` wrote) ----
         layout.separator()

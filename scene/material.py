@@ -64,7 +64,8 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
             created = len(bpy.data.images) > n_before
             trusted = getattr(metadata, "format", None) in LAZY_FORMATS
             # Blender reads float TIFFs (OpenDroneMap's orthophotos hold 0-255 floats) unscaled.
-            unscaled = image.is_float and getattr(metadata, "format", None) == "TIFF"
+            # (is_float loads the pixels: asked of TIFFs only, so JPEGs and PNGs stay lazy.)
+            unscaled = getattr(metadata, "format", None) == "TIFF" and image.is_float
             if (expected is None or trusted or tuple(image.size) == expected) and not unscaled:
                 return image, created
             if created:

@@ -227,7 +227,8 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
     -------
     dict
         ``size`` (cols, rows), ``exaggeration``, ``ground_row`` (image row of height 0, from the top
-        edge), ``rows_per_unit`` (image rows per unit of the relief's heights), ``transect``.
+        edge), ``rows_per_unit`` (image rows per unit of the relief's heights), ``strip_columns``
+        (image columns where the strip starts and ends), ``transect``.
     """
     from ..cliff_terrain.figures import vertical_exaggeration
 
@@ -274,6 +275,8 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
         "exaggeration": float(exaggeration),
         "ground_row": (z_centre + 0.5 * rows * pixel - ground) / pixel,
         "rows_per_unit": exaggeration * units_per_unit / pixel,
+        # Image columns (pixel edges) where the strip starts and ends.
+        "strip_columns": (0.5 * cols - 0.5 * length / pixel, 0.5 * cols + 0.5 * length / pixel),
         "transect": None if transect is None else transect.text,
     }
 

@@ -297,7 +297,11 @@ def _video(scene, frames, path, *, hold, fps):
         strips.remove(strip)
     for i, frame in enumerate(frames):
         strip = strips.new_image(f"date {i + 1}", frame, 1, 1 + i * hold)
-        strip.frame_final_duration = hold
+        # "duration" from Blender 5.1 ("frame_final_duration" is deprecated there).
+        if hasattr(strip, "duration"):
+            strip.duration = hold
+        else:
+            strip.frame_final_duration = hold
     render = video.render
     render.resolution_x, render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
     render.resolution_percentage = 100

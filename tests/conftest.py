@@ -24,6 +24,10 @@ RENDER_VIEWS_OUTPUTS = (
     "mask.png",
     "distance.png",
     "height.tif",
+    "xy_annotated.png",
+    "xz_annotated.png",
+    "mesh_annotated.png",
+    "summary.png",
     "scene.blend",
     "metrics.json",
 )

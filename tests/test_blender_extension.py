@@ -185,6 +185,11 @@ def test_build_records_its_settings_on_the_object(addon, core, scene):
         "exaggeration": 2.5,
         "gsd": 0.0,
         "two_sided": True,
+        "mesh": "grid",
+        "max_error": 0.0,  # 0: the adaptive mesh's automatic error
+        "dsm": 0.0,  # no surface model (ID properties hold no None)
+        "dtm": 0.0,
+        "heights": "inflated",
     }
 
 
@@ -511,9 +516,15 @@ def test_panel_draws_real_settings_and_greys_out_build_without_a_photo(addon, sc
     assert [
         e for k, i, _, e in draw_panel(bpy.context) if k == "operator" and i.endswith("build_relief")
     ] == [True]
-    # The Render Views and Evaluate buttons are drawn too (their own poll greys them out).
+    # The Render Views, Evaluate, Import Mosaic and Season Animation buttons are drawn too (their
+    # own poll greys them out).
     others = [i for k, i, _, _ in log if k == "operator" and i != "cliff_terrain.build_relief"]
-    assert others == ["cliff_terrain.render_views", "cliff_terrain.evaluate"]
+    assert sorted(others) == [
+        "cliff_terrain.evaluate",
+        "cliff_terrain.import_mosaic",
+        "cliff_terrain.render_views",
+        "cliff_terrain.season_animation",
+    ]
 
 
 @needs_uav

@@ -13,7 +13,7 @@ from conftest import uav_image
 from scipy import ndimage as ndi
 
 from cliff_terrain import CliffTerrainError, build_relief, distance_map, inflate, segment
-from cliff_terrain.heights import canopy_height, plateau_profile
+from cliff_terrain.heights import plateau_profile, typical_plant_radius
 from cliff_terrain.mask_quality import mask_agreement, reference_mask, volume_fraction
 from cliff_terrain.quaternion import quaternion_filter
 from cliff_terrain.segmentation import plant_holes
@@ -129,7 +129,7 @@ def test_plateau_follows_the_circular_rim_then_levels_off():
 def test_default_canopy_height_is_the_radius_of_a_typical_isolated_plant():
     _, truth = synthetic_field(seed=2)
     relief = build_relief(synthetic_field(seed=2)[0], profile="plateau", two_sided=False)
-    estimate = canopy_height(relief.labels)
+    estimate = typical_plant_radius(relief.labels)
     assert estimate == pytest.approx(np.median(truth.radii), rel=0.1)
 
 
@@ -199,3 +199,13 @@ def test_dense_real_canopies_agree_with_an_independent_mask_and_stay_on_it(relat
     reference = reference_mask(relief.working, index="lab_a", valid=valid)
     assert mask_agreement(relief.mask, reference)["iou"] > 0.8
     assert volume_fraction(relief.heights, reference) > 0.9
+
+
+def test_auto_profile_is_the_plateau_for_vegetation_and_the_papers_circle_for_paper(closed):
+    image, _, plateau = closed
+    relief = build_relief(image, two_sided=False)  # profile="auto", the default
+    assert relief.params["profile"] == "plateau"
+    np.testing.assert_array_equal(relief.heights, plateau.heights)
+    paper = build_relief(image, segmentation="paper", two_sided=False)
+    assert paper.params["profile"] == "circular"
+    np.testing.assert_array_equal(paper.heights, inflate(paper.labels, profile="circular"))

@@ -95,7 +95,7 @@ def test_flat_ground_stays_flat():
         (
             (np.zeros((3, 3), int),),
             {"profile": "square"},
-            "`profile` must be one of 'circular', 'poisson', got 'square'",
+            "`profile` must be one of 'auto', 'circular', 'poisson', 'plateau', got 'square'",
         ),
         ((np.zeros((3, 3), int),), {"exaggeration": 0}, r"`exaggeration` must be > 0.0, got 0.0"),
         ((np.zeros((3, 3), int),), {"exaggeration": float("nan")}, "`exaggeration` must be finite, got nan"),

@@ -535,3 +535,28 @@ def test_build_relief_measured_and_calibrated(field_files):
     np.testing.assert_allclose(tops, np.nan_to_num([f["height_p99_m"] for f in figures]), atol=1e-4)
     with pytest.raises(CliffTerrainError, match="needs a `dsm`"):
         build_relief(folder / "ortho.tif", heights="measured")
+
+
+def test_plots_in_longitude_latitude_are_refused(tmp_path):
+    from cliff_terrain.plots import check_plot_crs
+
+    ring = [[-86.5, 44.1], [-86.4, 44.1], [-86.4, 44.2], [-86.5, 44.1]]
+    doc = {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [ring]}}
+    (tmp_path / "ll.geojson").write_text(json.dumps(doc))
+    plots = read_plots(tmp_path / "ll.geojson")
+    assert plots.crs is None  # RFC 7946 GeoJSON has no crs member: WGS 84 longitude/latitude
+    with pytest.raises(GeoreferenceError, match="ll.geojson.*longitude/latitude.*dsm.tif.*EPSG:32616"):
+        check_plot_crs(plots, UTM16N, raster="dsm.tif")
+
+
+def test_broken_shapefile_is_refused(tmp_path):
+    shapefile = pytest.importorskip("shapefile", reason="pyshp is a requirement")
+    with shapefile.Writer(str(tmp_path / "p"), shapeType=shapefile.POLYGON) as writer:
+        writer.field("name", "C")
+        writer.poly([[[0, 0], [0, 4], [4, 4], [4, 0], [0, 0]]])
+        writer.record("A")
+    data = (tmp_path / "p.shp").read_bytes()
+    (tmp_path / "p.shp").write_bytes(data[: len(data) // 2])  # truncated
+    with pytest.raises(PlotFileError, match="p.shp") as caught:
+        read_plots(tmp_path / "p.shp")
+    assert "\n" not in str(caught.value)

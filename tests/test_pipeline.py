@@ -139,7 +139,10 @@ def test_orthophoto_with_georeference_is_in_metres():
         ({"max_size": 3}, "`max_size` must be >= 16, got 3"),
         ({"max_size": 2.5}, "`max_size` must be an integer, got 2.5"),
         ({"segmentation": "kmeans"}, "`segmentation` must be one of 'vegetation', 'paper', got 'kmeans'"),
-        ({"profile": "cone"}, "`profile` must be one of 'circular', 'poisson', got 'cone'"),
+        (
+            {"profile": "cone"},
+            "`profile` must be one of 'auto', 'circular', 'poisson', 'plateau', got 'cone'",
+        ),
         ({"exaggeration": -1}, r"`exaggeration` must be > 0.0, got -1.0"),
         ({"gsd": 0}, r"`gsd` must be > 0.0, got 0.0"),
         ({"two_sided": "yes"}, "`two_sided` must be True or False, got 'yes'"),

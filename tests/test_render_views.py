@@ -245,6 +245,8 @@ def test_help_answers_without_blender(no_bpy):
         (["missing.jpg"], ["image not found", "missing.jpg"]),
         (["missing.jpg", "--max-size", "3"], ["--max-size", "must be >= 16, got 3"]),
         (["missing.jpg", "--exaggeration", "0"], ["--exaggeration", "must be > 0.0"]),
+        (["missing.jpg", "--max-height", "0"], ["--max-height", "must be > 0.0, got 0"]),
+        (["missing.jpg", "--max-height", "nan"], ["--max-height", "must be finite, got nan"]),
         (["missing.jpg", "--engine", "OPENGL"], ["--engine", "OPENGL"]),
         (["missing.jpg", "--resolution", "many"], ["--resolution", "expected an integer, got 'many'"]),
         ([], ["IMAGE"]),

@@ -42,10 +42,11 @@ def soybean():
     return SOYBEAN
 
 
-def season(*args, timeout=600):
+def season(*args, timeout=600, progress=False):
     """Run ``python -m cliff_terrain season ARGS`` (a fresh process, as a user would)."""
     return subprocess.run(
-        [sys.executable, "-m", "cliff_terrain", "season", *map(str, args), "--no-progress"],
+        [sys.executable, "-m", "cliff_terrain", "season", *map(str, args)]
+        + ([] if progress else ["--no-progress"]),
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -121,10 +122,21 @@ def test_plot_figures_against_an_independent_reference(serial, soybean):
 
 @pytest.mark.slow
 def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
-    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--workers", "2")
+    done = season(
+        soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--workers", "2", progress=True
+    )
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
     assert "7 images computed, 0 from the cache" in done.stdout
+    # The height grids too, to the bit (the animation reads them).
+    from cliff_terrain.season.outputs import read_season
+
+    for ours, theirs in zip(read_season(tmp_path).dates, read_season(serial).dates, strict=True):
+        assert ours.heights.tobytes() == theirs.heights.tobytes()
+    # The progress bar (one line per step when stderr is not a terminal), from 0 to 7 of 7.
+    bars = re.findall(r"season \[([#-]{30})\] (\d)/7 images", done.stderr)
+    assert [int(n) for _, n in bars] == list(range(8))
+    assert bars[-1][0] == "#" * 30
 
 
 def _free_port():
@@ -176,9 +188,20 @@ def scheduler(tmp_path):
 
 @pytest.mark.slow
 def test_existing_scheduler_on_loopback(serial, soybean, scheduler, tmp_path):
-    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--scheduler", scheduler)
+    from distributed import Client
+
+    with Client(scheduler, timeout=60) as client:
+        started = time.time()
+        client.get_task_stream(start=started)  # installs the scheduler's task-stream recorder
+        done = season(
+            soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path, "--scheduler", scheduler
+        )
+        stream = client.get_task_stream(start=started)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+    # One image, one task: the scheduler ran exactly one task per photo.
+    names = sorted(task["key"].rsplit("-", 1)[-1] for task in stream if task["key"].startswith("season-"))
+    assert names == sorted(p.name for p in soybean.glob("*.tif"))
 
 
 def test_unreachable_scheduler_is_one_line(soybean, tmp_path):
@@ -375,3 +398,85 @@ def test_bad_input_messages(soybean, tmp_path):
     assert done.returncode == 2
     assert "EPSG:32616" in done.stderr and "EPSG:32615" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_dsm_gives_measured_heights(tmp_path):
+    """--dsm: the plots' heights are the surface model's canopy height (issue 13's measured mode)."""
+    from matplotlib.path import Path as Polygon
+
+    from cliff_terrain import build_relief
+    from cliff_terrain.season.outputs import read_season
+
+    folder = SHARED_UAV.parent / "dsm" / "fieldimager_ex2"
+    if not (folder / "dsm.tif").is_file():
+        pytest.skip(f"the FIELDimageR orthophoto and DSM are not at {folder} (../shared is absent)")
+    square = [[296600, 4888190], [296620, 4888190], [296620, 4888210], [296600, 4888210], [296600, 4888190]]
+    plots = tmp_path / "plots.geojson"
+    plots.write_text(
+        json.dumps(
+            {
+                "type": "FeatureCollection",
+                "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::32616"}},
+                "features": [
+                    {
+                        "type": "Feature",
+                        "properties": {"name": "a"},
+                        "geometry": {"type": "Polygon", "coordinates": [square]},
+                    }
+                ],
+            }
+        )
+    )
+    ortho = folder / "odm_orthophoto.tif"
+    args = [
+        ortho,
+        "--plots",
+        plots,
+        "--out",
+        tmp_path / "out",
+        "--workers",
+        "0",
+        "--dates",
+        "odm_orthophoto.tif=2019-07-01",
+    ]
+    bad = season(*args, "--heights", "measured")
+    assert bad.returncode == 2 and "`heights` 'measured' needs `dsm`" in bad.stderr
+    done = season(*args, "--dsm", folder / "dsm.tif")
+    assert done.returncode == 0, done.stderr
+    (row,) = read_table(tmp_path / "out" / "season.csv")
+    assert (row["height_mode"], row["date_source"], row["reason"]) == ("measured", "option", "")
+    # Independent reference: the relief built directly, the plot's pixels by matplotlib's point-in-polygon.
+    relief = build_relief(str(ortho), dsm=folder / "dsm.tif", heights="measured", two_sided=False)
+    t = read_season(tmp_path / "out").dates[0].transform
+    rows, cols = relief.heights.shape
+    cc, rr = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
+    centres = np.column_stack([(t[0, 0] * cc + t[0, 2]).ravel(), (t[1, 1] * rr + t[1, 2]).ravel()])
+    inside = Polygon(square).contains_points(centres).reshape(rows, cols)
+    assert inside.sum() > 1000
+    h = relief.heights[inside].astype(np.float64)
+    assert float(row["height_p90"]) == pytest.approx(np.percentile(h, 90), rel=1e-3)
+    assert float(row["height_max"]) == pytest.approx(h.max(), rel=1e-5)
+    assert 0.2 < float(row["height_p90"]) < 1.5  # soybean-sized plants, in metres
+
+
+def test_opencv_distance_is_exact_with_two_threads(soybean):
+    """Why each task gives OpenCV two threads (runner._exact_opencv): its precise distance transform
+    then equals SciPy's exact Euclidean one, whatever happened in the process before."""
+    import cv2
+    from PIL import Image
+    from scipy import ndimage
+
+    from cliff_terrain.pipeline import resize_longest
+    from cliff_terrain.segmentation import distance_map, region_interiors, segment
+
+    rgb = np.asarray(Image.open(soybean / "20180905_Lamberton_clipped.tif").convert("RGB"))
+    labels = segment(resize_longest(rgb, 1000)).labels
+    exact = ndimage.distance_transform_edt(region_interiors(labels)).astype(np.float32)
+    saved = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(2)
+        for size in (1, 10**5, 3 * 10**5):
+            np.ones(size)  # a different heap each time
+            np.testing.assert_array_equal(distance_map(labels), exact)
+    finally:
+        cv2.setNumThreads(saved)

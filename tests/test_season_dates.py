@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -107,3 +108,26 @@ def test_cache_key_follows_content_params_and_version(tmp_path):
     np.testing.assert_array_equal(cache.load_arrays(key)["heights"], heights)
     # Only the two entry files are left: the temporary files were renamed into place.
     assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == [f"{key}.json", f"{key}.npz"]
+
+
+def test_each_photo_finds_its_dsm(tmp_path):
+    from cliff_terrain.season.runner import find_images, pair_dsm
+
+    photos, dsms = tmp_path / "photos", tmp_path / "dsm"
+    photos.mkdir()
+    dsms.mkdir()
+    for name in ("20180815_rgb.tif", "20180822_rgb.tif"):
+        (photos / name).write_bytes(b"")
+    (dsms / "dsm_2018-08-15.tif").write_bytes(b"")
+    (dsms / "20180822_rgb_dsm.tif").write_bytes(b"")
+    images = find_images([photos])
+    assert [Path(p).name for p in images] == ["20180815_rgb.tif", "20180822_rgb.tif"]
+    paired = {Path(k).name: Path(v).name for k, v in pair_dsm(images, dsms).items()}
+    assert paired == {"20180815_rgb.tif": "dsm_2018-08-15.tif", "20180822_rgb.tif": "20180822_rgb_dsm.tif"}
+    with pytest.raises(CliffTerrainError, match=r"no DSM for '.*20180815_rgb\.tif'"):
+        pair_dsm(images, str(dsms / "{stem}_dsm.tif"))
+    with pytest.raises(CliffTerrainError, match="must be a folder or a pattern with \\{stem\\} for 2 images"):
+        pair_dsm(images, str(dsms / "dsm_2018-08-15.tif"))
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CliffTerrainError, match="no images in folder"):
+        find_images([tmp_path / "empty"])

@@ -5,6 +5,8 @@ cliff_terrain.tin.tin_error (integer edge functions, vectorised) and, on small r
 per-pixel loop written here.
 """
 
+import sys
+
 import numpy as np
 import pytest
 from conftest import uav_image
@@ -225,3 +227,11 @@ def test_non_finite_heights_are_refused():
     heights[2, 2] = np.nan
     with pytest.raises(CliffTerrainError, match="`heights` must be finite"):
         triangulate(heights, max_error=0.1)
+
+
+def test_a_missing_pydelatin_is_named_with_how_to_install_it(monkeypatch):
+    from cliff_terrain.errors import DependencyError
+
+    monkeypatch.setitem(sys.modules, "pydelatin", None)  # import pydelatin raises ImportError
+    with pytest.raises(DependencyError, match=r"the adaptive mesh needs pydelatin.*pip install pydelatin"):
+        triangulate(np.zeros((4, 4)), max_error=0.1)

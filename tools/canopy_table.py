@@ -96,9 +96,7 @@ def main(argv=None):
     if args.segmentation:
         options["segmentation"] = args.segmentation
     rows = []
-    print(
-        "| image | cover | ExG cover | ExG IoU | volume on ExG | a* cover | a* IoU | volume on a* | max height |"
-    )
+    print("| image | cover | ExG cover | ExG IoU | volume on ExG | a* cover | a* IoU | volume on a* | top |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for image in find_images(args.images):
         try:

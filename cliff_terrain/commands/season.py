@@ -60,10 +60,11 @@ def configure(parser):
     )
     parser.add_argument("--exaggeration", type=float, default=settings.DEFAULT_EXAGGERATION)
     parser.add_argument(
-        "--max-height",
-        type=float,
+        "--heights",
+        choices=settings.ids(settings.HEIGHT_MODES),
         default=None,
-        help="the canopy's known height in metres: calibrates the inflated heights",
+        help="inflated (from the photo; the default without --dsm), measured (the DSM's canopy height; "
+        "the default with --dsm) or calibrated (the photo's domes scaled to the measured heights)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -81,7 +82,7 @@ def run(args):
         segmentation=args.segmentation,
         profile=args.profile,
         exaggeration=args.exaggeration,
-        max_height=args.max_height,
+        heights=args.heights,
     )
     season = run_season(
         jobs,

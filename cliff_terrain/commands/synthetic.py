@@ -11,6 +11,12 @@ def configure(parser):
     parser.add_argument("out", type=Path, help="PNG file to write")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--size", default="600x900", help="ROWSxCOLS (default 600x900)")
+    parser.add_argument(
+        "--canopy",
+        choices=("open", "closed"),
+        default="open",
+        help="open: separate plants; closed: rows joined at their ends around soil strips (default open)",
+    )
 
 
 def run(args):
@@ -25,7 +31,7 @@ def run(args):
         raise CliffTerrainError(
             f"`--size` must be ROWSxCOLS, for example 600x900, got {args.size!r}"
         ) from None
-    image, truth = synthetic_field(shape=(rows, cols), seed=args.seed)
+    image, truth = synthetic_field(shape=(rows, cols), seed=args.seed, canopy=args.canopy)
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         Image.fromarray(image).save(args.out)

@@ -6,8 +6,9 @@ input is one error at once. :func:`run_season` then computes what the cache lack
 scheduler, and writes ``season.csv``, ``season.json`` (what the Blender animation reads) and
 ``growth.png``. Dask is imported only when it is used.
 
-The workers need Cliff Terrain importable and the photos, DSMs and plots file at the same paths;
-results come back to this process, which writes the cache and the table.
+Each task hashes its photo, looks it up in the cache and writes the entry it computes, so the
+workers need Cliff Terrain importable and the photos, DSMs, plots file and output folder at the
+same paths (a shared file system); only the table rows come back to this process.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import dataclasses
 import io
 import json
 import os
+import platform
 import sys
 import time
 import uuid
@@ -28,6 +30,8 @@ from ..errors import CliffTerrainError
 from .cache import Cache, cache_key, file_hash
 from .dates import photo_date
 
+# Read by OpenCV when it is imported: the number of threads of its pool.
+OPENCV_THREADS = "OPENCV_FOR_THREADS_NUM"
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".webp")
 # The table's columns; the plots' attributes go between `plot` and `area_m2`.
 LEAD_COLUMNS = ("date", "date_source", "image", "plot")
@@ -55,7 +59,6 @@ _FROM_TABLE = {
     "height_max": "height_max_m",
     "reason": "error",  # plot_table's why a plot has no or partial figures ("" when whole)
 }
-HEIGHT_MODES = ("inflated", "calibrated", "measured")
 
 
 @dataclasses.dataclass
@@ -164,7 +167,7 @@ def plan_season(
     segmentation=settings.DEFAULT_SEGMENTATION,
     profile=settings.DEFAULT_PROFILE,
     exaggeration=settings.DEFAULT_EXAGGERATION,
-    max_height=None,
+    heights=None,
 ):
     """Check the inputs and list the season's jobs, sorted by date.
 
@@ -180,9 +183,9 @@ def plan_season(
         Surface models: see :func:`pair_dsm`.
     max_size, segmentation, profile, exaggeration
         As for :func:`cliff_terrain.build_relief`.
-    max_height : float, optional
-        The canopy's known height in metres: the inflated heights are calibrated to it (the
-        table's `height_mode` is then "calibrated"; with `dsm`, "measured").
+    heights : {"inflated", "calibrated", "measured"}, optional
+        As for :func:`cliff_terrain.build_relief`: "measured" (the default with `dsm`) and
+        "calibrated" need `dsm`; "inflated" is the only mode without one.
 
     Returns
     -------
@@ -195,6 +198,7 @@ def plan_season(
         For a missing file, a photo without a date, two photos of one date, or a photo whose CRS
         differs from the plots'.
     """
+    from ..georaster import read_georeference
     from ..plots import check_plot_crs, read_plots
 
     params = {
@@ -202,19 +206,14 @@ def plan_season(
         "segmentation": check_choice("segmentation", segmentation, settings.ids(settings.SEGMENTATIONS)),
         "profile": check_choice("profile", profile, settings.ids(settings.PROFILES)),
         "exaggeration": check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True),
-        "max_height": check_float(
-            "max_height", max_height, minimum=0.0, strict_minimum=True, allow_none=True
+        "heights": check_choice(
+            "heights",
+            heights or ("inflated" if dsm is None else "measured"),
+            settings.ids(settings.HEIGHT_MODES),
         ),
     }
-    if dsm is not None:
-        import inspect
-
-        from ..pipeline import build_relief
-
-        if "dsm" not in inspect.signature(build_relief).parameters:
-            raise CliffTerrainError(
-                "`--dsm` needs measured heights, which this version's build_relief does not take yet"
-            )
+    if dsm is None and params["heights"] != "inflated":
+        raise CliffTerrainError(f"`heights` {params['heights']!r} needs `dsm` (surface models), got None")
     plot_set = read_plots(plots)
     images = find_images(inputs)
     dsms = pair_dsm(images, dsm)
@@ -227,7 +226,7 @@ def plan_season(
                 "orthophoto per date (mosaic the tiles of one flight first)"
             )
         seen[date] = image
-        _, crs, _ = photo_georeference(image)
+        _, crs = read_georeference(image)
         check_plot_crs(plot_set, crs, raster=image)
         jobs.append(
             Job(
@@ -269,15 +268,15 @@ def process_image(job):
         record = cache.load_record(key) if cache.has(key) else None
         if record is not None:
             return {**record, "key": key, "cached": True}
-        with _one_opencv_thread():
-            record = _process(job)
+        _exact_opencv()
+        record = _process(job)
         arrays = record.pop("arrays")
         record.update(
             ok=True,
             seconds=time.perf_counter() - started,
             cpu_seconds=time.process_time() - cpu,
             peak_rss=_peak_rss(),
-            worker=f"{os.uname().nodename}:{os.getpid()}",
+            worker=f"{platform.node()}:{os.getpid()}",
         )
         cache.store(key, record, arrays)
     except Exception as exc:  # a task's failure is its image's rows, not the run's end
@@ -287,52 +286,48 @@ def process_image(job):
     return {**record, "key": key, "cached": False}
 
 
-class _one_opencv_thread:
-    """OpenCV on one thread for the task: its results differ in the last bits with the number of
-    threads (rows split differently), and the table must be the same from any machine. It also
-    keeps workers, one per core, from fighting over the cores."""
+def _exact_opencv():
+    """Give OpenCV at least two threads in this process (a worker, or a serial run).
 
-    def __enter__(self):
-        import cv2
+    OpenCV 4.11's precise distance transform (the relief's domes) is exact, equal to SciPy's
+    Euclidean distance transform, when its thread pool has two threads or more; on one thread it
+    is off by up to 8e-6 pixel in a way that changes with the heap, so a worker with one core would
+    not write the table a laptop writes. Measured in tests/test_season.py.
+    """
+    import cv2
 
-        self.saved = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-
-    def __exit__(self, *exc):
-        import cv2
-
-        cv2.setNumThreads(self.saved)
+    if cv2.getNumThreads() < 2:
+        cv2.setNumThreads(2)
 
 
 def _process(job):
     import numpy as np
 
+    from ..georaster import read_georeference
     from ..pipeline import build_relief
     from ..plots import plot_table, rasterize_plots
 
     params = job["params"]
-    photo_transform, crs, photo_shape = photo_georeference(job["path"])
-    extra, mode = {}, "inflated" if params["max_height"] is None else "calibrated"
-    if job.get("dsm"):
-        extra["dsm"] = job["dsm"]  # measured heights (plan_season checked build_relief takes them)
-        mode = "measured"
+    photo_transform, crs = read_georeference(job["path"])
+    surface = {"dsm": job["dsm"], "heights": params["heights"]} if job.get("dsm") else {}
     relief = build_relief(
         job["path"],
         max_size=params["max_size"],
         segmentation=params["segmentation"],
         profile=params["profile"],
         exaggeration=params["exaggeration"],
-        max_height=params["max_height"],
         gsd=float(np.hypot(*photo_transform[:2, 0])),
         two_sided=False,
-        **extra,
+        **surface,
     )
-    mode = getattr(relief, "height_mode", None) or mode
     shape = relief.heights.shape
-    transform = grid_transform(photo_transform, photo_shape, shape)
-    labels = rasterize_plots(_plots(job["plots"]), transform=transform, shape=shape)
+    # The processing grid resamples the photo's pixels: its pixels are larger by these factors.
+    meta = relief.metadata
+    transform = photo_transform @ np.diag([meta.width / shape[1], meta.height / shape[0], 1.0])
+    plot_set = _plots(job["plots"])
+    labels = rasterize_plots(plot_set, transform=transform, shape=shape)
     table = plot_table(
-        _plots(job["plots"]),
+        plot_set,
         labels,
         mask=relief.mask,
         heights=relief.heights,
@@ -341,7 +336,7 @@ def _process(job):
     )
     return {
         "table": [_plain(row) for row in table],
-        "height_mode": mode,
+        "height_mode": params["heights"],
         "height_units": relief.units,
         "grid": {"transform": transform[:2].tolist(), "shape": list(shape), "crs": crs},
         "arrays": {
@@ -349,41 +344,6 @@ def _process(job):
             "mask": np.packbits(relief.mask, axis=None),
         },
     }
-
-
-def photo_georeference(path):
-    """(3x3 pixel-to-map transform, EPSG code, (rows, cols)) of a GeoTIFF, from its header only.
-
-    The pixels are not decoded (the plan checks every photo's CRS before any work); the tags are
-    interpreted by :mod:`cliff_terrain.georaster`.
-    """
-    import tifffile
-
-    from ..errors import RasterReadError
-    from ..georaster import _georeference
-
-    name = os.fspath(path)
-    try:
-        with tifffile.TiffFile(name) as tif:
-            page = tif.pages[0]
-            tags = {tag.code: tag.value for tag in page.tags.values() if tag.code in _GEO_TAGS}
-            shape = (int(page.imagelength), int(page.imagewidth))
-    except Exception as exc:  # not a TIFF, truncated header
-        raise RasterReadError(f"cannot read the georeference of {name!r}: {exc}") from None
-    transform, crs = _georeference(tags, name)
-    return transform, crs, shape
-
-
-# ModelPixelScale, ModelTiepoint, ModelTransformation, GeoKeyDirectory, GeoDoubleParams, GeoAsciiParams.
-_GEO_TAGS = (33550, 33922, 34264, 34735, 34736, 34737)
-
-
-def grid_transform(photo_transform, photo_shape, grid_shape):
-    """The photo's transform for the processing grid, which resamples its pixels to `grid_shape`."""
-    import numpy as np
-
-    scale = np.diag([photo_shape[1] / grid_shape[1], photo_shape[0] / grid_shape[0], 1.0])
-    return np.asarray(photo_transform, dtype=np.float64) @ scale
 
 
 _PLOTS = {}
@@ -560,7 +520,7 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
                     f"cannot reach the Dask scheduler `{scheduler}` within {timeout:g} s ({type(exc).__name__})"
                 ) from None
         else:
-            n = workers if workers is not None else (os.cpu_count() or 1)
+            n = workers if workers is not None else _usable_cores()
             cluster = LocalCluster(
                 n_workers=n,
                 threads_per_worker=1,
@@ -568,6 +528,8 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
                 memory_limit=memory_limit,
                 dashboard_address=None,
                 host="127.0.0.1",
+                # Two OpenCV threads per worker (see _exact_opencv), not one per core in every worker.
+                env={OPENCV_THREADS: "2"},
             )
             client = Client(cluster, set_as_default=False)
         with client:
@@ -585,6 +547,14 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
     finally:
         if cluster is not None:
             cluster.close()
+
+
+def _usable_cores():
+    """The cores this process may run on (a container's or a batch job's share, not the machine's)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
 
 
 def _rows(job, result, plot_set):

@@ -156,7 +156,12 @@ def drive(blender, work, shot):
             time.sleep(1.0)
             screenshot(work / "after_click.png")  # for the log when the build never comes
             # Move away so the final screenshot shows no hover highlight.
-            run("xdotool", "mousemove", str(x), "5")
+            run("xdotool", "mousemove", "200", "600")  # an empty part of the 3D view: no tooltip
+        elif phase == "key":
+            x, y = state["point"]
+            run("xdotool", "mousemove", str(x), str(y))
+            time.sleep(0.2)
+            run("xdotool", "key", state["key"])
         elif phase == "done":
             deadline = min(deadline, time.monotonic() + 30)
     if not result_path.exists():
