@@ -28,6 +28,7 @@ REQUIRED = {
 OPTIONAL = {
     "tifffile": "tifffile",
     "imagecodecs": "imagecodecs",
+    "shapefile": "pyshp",
     "pydelatin": "pydelatin",
 }
 

@@ -276,11 +276,12 @@ def _clean(mask, min_region, *, vi=None, threshold=None):
     mask = np.ascontiguousarray(mask, dtype=np.uint8)
     components = None
     if min_region > 0:
-        n, components, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         keep = stats[:, cv2.CC_STAT_AREA] >= min_region
         keep[0] = False
-        mask = keep.astype(np.uint8)[components]
-        components = np.where(keep[components], components, 0)
+        mask = keep.astype(np.uint8)[labels]
+        # Holes lie next to kept components only: the labels and areas serve plant_holes as they are.
+        components = (labels, stats[:, cv2.CC_STAT_AREA])
     # Holes: background that cannot be reached from the frame (flood the padded background).
     padded = np.pad(mask, 1)
     flood = padded.copy()
@@ -288,14 +289,14 @@ def _clean(mask, min_region, *, vi=None, threshold=None):
     holes = flood[1:-1, 1:-1] == 0
     if vi is None or not holes.any():
         return holes | (mask > 0)
-    return plant_holes(mask, holes, vi, threshold, min_region=min_region, components=components) | (mask > 0)
+    return plant_holes(mask, holes, vi, threshold, min_region=min_region, _components=components) | (mask > 0)
 
 
 # A hole this small against the plant region around it is a leaf gap or a highlight.
 HOLE_FRACTION = 0.02
 
 
-def plant_holes(mask, holes, vi, threshold, *, min_region=0, components=None):
+def plant_holes(mask, holes, vi, threshold, *, min_region=0, _components=None):
     """The holes of `mask` that plausibly lie inside a plant, to be filled.
 
     A hole is kept (filled) when it is small compared with the region that encloses it (at most
@@ -317,8 +318,6 @@ def plant_holes(mask, holes, vi, threshold, *, min_region=0, components=None):
         Its threshold.
     min_region : int, optional
         Holes smaller than this many pixels are always filled.
-    components : (rows, cols) int array, optional
-        8-connected components of `mask` if already computed.
 
     Returns
     -------
@@ -336,32 +335,36 @@ def plant_holes(mask, holes, vi, threshold, *, min_region=0, components=None):
     (True, False)
     """
     mask = np.ascontiguousarray(mask, dtype=np.uint8)
-    holes = np.asarray(holes, dtype=bool)
+    holes = np.ascontiguousarray(holes, dtype=bool)
     vi = np.asarray(vi, dtype=np.float32)
-    rows, cols = mask.shape
     n_holes, hole_labels, hole_stats, _ = cv2.connectedComponentsWithStats(
-        holes.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S
+        holes.view(np.uint8), connectivity=4, ltype=cv2.CV_32S
     )
     if n_holes <= 1:
         return np.zeros(mask.shape, dtype=bool)
-    if components is None:
-        _, components = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    if _components is None:
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+        _components = (labels, stats[:, cv2.CC_STAT_AREA])
+    components, component_area = _components
     area = hole_stats[:, cv2.CC_STAT_AREA].astype(np.float64)
     inside = np.flatnonzero(holes)
     which = hole_labels.ravel()[inside]
     # The pixel above a hole's first pixel (in raster order) belongs to the region around it.
-    _, first = np.unique(which, return_index=True)
-    above = inside[first] - cols
-    enclosing = components.ravel()[above]
-    region_area = np.bincount(components.ravel(), minlength=int(components.max()) + 1)[enclosing]
-    small = (area[1:] < min_region) | (area[1:] <= HOLE_FRACTION * region_area)
+    # Assigning in reverse order leaves each hole's first pixel (the last write wins).
+    first = np.empty(n_holes, dtype=np.intp)
+    first[which[::-1]] = inside[::-1]
+    enclosing = components.ravel()[first[1:] - mask.shape[1]]
+    small = (area[1:] < min_region) | (area[1:] <= HOLE_FRACTION * component_area[enclosing])
     # Soil colour: the median index of the non-plant pixels (a sample), holes included.
-    ground = vi.ravel()[:: max(1, vi.size // 200_000)][mask.ravel()[:: max(1, vi.size // 200_000)] == 0]
+    step = max(1, vi.size // 200_000)
+    ground = vi.ravel()[::step][mask.ravel()[::step] == 0]
     soil = float(np.median(ground)) if ground.size else float(threshold)
     mean_vi = np.bincount(which, weights=vi.ravel()[inside], minlength=n_holes)[1:] / area[1:]
     not_soil = mean_vi > 0.5 * (soil + float(threshold))
     fill = np.zeros(n_holes, dtype=bool)
     fill[1:] = small | not_soil
+    if fill[1:].all():  # the usual case: every hole is inside a plant
+        return holes
     return fill[hole_labels]
 
 

@@ -1,5 +1,7 @@
-"""The packaged extension: build the linux-x64 zip with tools/build_extension.py (Blender's own
-builder), install it into Blender with a throw-away user configuration, and run it on a real photo.
+"""The packaged extension: build the linux-x64 zip for this Blender's Python with
+tools/build_extension.py (Blender's own builder), install it into Blender with a throw-away user
+configuration, and run it on a real photo; and Blender's own refusal of a zip for another Python or
+platform. This runs on every bpy the suite runs on (4.2, 4.5 and 5.0.1 on Python 3.11, 5.2.3 on 3.13).
 
 The install runs in a subprocess: BLENDER_USER_RESOURCES must be set before bpy is imported, and
 the interpreter starts with ``-S`` and sees only bpy and numpy, so SciPy, scikit-image, OpenCV and
@@ -25,6 +27,8 @@ bpy = pytest.importorskip("bpy")
 
 ROOT = Path(__file__).resolve().parents[1]
 MAIZE = UAV / "plantcv_dsm" / "rgb.tif"  # 261x284 RGBA GeoTIFF, 2.2 cm/px
+PYTHON = f"{sys.version_info.major}.{sys.version_info.minor}"
+OTHER_PYTHON = {"3.11": "3.13", "3.13": "3.11"}[PYTHON]
 
 
 def load_tool():
@@ -39,15 +43,15 @@ def tool():
     return load_tool()
 
 
-@pytest.fixture(scope="module")
-def linux_zip(tmp_path_factory, tool):
-    out = tmp_path_factory.mktemp("dist")
+def build_zip(out, platform, python):
     proc = subprocess.run(
         [
             sys.executable,
             str(ROOT / "tools" / "build_extension.py"),
             "--platform",
-            "linux-x64",
+            platform,
+            "--python",
+            python,
             "--output-dir",
             str(out),
         ],
@@ -57,8 +61,14 @@ def linux_zip(tmp_path_factory, tool):
         timeout=900,
     )
     assert proc.returncode == 0, f"build_extension failed:\n{proc.stdout}\n{proc.stderr}"
-    zips = sorted(out.glob("*.zip"))
-    assert [z.name for z in zips] == [f"cliff_terrain-{tool.core_version()}-linux_x64.zip"], proc.stdout
+    return sorted(out.glob("*.zip")), proc.stdout
+
+
+@pytest.fixture(scope="module")
+def linux_zip(tmp_path_factory, tool):
+    zips, log = build_zip(tmp_path_factory.mktemp("dist"), "linux-x64", PYTHON)
+    expected = f"cliff_terrain-{tool.core_version()}-linux_x64-python{PYTHON}.zip"
+    assert [z.name for z in zips] == [expected], log
     return zips[0]
 
 
@@ -70,12 +80,15 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
     packages = sorted(tool.wheel_name_version(w)[0] for w in wheels)
     assert packages == sorted(tool.normalize(p) for p in tool.PACKAGES)
     assert "numpy" not in packages
-    # Pure-Python or Linux x86-64 wheels, for CPython 3.11 (or the stable ABI).
+    # Pure-Python or Linux x86-64 wheels, for this CPython (or the stable ABI).
+    cp = "cp" + PYTHON.replace(".", "")
     for wheel in wheels:
         python, abi, platform = wheel[: -len(".whl")].split("-")[-3:]
         assert platform == "any" or ("linux" in platform and platform.endswith("x86_64")), wheel
-        assert python in ("py3", "cp311", "cp37") and abi in ("none", "cp311", "abi3"), wheel
+        assert python in ("py3", "py2.py3", cp, "cp37") and abi in ("none", cp, "abi3"), wheel
     assert manifest["build"]["generated"]["platforms"] == ["linux-x64"]
+    # Blender 4.2 cannot tell a 3.13 zip by its wheels: its minimum version keeps it away.
+    assert manifest["blender_version_min"] == {"3.11": "4.2.0", "3.13": "4.3.0"}[PYTHON]
     for required in (
         "__init__.py",
         "cliff_terrain/pipeline.py",
@@ -104,9 +117,9 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
 
 
 def test_zip_check_names_a_wheel_the_builder_left_out(tool, tmp_path):
-    archive_path = tmp_path / "cliff_terrain-0.0.0-linux_x64.zip"
+    archive_path = tmp_path / "cliff_terrain-0.0.0-linux_x64-python3.11.zip"
     with zipfile.ZipFile(archive_path, "w") as archive:
-        archive.writestr("blender_manifest.toml", 'id = "cliff_terrain"\n')
+        archive.writestr("blender_manifest.toml", 'id = "cliff_terrain"\nblender_version_min = "4.2.0"\n')
         for name in (
             "__init__.py",
             "cliff_terrain/__init__.py",
@@ -117,9 +130,22 @@ def test_zip_check_names_a_wheel_the_builder_left_out(tool, tmp_path):
             archive.writestr(name, "")
         archive.writestr("wheels/kept-1.0-py3-none-any.whl", "")
     expected = ["kept-1.0-py3-none-any.whl", "dropped-2.0-cp311-cp311-manylinux_2_17_x86_64.whl"]
+    packages = ("kept", "dropped")
     with pytest.raises(tool.BuildError, match=r"left out 1 wheel.*dropped-2\.0"):
-        tool.check_zip(archive_path, expected, "cliff_terrain")
-    assert tool.check_zip(archive_path, expected[:1], "cliff_terrain") == 6
+        tool.check_zip(archive_path, {"3.11": expected}, "cliff_terrain", packages=packages)
+    with pytest.raises(
+        tool.BuildError, match=r"Python 3\.11 needs exactly one dropped wheel, the zip has none"
+    ):
+        tool.check_zip(archive_path, {"3.11": expected[:1]}, "cliff_terrain", packages=packages)
+    assert tool.check_zip(archive_path, {"3.11": expected[:1]}, "cliff_terrain", packages=packages[:1]) == 7
+    with pytest.raises(tool.BuildError, match=r"blender_version_min is not 4\.3\.0"):
+        tool.check_zip(
+            archive_path,
+            {"3.11": expected[:1]},
+            "cliff_terrain",
+            packages=packages[:1],
+            blender_version_min="4.3.0",
+        )
 
 
 def test_a_numpy_wheel_in_the_wheels_folder_stops_the_build(tool, linux_zip, tmp_path, capsys):
@@ -131,7 +157,16 @@ def test_a_numpy_wheel_in_the_wheels_folder_stops_the_build(tool, linux_zip, tmp
         (wheels / path.name).symlink_to(path)
     (wheels / "numpy-1.26.4-cp311-cp311-manylinux_2_17_x86_64.whl").write_bytes(b"")
     code = tool.main(
-        ["--platform", "linux-x64", "--wheels-dir", str(wheels), "--output-dir", str(tmp_path / "out")]
+        [
+            "--platform",
+            "linux-x64",
+            "--python",
+            PYTHON,
+            "--wheels-dir",
+            str(wheels),
+            "--output-dir",
+            str(tmp_path / "out"),
+        ]
     )
     assert code == 1
     assert "numpy-1.26.4" in capsys.readouterr().err
@@ -241,3 +276,55 @@ def test_installed_zip_builds_a_relief_with_its_own_wheels(linux_zip, tmp_path):
     assert out["texture_size"] == [meta.width, meta.height]  # the photo at full resolution
     assert out["record"]["units"] == "m" and out["record"]["regions"] == ref.n_regions
     assert np.isclose(out["record"]["pixel_size"], ref.pixel_size)
+
+
+# A fresh Blender installs a zip and says what it did: one JSON line.
+INSTALL_ONLY = r"""
+import contextlib, io, json, sys
+import bpy
+
+log = io.StringIO()
+out = {"error": None}
+try:
+    with contextlib.redirect_stdout(log):
+        bpy.ops.extensions.package_install_files(filepath=sys.argv[1], repo="user_default", enable_on_install=True)
+except RuntimeError as error:
+    out["error"] = str(error)
+out["log"] = log.getvalue()
+out["enabled"] = "bl_ext.user_default.cliff_terrain" in bpy.context.preferences.addons
+print("RESULT " + json.dumps(out))
+"""
+
+
+def install_only(zip_path, tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "BLENDER"))}
+    env["BLENDER_USER_RESOURCES"] = str(tmp_path / "blender_user")
+    proc = subprocess.run(
+        [sys.executable, "-c", INSTALL_ONLY, str(zip_path)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    assert lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    out = json.loads(lines[-1][len("RESULT ") :])
+    return out, (out["error"] or "") + out["log"]
+
+
+def test_a_zip_for_the_other_python_is_refused_by_blender(tmp_path):
+    (zip_path,), _ = build_zip(tmp_path / "dist", "linux-x64", OTHER_PYTHON)
+    out, message = install_only(zip_path, tmp_path)
+    assert not out["enabled"], out
+    if bpy.app.version < (4, 3, 0):
+        # Blender 4.2 does not read a wheel's Python tag: the 3.13 zip asks for Blender 4.3 or newer.
+        assert "doesn't meet the minimum supported version (4.3.0)" in message, out
+    else:
+        assert f"This Python version ({PYTHON}) isn't compatible with ({OTHER_PYTHON})" in message, out
+
+
+def test_a_zip_for_another_platform_is_refused_by_blender(tmp_path):
+    (zip_path,), _ = build_zip(tmp_path / "dist", "windows-x64", PYTHON)
+    out, message = install_only(zip_path, tmp_path)
+    assert not out["enabled"], out
+    assert "This platform (linux-x64) isn't one of (windows-x64)" in message, out

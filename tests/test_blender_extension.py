@@ -183,6 +183,7 @@ def test_build_records_its_settings_on_the_object(addon, core, scene):
         "profile": "poisson",
         "max_size": 80,
         "exaggeration": 2.5,
+        "max_height": 0.0,  # 0: the canopy height estimated from the photo
         "gsd": 0.0,
         "two_sided": True,
         "mesh": "grid",

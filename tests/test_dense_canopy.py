@@ -7,6 +7,7 @@ canopy height. Its plant mask, soil strips and canopy height are known.
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from conftest import uav_image
@@ -190,8 +191,6 @@ def test_dense_real_canopies_agree_with_an_independent_mask_and_stay_on_it(relat
     relief = build_relief(uav_image(relative), max_size=1000, two_sided=False)
     valid = None
     if relief.metadata.valid_mask is not None:
-        import cv2
-
         size = relief.working.shape[1::-1]
         valid = (
             cv2.resize(relief.metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0

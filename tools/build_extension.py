@@ -308,7 +308,7 @@ def run_builder(blender_ext_file, args):
     return proc.returncode, output
 
 
-def check_zip(zip_path, expected_by_python, manifest_id, *, blender_version_min="4.2.0"):
+def check_zip(zip_path, expected_by_python, manifest_id, *, blender_version_min="4.2.0", packages=PACKAGES):
     """Check a built zip: manifest, add-on entry points, every Python's wheels, no numpy, no tests.
 
     `expected_by_python` is {python: wheel file names}. For each Python, every package must have
@@ -342,7 +342,7 @@ def check_zip(zip_path, expected_by_python, manifest_id, *, blender_version_min=
     if extra:
         raise BuildError(f"{zip_path.name}: unexpected wheels {', '.join(extra)}")
     for python in expected_by_python:
-        for package in PACKAGES:
+        for package in packages:
             usable = [
                 w
                 for w in wheels

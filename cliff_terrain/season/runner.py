@@ -521,6 +521,15 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
                 ) from None
         else:
             n = workers if workers is not None else _usable_cores()
+            if memory_limit != "auto":
+                from dask.utils import parse_bytes
+
+                try:
+                    parse_bytes(memory_limit)
+                except (ValueError, TypeError):
+                    raise CliffTerrainError(
+                        f"`memory_limit` must be a size such as 2GiB or 'auto', got {memory_limit!r}"
+                    ) from None
             cluster = LocalCluster(
                 n_workers=n,
                 threads_per_worker=1,

@@ -324,6 +324,21 @@ class Test:
         self.checks["esc_cancels_the_job"] = (
             not self.job_module.JOBS and process_ended and bpy.context.scene.cliff_terrain.psnr == 0.0
         )
+        # A view listed in the panel opens in an Image Editor (a new window when none is open).
+        folder = bpy.path.abspath(bpy.context.scene.cliff_terrain.last_views)
+        path = os.path.join(folder, "xy.png")
+        window, area, region, _ = self.view3d()
+        with bpy.context.temp_override(window=window, area=area, region=region):
+            result = bpy.ops.cliff_terrain.open_view(filepath=path)
+        shown = [
+            a.spaces.active.image
+            for w in bpy.context.window_manager.windows
+            for a in w.screen.areas
+            if a.type == "IMAGE_EDITOR" and a.spaces.active.image is not None
+        ]
+        self.checks["view_opens_in_an_image_editor"] = result == {"FINISHED"} and any(
+            os.path.samefile(bpy.path.abspath(image.filepath), path) for image in shown
+        )
         self.finish()
         return None
 
