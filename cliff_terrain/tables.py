@@ -146,12 +146,47 @@ def point_geometries(rows):
 
 
 def polygon_geometries(plots):
-    return [
-        {"type": "MultiPolygon", "coordinates": [[ring.tolist()] for ring in rings]}
-        if len(rings) > 1
-        else {"type": "Polygon", "coordinates": [rings[0].tolist()]}
-        for rings in plots.polygons
+    """GeoJSON geometries of the plots: each ring inside an odd number of others is a hole of the
+    innermost ring around it (the even-odd rule the plots are read and rasterised with)."""
+    geometries = []
+    for rings in plots.polygons:
+        parts = [[ring.tolist()] for ring in _outer_rings(rings, holes=False)]
+        for hole, outer in _outer_rings(rings, holes=True):
+            parts[outer].append(hole.tolist())
+        if len(parts) == 1:
+            geometries.append({"type": "Polygon", "coordinates": parts[0]})
+        else:
+            geometries.append({"type": "MultiPolygon", "coordinates": parts})
+    return geometries
+
+
+def _outer_rings(rings, *, holes):
+    """The outer rings (even depth), or (hole, index of its outer ring among them) for the holes."""
+    inside = [
+        [j for j, other in enumerate(rings) if j != i and _contains(other, ring[0])]
+        for i, ring in enumerate(rings)
     ]
+    outer = [i for i in range(len(rings)) if len(inside[i]) % 2 == 0]
+    if not holes:
+        return [rings[i] for i in outer]
+    found = []
+    for i in range(len(rings)):
+        if len(inside[i]) % 2:
+            # The innermost enclosing outer ring: the one inside the most others.
+            parent = max((j for j in inside[i] if j in outer), key=lambda j: len(inside[j]))
+            found.append((rings[i], outer.index(parent)))
+    return found
+
+
+def _contains(ring, point):
+    """Whether `point` (x, y) lies inside the closed `ring` ((n, 2) array), by ray casting."""
+    x, y = point
+    xs, ys = ring[:, 0], ring[:, 1]
+    xn, yn = np.roll(xs, -1), np.roll(ys, -1)
+    crosses = (ys > y) != (yn > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        at = xs + (y - ys) * (xn - xs) / (yn - ys)
+    return bool(np.count_nonzero(crosses & (x < at)) % 2)
 
 
 def write_files(files):

@@ -7,7 +7,8 @@ to the console, it is reported as an ERROR naming the exception, and the operato
 way every datablock the build made (object, mesh, material, image) is removed first: the scene is
 left as it was.
 
-The new object is named after the photo, placed at the 3D cursor, selected and made active; user
+The new object is named after the photo, placed at the 3D cursor, selected and made active; in a
+window, every 3D view frames it and Solid shading shows its texture (:func:`show_relief`). User
 objects are never modified. Sizes: metres when the ground sampling distance is known (1 Blender unit
 = 1 m), otherwise "normalised units" (the longest side is 10 Blender units; the factor is recorded
 as ``blender_units_per_unit`` in the object's ``cliff_terrain`` custom property).

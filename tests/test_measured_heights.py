@@ -574,3 +574,30 @@ def test_heights_command_on_a_coarser_grid_the_user_chooses(field_files):
     assert chm.transform[:2, 2] == pytest.approx([500000.0, 4000000.0])
     # Plants' heights survive the coarser grid: the tallest plant's top within a few cm.
     assert np.nanmax(chm.data) == pytest.approx(truth.chm.max(), abs=0.05)
+
+
+def test_plot_geojson_keeps_holes_and_islands(tmp_path):
+    # A plot with a hole holding an island, and a second part: written as GeoJSON and read back, it
+    # burns into exactly the same pixels (a hole written as its own polygon would come back filled).
+    from cliff_terrain.tables import polygon_geometries, table_geojson
+
+    def square(a, b):
+        return np.array([[a, a], [b, a], [b, b], [a, b], [a, a]], dtype=float)
+
+    plots = PlotSet(
+        polygons=[[square(1, 19), square(5, 15), square(8, 12), square(22, 28)], [square(30, 34)]],
+        attributes=[{"name": "a"}, {"name": "b"}],
+        fields=("name",),
+        crs=32616,
+        path="memory",
+    )
+    geometries = polygon_geometries(plots)
+    assert [g["type"] for g in geometries] == ["MultiPolygon", "Polygon"]
+    assert [len(part) for part in geometries[0]["coordinates"]] == [2, 1, 1]  # outer + hole, island, part
+    path = tmp_path / "plots.geojson"
+    path.write_text(table_geojson([{"plot": 0}, {"plot": 1}], geometries, crs=32616))
+    again = read_plots(path)
+    transform = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 40.0]])
+    expected = rasterize_plots(plots, transform=transform, shape=(40, 40))
+    np.testing.assert_array_equal(rasterize_plots(again, transform=transform, shape=(40, 40)), expected)
+    assert np.count_nonzero(expected == 1) == 18 * 18 - 10 * 10 + 4 * 4 + 6 * 6
