@@ -100,8 +100,10 @@ class Job:
             "--",
             spec_path,
         ]
+        # The child's temporary files go into the job's folder, removed even when Esc kills it.
+        env = dict(os.environ, TMPDIR=self.folder, TEMP=self.folder, TMP=self.folder)
         self.process = subprocess.Popen(
-            command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1
+            command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, env=env
         )
         # A thread reads the child's output: the timer must never wait for it.
         self.reader = threading.Thread(target=self._read, daemon=True)

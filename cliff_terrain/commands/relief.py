@@ -1,8 +1,9 @@
 """``cliff-terrain relief IMAGE --out DIR``: the relief's maps and figures, without Blender.
 
 Writes ``height.tif`` (float32 heights on the processing grid, in the relief's units), ``mask.png``,
-``labels.tif`` (uint32 region ids) and ``relief.json`` (settings, units, region count, timings).
-Existing files are never replaced without ``--overwrite``.
+``labels.tif`` (uint32 region ids), ``regions.csv`` (one row per plant: centroid, area, diameter,
+cover, and heights and volume in metres when the GSD is known) and ``relief.json`` (settings, units,
+region count, timings), all or none. Existing files are never replaced without ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 from .. import settings
 
 HELP = "build a relief from one photo and write its height map, mask, regions and a summary"
-OUTPUTS = ("height.tif", "mask.png", "labels.tif", "relief.json")
+OUTPUTS = ("height.tif", "mask.png", "labels.tif", "regions.csv", "relief.json")
 
 
 def configure(parser):
@@ -53,6 +54,7 @@ def run(args):
 
     from ..errors import CliffTerrainError
     from ..pipeline import build_relief
+    from ..tables import REGION_COLUMNS, region_table, table_csv, write_files
 
     out = args.out
     if not args.overwrite:
@@ -69,25 +71,39 @@ def run(args):
         gsd=args.gsd,
         two_sided=False,
     )
+    metric = relief.units == "m"
+    regions = region_table(
+        relief.labels,
+        heights=relief.heights if metric else None,
+        pixel_size=relief.pixel_size if metric else None,
+    )
+    summary = {
+        "image": str(args.image),
+        "regions": relief.n_regions,
+        "cover": float(relief.mask.mean()),
+        "max_height": relief.max_height,
+        "units": relief.units,
+        "pixel_size": float(relief.pixel_size),
+        "grid": list(relief.heights.shape),
+        "params": {
+            k: v for k, v in relief.params.items() if isinstance(v, (str, int, float, bool, type(None)))
+        },
+        "timings_s": {k: round(float(v), 4) for k, v in relief.timings.items()},
+    }
+    heights = np.ascontiguousarray(relief.heights, dtype=np.float32)
+    files = {
+        out / "height.tif": lambda tmp: tifffile.imwrite(tmp, heights),
+        out / "labels.tif": lambda tmp: tifffile.imwrite(tmp, relief.labels.astype(np.uint32)),
+        out / "mask.png": lambda tmp: Image.fromarray(relief.mask.astype(np.uint8) * 255).save(
+            tmp, format="PNG"
+        ),
+        # Heights in metres only with a GSD; in pixels the table keeps areas and diameters in pixels.
+        out / "regions.csv": table_csv(regions, REGION_COLUMNS),
+        out / "relief.json": json.dumps(summary, indent=2) + "\n",
+    }
     try:
         out.mkdir(parents=True, exist_ok=True)
-        tifffile.imwrite(out / "height.tif", np.ascontiguousarray(relief.heights, dtype=np.float32))
-        tifffile.imwrite(out / "labels.tif", relief.labels.astype(np.uint32))
-        Image.fromarray(relief.mask.astype(np.uint8) * 255).save(out / "mask.png")
-        summary = {
-            "image": str(args.image),
-            "regions": relief.n_regions,
-            "cover": float(relief.mask.mean()),
-            "max_height": relief.max_height,
-            "units": relief.units,
-            "pixel_size": float(relief.pixel_size),
-            "grid": list(relief.heights.shape),
-            "params": {
-                k: v for k, v in relief.params.items() if isinstance(v, (str, int, float, bool, type(None)))
-            },
-            "timings_s": {k: round(float(v), 4) for k, v in relief.timings.items()},
-        }
-        (out / "relief.json").write_text(json.dumps(summary, indent=2) + "\n")
+        write_files(files)  # all or nothing
     except OSError as exc:
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
     print(
