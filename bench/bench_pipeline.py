@@ -41,7 +41,13 @@ for _ in range(repeat):
         relief = build_relief(path, max_size=int(case))
         timings = relief.timings
     times.append(time.perf_counter() - t)
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+# VmHWM: this process's own peak. ru_maxrss would carry over the parent's peak (Linux keeps it
+# across fork and exec), and bench/run_all.py's process has grown large by then.
+try:
+    with open("/proc/self/status") as status:
+        peak = next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 print(json.dumps({{"best_s": min(times), "peak_rss_bytes": peak, "timings": timings}}))
 """
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -67,8 +68,8 @@ def table(rows):
     return "\n".join(lines)
 
 
-def write_readme(rows, readme=README):
-    """Put the table (with the machine and the day it ran) between the README's markers."""
+def write_readme(rows, readme=README, *, start_load=None):
+    """Put the table (with the machine, its load and the day it ran) between the README's markers."""
     sys.path.insert(0, str(HERE))
     import cv2
     import numpy as np
@@ -79,11 +80,12 @@ def write_readme(rows, readme=README):
         raise RuntimeError(f"{readme.name} needs one {BEGIN!r} line, then one {END!r} line")
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)
+    started = "" if start_load is None else f" (it was {start_load:.2f} when the run started)"
     block = (
-        f"Measured by `make bench` on {date.today().isoformat()}: {describe()}, "
-        f"numpy {np.__version__}, OpenCV {cv2.__version__}. The load average is the machine's as the run "
-        "ended (other processes may share its cores: absolute times move with the load, ratios "
-        "less).\n\n" + table(rows)
+        f"Measured by `make bench` on {date.today().isoformat()}: {describe()}{started}, "
+        f"numpy {np.__version__}, OpenCV {cv2.__version__}. The load average is the machine's as the "
+        "run ended: other processes may share its cores, and absolute times move with the load more "
+        "than ratios do.\n\n" + table(rows)
     )
     readme.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
     print(f"\nwrote {len(rows)} rows into {readme.name}")
@@ -91,6 +93,7 @@ def write_readme(rows, readme=README):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
+    start_load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     selected = [p for p in sorted(HERE.glob("bench_*.py")) if not argv or any(a in p.stem for a in argv)]
     results, failed = {}, []
     for path in selected:
@@ -107,7 +110,8 @@ def main(argv=None):
         print(f"\nfailed: {', '.join(failed)}; the README is left as it was", file=sys.stderr)
         return 1
     if not argv:
-        write_readme([tuple(row) for figures in results.values() for row in figures.get("rows", [])])
+        rows = [tuple(row) for figures in results.values() for row in figures.get("rows", [])]
+        write_readme(rows, start_load=start_load)
     return 0
 
 

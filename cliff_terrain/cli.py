@@ -53,9 +53,8 @@ def build_parser():
 
 def main(argv=None):
     """Run the command line; return the exit status (0 ok, 1 some work failed, 2 bad input)."""
-    from .errors import CliffTerrainError
-
     from ._deps import check_required
+    from .errors import CliffTerrainError
 
     args = build_parser().parse_args(argv)
     try:

@@ -99,7 +99,7 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         self.report(
             {"INFO"},
             f"Built {obj.name}: {len(obj.data.vertices)} vertices, {info['regions']} regions, "
-            f"units {info['units']}",
+            + ("sizes in metres" if info["units"] == "m" else "relative units (longest side = 10)"),
         )
         return {"FINISHED"}
 

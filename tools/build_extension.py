@@ -83,6 +83,8 @@ PACKAGES = (
     # Surface models and orthophotos (LZW/Deflate GeoTIFFs) and plot polygons (ESRI Shapefiles).
     "imagecodecs",
     "pyshp",
+    # The adaptive mesh (Garland-Heckbert greedy insertion); it needs numpy only.
+    "pydelatin",
 )
 # Versions of the packages requirements.txt does not pin (the ones pip resolved for the .venv).
 EXTRA_PINS = {
