@@ -9,8 +9,10 @@ Ours: ``bpy.ops.cliff_terrain.build_relief`` on a real crop-field photo (a 3501x
   core's libraries (SciPy, scikit-image, OpenCV): it is what a user's first build costs. Run in
   ``--fresh`` separate processes.
 * **Later builds** (warm), in this process, ``--repeat`` times.
-* **The stages apart**: the core alone (``build_relief``), then the mesh transfer, then the material.
-  The operator runs exactly these one after the other.
+* **The stages apart**, one after the other: the core alone (``build_relief``), then the mesh
+  transfer, then the material: the plain sequential build, timed beside each warm build of ours. The
+  operator moves the mesh into Blender while the core computes (its ``mesh_sink``), so its whole
+  takes less than the sum of these.
 
 The peer: what a Blender user does with a height map - a Grid primitive with the same vertex count,
 a Displace modifier driven by the height image as an image texture (UV mapped), then Apply, in this
@@ -217,12 +219,20 @@ def table_rows(r):
         ),
         (
             f"the same, later builds in the same Blender ({bpy_version})",
-            f"{_spread(r['ours_runs_s'])} over {len(r['ours_runs_s'])} builds (apart: core "
-            f"{r['stages_s']['core']:.2f} s, mesh transfer {r['stages_s']['mesh_transfer']:.2f} s, "
-            f"material {r['stages_s']['material']:.2f} s)",
+            f"{_spread(r['ours_runs_s'])} over {len(r['ours_runs_s'])} builds",
             "the same peer",
             f"{r['ratio']:.2f}x best to best, {r['median_ratio']:.2f}x median to median",
             f">= {r['goal']:g}x ({met})",
+        ),
+        (
+            f"the same without moving the mesh in while the core computes ({bpy_version}): core, "
+            "then mesh transfer, then material",
+            f"{_spread(r['sequential_runs_s'])} (the last: core {r['stages_s']['core']:.2f} s, mesh "
+            f"transfer {r['stages_s']['mesh_transfer']:.2f} s, material {r['stages_s']['material']:.2f} s)",
+            "the operator (ours above)",
+            f"the operator takes {statistics.median(r['ours_runs_s']) / statistics.median(r['sequential_runs_s']):.2f}x "
+            "the time, median to median",
+            "reported",
         ),
     ]
 
@@ -249,8 +259,11 @@ def main(argv=None):
         addon, registered_here = load_addon()
         try:
             bpy.ops.cliff_terrain.build_relief(filepath=str(photo), max_size=64)  # imports
-            relief, stages = time_stages(photo, args.max_size)
-            ours = [time_ours(photo, args.max_size) for _ in range(max(1, args.repeat))]
+            ours, sequential = [], []
+            for _ in range(max(1, args.repeat)):  # alternating, so that both see the same machine
+                ours.append(time_ours(photo, args.max_size))
+                relief, stages = time_stages(photo, args.max_size)
+                sequential.append(stages)
             peers = [time_peer(relief.heights) for _ in range(max(1, args.repeat))]
             clear_scene()
         finally:
@@ -280,6 +293,7 @@ def main(argv=None):
         "median_ratio": statistics.median(peer_runs) / statistics.median(ours_runs),
         "goal": GOAL,
         "stages_s": stages,
+        "sequential_runs_s": [sum(v for k, v in st.items() if k != "core_stages") for st in sequential],
         "regions": ours[0][2]["regions"],
     }
     result["meets_goal"] = result["ratio"] >= GOAL
@@ -296,6 +310,7 @@ def main(argv=None):
     print(
         f"later builds (whole operator): {_spread(ours_runs)}; every run (s): {' '.join(f'{s:.2f}' for s in ours_runs)}"
     )
+    print(f"sequential (core, then transfer, then material): {_spread(result['sequential_runs_s'])}")
     print(
         f"  apart: core {stages['core']:.2f} s, mesh transfer {stages['mesh_transfer']:.2f} s, material "
         f"{stages['material']:.2f} s; core stages (s): "

@@ -2,8 +2,8 @@
 
 The operator runs on the benchmark's photo (see bench_blender_build.py) with the core's and the
 add-on's main steps wrapped in timers; each run prints a table of (thread, start ms, end ms,
-duration ms, step), in start order. It shows which steps of the main thread (the mesh's topology, then Blender's
-calls) run beside which steps of the core's worker thread (decoding, filter, segmentation, heights). The timers add
+duration ms, step), in start order. It shows which steps of the main thread (Blender's calls) run
+beside which steps of the worker thread (decoding, segmentation, the watershed). The timers add
 about a millisecond. Not a benchmark: no peer, no ratio.
 
     python bench/build_timeline.py [--max-size 2000] [--runs 3]
@@ -43,10 +43,17 @@ STEPS = {
         "colour_edges",
         "_label4",
         "label_max",
-        "split_regions",
+        "_watershed_raveled",
         "inner_boundaries",
     ],
-    "operators.build": ["mesh_from_arrays", "load_photo", "relief_material"],
+    "operators.build": [
+        "allocate_mesh",
+        "checked_topology",
+        "fill_topology",
+        "set_positions",
+        "load_photo",
+        "relief_material",
+    ],
 }
 
 

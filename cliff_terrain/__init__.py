@@ -19,6 +19,7 @@ _EXPORTS = {
     "FieldTruth": "synthetic",
     "ImageMetadata": "image_io",
     "MeshArrays": "mesh",
+    "MeshSink": "pipeline",
     "MeshSizes": "mesh",
     "OpenImage": "image_io",
     "Relief": "pipeline",

@@ -23,11 +23,19 @@ Two modes:
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from skimage import filters, segmentation
+
+try:  # scikit-image's flooding kernel, for _flood (pinned version; the public function otherwise)
+    from skimage.morphology._util import _offsets_to_raveled_neighbors, _validate_connectivity
+    from skimage.segmentation._watershed_cy import watershed_raveled as _watershed_raveled
+except ImportError:  # pragma: no cover
+    _watershed_raveled = None
 
 from ._validate import check_choice, check_int, check_rgb
 from .errors import CliffTerrainError
@@ -501,7 +509,7 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
         landscape -= smooth
     else:
         landscape = np.negative(smooth)
-    flooded = segmentation.watershed(landscape, markers, mask=flood_mask)
+    flooded = _flood(landscape, markers, flood_mask)
     # Number the result 1..n without gaps: the components left whole first, in their order, then
     # the watershed's basins in marker order (each basin holds at least its marker).
     whole = ~split
@@ -516,6 +524,56 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     labels = component_label[components]
     labels += basin_label[flooded]
     return labels
+
+
+# build_relief's worker learns through this when the watershed's kernel (its longest step, which
+# releases the GIL) starts: a scheduling concern of the pipeline, so not a public parameter.
+_watershed_hook = threading.local()
+
+
+@contextlib.contextmanager
+def _before_watershed(callback):
+    """Within the block, call `callback()` in this thread just before each watershed kernel runs."""
+    _watershed_hook.callback = callback
+    try:
+        yield
+    finally:
+        _watershed_hook.callback = None
+
+
+def _flood(landscape, markers, mask):
+    """``skimage.segmentation.watershed(landscape, markers, mask=mask)``, 4-connected.
+
+    The same preparation and the same flooding kernel as scikit-image's, called in two steps so
+    that the callback of :func:`_before_watershed` runs after the preparation (numpy steps that
+    need the GIL) and just before the kernel (which releases it). Falls back to the public
+    function if scikit-image's internals move.
+    """
+    on_watershed = getattr(_watershed_hook, "callback", None)
+    if _watershed_raveled is None:
+        if on_watershed is not None:
+            on_watershed()
+        return segmentation.watershed(landscape, markers, mask=mask)
+    # As scikit-image's wrapper: float64 image, int8 mask and int32 markers (inside the mask),
+    # padded by a pixel of zeros so that the kernel never steps past the border.
+    rows, cols = mask.shape
+    image = np.zeros((rows + 2, cols + 2), dtype=np.float64)
+    image[1:-1, 1:-1] = landscape
+    flat_mask = np.zeros((rows + 2, cols + 2), dtype=np.int8)
+    flat_mask[1:-1, 1:-1] = mask
+    flat_mask = flat_mask.ravel()
+    output = np.zeros((rows + 2, cols + 2), dtype=np.int32)
+    np.multiply(markers, mask, out=output[1:-1, 1:-1], casting="unsafe")
+    footprint, offset = _validate_connectivity(2, 1, None)
+    neighbours = _offsets_to_raveled_neighbors(image.shape, footprint, center=offset)
+    marker_locations = np.flatnonzero(output)
+    strides = np.array(image.strides, dtype=np.intp) // image.itemsize
+    if on_watershed is not None:
+        on_watershed()
+    _watershed_raveled(
+        image.ravel(), marker_locations, neighbours, flat_mask, strides, 0.0, output.ravel(), False
+    )
+    return output[1:-1, 1:-1]
 
 
 def _label4(mask):

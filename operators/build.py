@@ -20,7 +20,7 @@ from pathlib import Path
 import bpy
 
 from ..scene.material import load_photo, relief_material
-from ..scene.mesh_data import mesh_from_arrays
+from ..scene.mesh_data import allocate_mesh, checked_topology, fill_topology, mesh_from_arrays, set_positions
 from .properties import PARAMETER_NAMES, ReliefParameters
 
 # Without a known ground sampling distance the relief is scaled so its longest side is this many
@@ -78,9 +78,10 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 def on_progress(fraction, stage):
                     progress(PIPELINE_SHARE * fraction, stage)
 
-                relief = build_relief(path, progress=on_progress, **params)
+                sink = _ReliefMesh(relief_name(path), created)
+                relief = build_relief(path, progress=on_progress, mesh_sink=sink, **params)
                 progress(PIPELINE_SHARE, "building the mesh")
-                obj = build_relief_object(context, relief, path, params, created=created)
+                obj = build_relief_object(context, relief, path, params, created=created, mesh=sink.mesh)
                 progress(1.0, "done")
         except CliffTerrainError as exc:
             _remove(created)
@@ -165,6 +166,30 @@ def _fit_visible_part(space, regions, region, rv3d, per_pixel):
     rv3d.view_location += (rv3d.view_rotation @ Vector((1.0, 0.0, 0.0))) * shift
 
 
+class _ReliefMesh:
+    """The relief's Blender mesh, made while the core computes (its ``mesh_sink``).
+
+    Each step comes when the core's worker least needs the GIL that Blender's calls hold:
+    elements are allocated while it decodes the photo, the faces, edges and UVs are checked
+    (numpy) while it segments and are copied in while it floods the watershed. The mesh goes
+    into `created` as soon as it exists.
+    """
+
+    def __init__(self, name, created):
+        self.name, self.created = name, created
+        self.mesh = self.topology = None
+
+    def allocate(self, sizes):
+        self.mesh = allocate_mesh(self.name, sizes)
+        self.created.append(self.mesh)
+
+    def prepare(self, mesh_arrays):
+        self.topology = checked_topology(mesh_arrays)
+
+    def fill(self):
+        fill_topology(self.mesh, self.topology)
+
+
 def relief_scale(relief):
     """Blender units per core unit: 1 for metres, else the longest side becomes NORMALISED_SIZE."""
     if relief.units == "m":
@@ -178,17 +203,20 @@ def relief_name(path):
     return Path(path).stem or "relief"
 
 
-def build_relief_object(context, relief, path, params, *, created):
+def build_relief_object(context, relief, path, params, *, created, mesh=None):
     """Make the relief's mesh, material and object, linked to the active collection.
 
     Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
-    all if a later step fails. The mesh goes into Blender once the core has finished: moving parts
-    of it in while the core computes saved nothing measurable (bench/bench_blender_build.py).
+    all if a later step fails. `mesh`, if given, is the relief's mesh with its faces, edges and UVs
+    filled (already in `created`) and only needs its vertices placed.
     """
     name = relief_name(path)
     scale = relief_scale(relief)
-    mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
-    created.append(mesh)
+    if mesh is None:
+        mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
+        created.append(mesh)
+    else:
+        set_positions(mesh, relief.mesh.vertices, scale=scale)
     image, image_created = load_photo(path, metadata=relief.metadata, fallback_rgb=relief.image, name=name)
     if image_created:
         created.append(image)

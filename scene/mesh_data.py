@@ -6,7 +6,9 @@ for the UVs, then ``Mesh.update``): about 1.7 s for 2.7 M vertices and 10.7 M co
 1.7 s is ``update(calc_edges=True)`` deriving the edges; when the core gives them (``edges``,
 ``corner_edges``: ``.edge_verts`` and ``.corner_edge``) the transfer takes about 0.3 s. The same calls
 work on Blender 4.2 and 5.0 (face sizes follow from ``loop_start``; a FLOAT2 corner attribute is a UV
-map). Used by the build operator and the render script.
+map). Used by the build operator (in steps while the core computes the heights:
+:func:`allocate_mesh`, :func:`checked_topology`, :func:`fill_topology`, then
+:func:`set_positions`) and the render script.
 """
 
 from typing import NamedTuple
@@ -114,36 +116,63 @@ def checked_topology(mesh_arrays):
     )
 
 
-def topology_mesh(name, topology, *, uv_name=UV_NAME):
-    """A new mesh with the faces, edges and UVs of a :class:`Topology`; vertices not placed yet.
+def allocate_mesh(name, sizes):
+    """A new mesh with room for `sizes` vertices, corners, faces and edges, none of them written yet.
 
-    Nothing is left behind if this raises.
+    `sizes` has ``n_vertices``, ``n_corners``, ``n_faces`` and ``n_edges`` (a
+    :class:`cliff_terrain.mesh.MeshSizes` or a :class:`Topology`). Allocating is most of the cost
+    of a big mesh (Blender zeroes the memory), so the build operator does it while the core
+    decodes the photo; :func:`fill_topology` writes the faces, edges and UVs.
     """
     mesh = bpy.data.meshes.new(name)
     try:
-        # Allocating is most of the cost of a big mesh (Blender zeroes the memory).
-        mesh.vertices.add(topology.n_vertices)
-        mesh.loops.add(topology.n_corners)
-        mesh.polygons.add(topology.n_faces)
-        mesh.edges.add(topology.n_edges)
-        mesh.attributes[".corner_vert"].data.foreach_set("value", topology.corner_verts)
-        mesh.polygons.foreach_set("loop_start", topology.face_offsets)
-        if topology.edges is not None:
-            # The core knows the grid's edges; deriving them is most of update()'s time.
-            mesh.attributes[".edge_verts"].data.foreach_set("value", topology.edges.ravel())
-            mesh.attributes[".corner_edge"].data.foreach_set("value", topology.corner_edges)
-        uv = mesh.attributes.new(uv_name, "FLOAT2", "CORNER")
-        uv.data.foreach_set("vector", topology.uvs.ravel())
-        uv_layer = mesh.uv_layers[uv_name]
-        mesh.uv_layers.active = uv_layer
-        uv_layer.active_render = True
-        if topology.n_front_faces < topology.n_faces:
-            # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
-            sharp = np.zeros(topology.n_faces, dtype=bool)
-            sharp[topology.n_front_faces :] = True
-            mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
-        if topology.edges is None:
-            mesh.update(calc_edges=True)
+        mesh.vertices.add(sizes.n_vertices)
+        mesh.loops.add(sizes.n_corners)
+        mesh.polygons.add(sizes.n_faces)
+        mesh.edges.add(sizes.n_edges)
+    except BaseException:
+        bpy.data.meshes.remove(mesh)
+        raise
+    return mesh
+
+
+def fill_topology(mesh, topology, *, uv_name=UV_NAME):
+    """Write a :class:`Topology`'s faces, edges and UVs into a mesh from :func:`allocate_mesh`.
+
+    The vertices are placed later by :func:`set_positions`. Raises ValueError if the mesh was
+    allocated for other sizes.
+    """
+    allocated = (len(mesh.vertices), len(mesh.loops), len(mesh.polygons), len(mesh.edges))
+    if allocated != (topology.n_vertices, topology.n_corners, topology.n_faces, topology.n_edges):
+        raise ValueError(
+            f"mesh {mesh.name!r} has room for {allocated} vertices, corners, faces and edges; the "
+            f"topology has {(topology.n_vertices, topology.n_corners, topology.n_faces, topology.n_edges)}"
+        )
+    mesh.attributes[".corner_vert"].data.foreach_set("value", topology.corner_verts)
+    mesh.polygons.foreach_set("loop_start", topology.face_offsets)
+    if topology.edges is not None:
+        # The core knows the grid's edges; deriving them is most of update()'s time.
+        mesh.attributes[".edge_verts"].data.foreach_set("value", topology.edges.ravel())
+        mesh.attributes[".corner_edge"].data.foreach_set("value", topology.corner_edges)
+    uv = mesh.attributes.new(uv_name, "FLOAT2", "CORNER")
+    uv.data.foreach_set("vector", topology.uvs.ravel())
+    uv_layer = mesh.uv_layers[uv_name]
+    mesh.uv_layers.active = uv_layer
+    uv_layer.active_render = True
+    if topology.n_front_faces < topology.n_faces:
+        # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
+        sharp = np.zeros(topology.n_faces, dtype=bool)
+        sharp[topology.n_front_faces :] = True
+        mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
+    if topology.edges is None:
+        mesh.update(calc_edges=True)
+
+
+def topology_mesh(name, topology, *, uv_name=UV_NAME):
+    """A new mesh with the faces, edges and UVs of a :class:`Topology`; vertices not placed yet."""
+    mesh = allocate_mesh(name, topology)
+    try:
+        fill_topology(mesh, topology, uv_name=uv_name)
     except BaseException:
         bpy.data.meshes.remove(mesh)
         raise

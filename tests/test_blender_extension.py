@@ -117,6 +117,20 @@ def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene, databloc
     assert datablock_counts() == before
 
 
+def test_a_mesh_allocated_for_other_sizes_is_not_filled(addon, core, scene):
+    mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
+    topology = mesh_data.checked_topology(core.grid_mesh(np.zeros((3, 4))))
+    mesh = mesh_data.allocate_mesh("other", core.mesh.grid_sizes((3, 5)))
+    with pytest.raises(
+        ValueError, match=r"mesh 'other' has room for \(40, 140, 32, 70\) vertices, corners, faces"
+    ):
+        mesh_data.fill_topology(mesh, topology)
+    right = mesh_data.allocate_mesh("right", core.mesh.grid_sizes((3, 4)))
+    mesh_data.fill_topology(right, topology)
+    mesh_data.set_positions(right, core.grid_mesh(np.zeros((3, 4))).vertices)
+    assert right.validate(verbose=False) is False
+
+
 # ---- the operator on real photos ----
 
 

@@ -47,31 +47,105 @@ def test_stages_are_consistent(field):
     assert relief.params["max_size"] == 450 and relief.units == "px"
 
 
-def test_progress_reaches_the_calling_thread_while_the_worker_runs(field, tmp_path):
+class RecordingSink:
+    """A mesh sink that records which step came when, in which thread."""
+
+    def __init__(self, on_fill=None):
+        import threading
+
+        self.calls, self.on_fill, self.thread = [], on_fill, threading.get_ident
+        self.sizes = self.mesh = None
+
+    def allocate(self, sizes):
+        self.sizes = sizes
+        self.calls.append(("allocate", self.thread()))
+
+    def prepare(self, mesh):
+        # The worker filters and segments meanwhile: the grid is known, the heights are not.
+        self.mesh = mesh
+        self.calls.append(("prepare", self.thread(), mesh.grid_shape, float(np.abs(mesh.vertices).max())))
+
+    def fill(self):
+        self.calls.append(("fill", self.thread()))
+        if self.on_fill is not None:
+            self.on_fill()
+
+
+def test_the_mesh_and_progress_reach_the_calling_thread_while_the_worker_runs(field, tmp_path):
     import threading
 
     from PIL import Image
+
+    from cliff_terrain.mesh import grid_sizes
 
     image, _ = field
     path = tmp_path / "field.jpg"
     Image.fromarray(image).save(path, quality=95)
     caller = threading.get_ident()
     for source in (image, path):
-        stages = []
+        sink, stages = RecordingSink(), []
         relief = build_relief(
             source,
             max_size=450,
             progress=lambda f, s, stages=stages: stages.append((s, threading.get_ident())),
+            mesh_sink=sink,
         )
+        # In order, once each, in the calling thread; the vertices are placed only afterwards.
+        assert sink.calls == [("allocate", caller), ("prepare", caller, (300, 450), 0.0), ("fill", caller)]
+        assert sink.sizes == grid_sizes((300, 450)) and sink.mesh is relief.mesh
+        assert relief.mesh.vertices[:, 2].max() == pytest.approx(relief.max_height, rel=0.05)
         assert [s for s, _ in stages] == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
         assert {t for _, t in stages} == {caller}
-        assert relief.mesh.vertices[:, 2].max() == pytest.approx(relief.max_height, rel=0.05)
+        # Without a sink the result is the same, array for array.
+        plain = build_relief(source, max_size=450)
+        for name in ("working", "labels", "heights"):
+            np.testing.assert_array_equal(getattr(relief, name), getattr(plain, name))
+        np.testing.assert_array_equal(relief.mesh.vertices, plain.mesh.vertices)
 
 
-def test_errors_of_the_worker_propagate(field, monkeypatch, tmp_path):
+def test_the_sink_fills_while_the_worker_is_in_the_watershed(field, monkeypatch):
+    import threading
+
+    import cliff_terrain.segmentation as segmentation
+
+    # Two touching plants: their blob needs the watershed.
+    rows, cols = np.mgrid[:120, :200]
+    image = np.full((120, 200, 3), (120, 90, 60), np.uint8)
+    plants = ((rows - 60) ** 2 + (cols - 70) ** 2 < 35**2) | ((rows - 60) ** 2 + (cols - 130) ** 2 < 35**2)
+    image[plants] = (40, 160, 40)
+    kernel = segmentation._watershed_raveled
+    assert kernel is not None, "scikit-image's watershed kernel moved: _flood falls back"
+    in_kernel, filled = threading.Event(), threading.Event()
+    seen = {}
+
+    def watched_kernel(*args):
+        in_kernel.set()
+        # The sink's fill must come now, while the worker is here (not after it finished).
+        seen["filled_during_kernel"] = filled.wait(timeout=30)
+        return kernel(*args)
+
+    def on_fill():
+        seen["kernel_started_first"] = in_kernel.is_set()
+        filled.set()
+
+    monkeypatch.setattr(segmentation, "_watershed_raveled", watched_kernel)
+    relief = build_relief(image, mesh_sink=RecordingSink(on_fill))
+    assert seen == {"kernel_started_first": True, "filled_during_kernel": True}
+    assert relief.n_regions == 2
+
+
+def test_errors_of_the_sink_and_of_the_worker_propagate(field, monkeypatch, tmp_path):
     import cliff_terrain.pipeline as pipeline
 
     image, _ = field
+
+    class Broken(RecordingSink):
+        def prepare(self, mesh):
+            raise RuntimeError("the caller's mesh failed")
+
+    with pytest.raises(RuntimeError, match="the caller's mesh failed"):
+        build_relief(image, max_size=300, mesh_sink=Broken())
+
     # A photo whose pixel data is cut: the header passes, the worker's decode fails.
     cut = tmp_path / "cut.jpg"
     from PIL import Image
@@ -79,17 +153,20 @@ def test_errors_of_the_worker_propagate(field, monkeypatch, tmp_path):
     Image.fromarray(image).save(cut, quality=95)
     data = cut.read_bytes()
     cut.write_bytes(data[: len(data) // 2])
+    sink = RecordingSink()
     with pytest.raises(CliffTerrainError, match="the file is truncated"):
-        build_relief(cut, max_size=300)
+        build_relief(cut, max_size=300, mesh_sink=sink)
+    assert [call[0] for call in sink.calls] == ["allocate", "prepare", "fill"]
 
     def failing_segment(*args, **kwargs):
         raise CliffTerrainError("segmentation failed in the worker")
 
     monkeypatch.setattr(pipeline, "segment", failing_segment)
-    stages = []
+    sink, stages = RecordingSink(), []
     with pytest.raises(CliffTerrainError, match="segmentation failed in the worker"):
-        build_relief(image, max_size=300, progress=lambda f, s: stages.append(s))
-    # Progress stopped at the failing stage.
+        build_relief(image, max_size=300, mesh_sink=sink, progress=lambda f, s: stages.append(s))
+    # The sink got every step (the worker's failure ends its wait); progress stopped at the failing stage.
+    assert [call[0] for call in sink.calls] == ["allocate", "prepare", "fill"]
     assert stages == ["load", "resize", "filter", "segment"]
 
 
@@ -146,6 +223,10 @@ def test_orthophoto_with_georeference_is_in_metres():
         ({"exaggeration": -1}, r"`exaggeration` must be > 0.0, got -1.0"),
         ({"gsd": 0}, r"`gsd` must be > 0.0, got 0.0"),
         ({"two_sided": "yes"}, "`two_sided` must be True or False, got 'yes'"),
+        (
+            {"mesh_sink": "mesh"},
+            "`mesh_sink` must have methods allocate, prepare and fill, or be None, got 'mesh'",
+        ),
         ({"progress": 3}, "`progress` must be callable or None, got 3"),
     ],
 )

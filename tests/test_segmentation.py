@@ -163,3 +163,25 @@ def test_inner_boundaries_match_scikit_image():
     labels[100:140, 100:200] = labels.max() + 1  # touching regions too
     expected = find_boundaries(labels, mode="inner", connectivity=1) & (labels > 0)
     np.testing.assert_array_equal(inner_boundaries(labels), expected)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_flood_is_scikit_images_watershed_with_a_hook_before_the_kernel(seed):
+    from skimage.segmentation import watershed
+
+    from cliff_terrain.segmentation import _before_watershed, _flood
+
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 60)), int(rng.integers(1, 60)))
+    # Few levels: plateaus, where the order of the queue decides.
+    landscape = rng.integers(0, 4, shape).astype(np.float32)
+    mask = rng.random(shape) < 0.8
+    markers = np.zeros(shape, np.int32)
+    seeds = rng.random(shape) < 0.05
+    markers[seeds] = rng.integers(1, 9, int(seeds.sum()))
+    calls = []
+    with _before_watershed(lambda: calls.append("kernel")):
+        flooded = _flood(landscape, markers, mask)
+    np.testing.assert_array_equal(_flood(landscape, markers, mask), flooded)  # no hook outside the block
+    np.testing.assert_array_equal(flooded, watershed(landscape, markers, mask=mask))
+    assert calls == ["kernel"]
