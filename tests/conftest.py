@@ -103,6 +103,36 @@ def datablock_counts(addon):
     return _datablock_counts
 
 
+def blender_only_site(tmp_path: Path) -> Path:
+    """A folder that holds only what a Blender without the extension has: bpy, numpy and bpy's own
+    dependencies (bpy 5.2 needs cattrs, for example), linked from this interpreter's site-packages.
+    Put it on PYTHONPATH of a ``python -S`` subprocess."""
+    import importlib.metadata
+    import re
+
+    site = tmp_path / "site"
+    site.mkdir()
+    wanted, seen = ["bpy", "numpy"], set()
+    while wanted:
+        name = re.split(r"[<>=!~;\[ ]", wanted.pop(), maxsplit=1)[0].lower()
+        if name in seen:
+            continue
+        seen.add(name)
+        try:
+            dist = importlib.metadata.distribution(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+        wanted += [r for r in dist.requires or () if "extra ==" not in r]
+        tops = {
+            f.parts[0] for f in dist.files or () if not f.parts[0].endswith((".dist-info", ".data", ".."))
+        }
+        for top in tops:
+            source = Path(dist.locate_file(top))
+            if source.exists() and not (site / top).exists() and top != "__pycache__":
+                (site / top).symlink_to(source)
+    return site
+
+
 def pytest_sessionfinish(session, exitstatus):
     session.config.cliff_terrain_exitstatus = int(exitstatus)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import SHARED_UAV as UAV
+from conftest import blender_only_site
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 bpy = pytest.importorskip("bpy")
@@ -209,20 +210,6 @@ print("RESULT " + json.dumps(out))
 """
 
 
-def isolated_site(tmp_path):
-    """A folder with only bpy and numpy (as in Blender), linked from this interpreter's site-packages."""
-    shim = tmp_path / "site"
-    shim.mkdir()
-    for name in ("bpy", "numpy"):
-        spec = importlib.util.find_spec(name)
-        package = Path(spec.submodule_search_locations[0])
-        (shim / name).symlink_to(package)
-        libs = package.parent / f"{name}.libs"  # numpy's bundled OpenBLAS
-        if libs.is_dir():
-            (shim / libs.name).symlink_to(libs)
-    return shim
-
-
 @pytest.mark.skipif(not MAIZE.is_file(), reason=f"real UAV image not found at {MAIZE}")
 def test_installed_zip_builds_a_relief_with_its_own_wheels(linux_zip, tmp_path):
     from cliff_terrain import build_relief, load_image
@@ -237,7 +224,7 @@ def test_installed_zip_builds_a_relief_with_its_own_wheels(linux_zip, tmp_path):
             "-S",
             "-c",
             INSTALL_AND_RUN,
-            str(isolated_site(tmp_path)),
+            str(blender_only_site(tmp_path)),
             str(linux_zip),
             str(MAIZE),
         ]

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import tifffile
-from conftest import RENDER_VIEWS_OUTPUTS
+from conftest import RENDER_VIEWS_OUTPUTS, blender_only_site
 from conftest import SHARED_UAV as UAV
 from PIL import Image
 
@@ -273,13 +273,7 @@ def test_not_an_image_exits_2_and_writes_nothing(tmp_path):
 
 def test_blender_without_the_extension_libraries_says_how_to_install_them(tmp_path):
     # As in a Blender without the extension: only bpy and numpy importable (python -S, no site).
-    site = tmp_path / "site"
-    site.mkdir()
-    for name in ("bpy", "numpy"):
-        package = Path(importlib.util.find_spec(name).submodule_search_locations[0])
-        (site / name).symlink_to(package)
-        if (package.parent / f"{name}.libs").is_dir():
-            (site / f"{name}.libs").symlink_to(package.parent / f"{name}.libs")
+    site = blender_only_site(tmp_path)
     photo = tmp_path / "p.png"
     Image.fromarray(np.zeros((32, 32, 3), np.uint8)).save(photo)
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
