@@ -48,8 +48,8 @@ def psnr(reference, test, *, data_range=None):
     Examples
     --------
     >>> a = np.zeros((4, 4), np.uint8); b = a.copy(); b[0, 0] = 16
-    >>> round(psnr(a, b), 2)
-    36.12
+    >>> round(psnr(a, b), 2)  # MSE 16^2 / 16 = 16: 10 log10(255^2 / 16)
+    36.09
     """
     ref, tst, data_range = _pair(reference, test, data_range)
     mse = float(np.mean((ref - tst) ** 2))
