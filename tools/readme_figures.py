@@ -21,7 +21,14 @@ sys.path.insert(0, str(ROOT))
 from cliff_terrain import build_relief, synthetic_field  # noqa: E402
 
 OUT = ROOT / "docs" / "images"
-VIEWS = ("xy.png", "xy_flat.png", "xz.png", "view3d.png", "mesh.png")
+# The demo's outputs -> the README's pictures: the annotated side view and mesh (ruler, colour bar).
+VIEWS = {
+    "xy.png": "xy.png",
+    "xy_flat.png": "xy_flat.png",
+    "xz_annotated.png": "xz.png",
+    "view3d.png": "view3d.png",
+    "mesh_annotated.png": "mesh.png",
+}
 
 
 def _panel(rgb, title, width):
@@ -49,7 +56,7 @@ def pipeline_figure(path, width=300):
         _panel(filtered, "quaternion filter", width),
         _panel(mask, f"mask, {relief.n_regions} regions", width),
         _panel(_colour(relief.distance), "distance map", width),
-        _panel(_colour(relief.heights), "heights (circular)", width),
+        _panel(_colour(relief.heights), f"heights ({relief.params['profile']})", width),
     ]
     gap = np.full((panels[0].shape[0], 6, 3), 255, np.uint8)
     row = np.hstack([p if i == 0 else np.hstack([gap, p]) for i, p in enumerate(panels)])
@@ -63,14 +70,14 @@ def main(argv=None):
     args = parser.parse_args(argv)
     OUT.mkdir(parents=True, exist_ok=True)
     pipeline_figure(OUT / "pipeline.png")
-    for name in VIEWS:
+    for name, target in VIEWS.items():
         src = args.demo / name
         if src.is_file():
             img = cv2.imread(str(src), cv2.IMREAD_COLOR)
             scale = 480 / img.shape[1]
             img = cv2.resize(img, (480, round(img.shape[0] * scale)), interpolation=cv2.INTER_AREA)
-            cv2.imwrite(str(OUT / name), img)
-            print(f"wrote {OUT / name}")
+            cv2.imwrite(str(OUT / target), img)
+            print(f"wrote {OUT / target}")
         else:
             print(f"skipped {name}: {src} not found (run `make demo` first)")
     return 0
