@@ -15,21 +15,17 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
-PACKAGE = "cliff_terrain_addon"
+# Blender's -P does not put the script's folder on sys.path; render_views.py (which imports no bpy
+# itself) holds the extension's one loader, the Blender start-up, the log and the exit.
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+from render_views import PACKAGE, InputError, leave, log, start_blender  # noqa: E402
+
 PROG = "render_season.py"
-_START = time.perf_counter()
-# Inside Blender (blender -b -P) bpy is loaded before this script runs; with the bpy wheel it is not.
-INSIDE_BLENDER = "bpy" in sys.modules
-
-
-class InputError(Exception):
-    """Bad input the user can fix: one line on stderr, exit status 2."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -83,37 +79,10 @@ def script_args(argv=None):
     return build_parser().parse_args(argv)
 
 
-def log(message):
-    print(f"[{time.perf_counter() - _START:6.1f} s] {message}", flush=True)
-
-
-def start_blender():
-    """Import bpy, start from an empty scene and register the extension from this folder."""
-    try:
-        import bpy
-    except ImportError:
-        raise InputError(
-            "Blender's Python module is missing: run `blender -b -P render_season.py -- SEASON_DIR` "
-            "or install the bpy wheel (pip install -r requirements-dev.txt)"
-        ) from None
-    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-    addon = sys.modules.get(PACKAGE)
-    if addon is None:
-        spec = importlib.util.spec_from_file_location(
-            PACKAGE, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
-        )
-        addon = importlib.util.module_from_spec(spec)
-        sys.modules[PACKAGE] = addon
-        spec.loader.exec_module(addon)
-    if not hasattr(bpy.types.Scene, "cliff_terrain"):
-        addon.register()
-    return bpy
-
-
 def run(args):
     season_dir = Path(args.season)
     out = Path(args.out) if args.out else season_dir / "animation"
-    bpy = start_blender()
+    bpy, _, _ = start_blender(usage="blender -b -P render_season.py -- SEASON_DIR")
     errors = importlib.import_module(f"{PACKAGE}.cliff_terrain.errors")
     outputs = importlib.import_module(f"{PACKAGE}.cliff_terrain.season.outputs")
     plots_module = importlib.import_module(f"{PACKAGE}.cliff_terrain.plots")
@@ -152,26 +121,6 @@ def main(argv=None):
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     return 0
-
-
-def leave(code):
-    """Exit with `code`.
-
-    bpy 4.2-4.5 as a Python module segfaults while the interpreter shuts down once a PropertyGroup
-    has been registered (as render_views.py explains): there, flush, remove Blender's session
-    folder and leave without the teardown, so the exit code is ours.
-    """
-    bpy = sys.modules.get("bpy")
-    if INSIDE_BLENDER or bpy is None or bpy.app.version >= (5, 0, 0):
-        sys.exit(code)
-    import os
-    import shutil
-
-    sys.stdout.flush()
-    sys.stderr.flush()
-    if bpy.app.tempdir:
-        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
-    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -299,13 +299,16 @@ def log(message):
     print(f"[{time.perf_counter() - _START:6.1f} s] {message}", flush=True)
 
 
-def start_blender():
-    """Import bpy, start from an empty scene and register the extension from this folder."""
+def start_blender(*, usage="blender -b -P render_views.py -- IMAGE"):
+    """Import bpy, start from an empty scene and register the extension from this folder.
+
+    `usage` is the Blender command the error names when bpy is missing (render_season.py's own).
+    """
     try:
         import bpy
     except ImportError:
         raise InputError(
-            "Blender's Python module is missing: run `blender -b -P render_views.py -- IMAGE` "
+            f"Blender's Python module is missing: run `{usage}` "
             "or install the bpy wheel (pip install -r requirements-dev.txt)"
         ) from None
     # An empty scene with factory settings; the preferences (and installed add-ons) stay untouched.

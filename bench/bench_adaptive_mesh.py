@@ -22,8 +22,6 @@ mesh. The photos are read from ../shared and never copied.
 from __future__ import annotations
 
 import argparse
-import gc
-import importlib.util
 import sys
 import tempfile
 import time
@@ -31,6 +29,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np
+
+# The extension registered in this process as the build benchmark loads it (render_views.addon_package).
+from bench_blender_build import ADDON, clear_scene, load_addon  # noqa: E402
 from machine_info import describe, machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,33 +49,7 @@ PHOTOS = (
     "dsm/fieldimager_ex2/odm_orthophoto.tif",
 )
 FULL_RES = "uav/caliterra/IMG_9370.jpg"  # 4000 x 3000
-ADDON = "cliff_terrain_addon"
 GOALS = {"triangle_ratio": 10.0, "blend_ratio": 5.0, "full_res_s": 3.0}
-
-
-def load_addon():
-    """The repository root as a package, registered (as Blender loads the extension)."""
-    import bpy
-
-    if ADDON not in sys.modules:
-        spec = importlib.util.spec_from_file_location(
-            ADDON, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
-        )
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[ADDON] = module
-        spec.loader.exec_module(module)
-    module = sys.modules[ADDON]
-    registered_here = not hasattr(bpy.types.Scene, "cliff_terrain")
-    if registered_here:
-        module.register()
-    return module, registered_here
-
-
-def clear_scene():
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    gc.collect()
 
 
 def run_operator(path, mesh, tmp, **kwargs):

@@ -52,8 +52,8 @@ STEPS = {
         "fill_topology",
         "set_positions",
         "load_photo",
-        "relief_material",
     ],
+    "scene.datablocks": ["relief_material"],
 }
 
 

@@ -255,15 +255,7 @@ def relief_tables(relief, *, plots=None, source=""):
     `source` names the orthophoto in errors.
     """
     from .errors import CliffTerrainError
-    from .plots import check_plot_crs, plot_table, rasterize_plots, table_columns
-    from .tables import (
-        REGION_COLUMNS,
-        point_geometries,
-        polygon_geometries,
-        region_table,
-        table_csv,
-        table_geojson,
-    )
+    from .tables import REGION_COLUMNS, point_geometries, region_table, table_csv, table_geojson
 
     canopy = relief.canopy
     if canopy is None:
@@ -279,13 +271,24 @@ def relief_tables(relief, *, plots=None, source=""):
         "regions.geojson": table_geojson(regions, point_geometries(regions), crs=canopy.crs),
     }
     if plots is not None:
-        check_plot_crs(plots, canopy.crs, raster=source)
-        labels = rasterize_plots(plots, transform=canopy.transform, shape=canopy.chm.shape)
-        if not labels.any():
-            raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
-        rows = plot_table(
-            plots, labels, mask=relief.mask, heights=canopy.chm, pixel_area_m2=canopy.pixel_area_m2
-        )
-        files["plots.csv"] = table_csv(rows, table_columns(plots))
-        files["plots.geojson"] = table_geojson(rows, polygon_geometries(plots), crs=canopy.crs)
+        files.update(_plot_tables(plots, canopy, heights=canopy.chm, mask=relief.mask, source=source))
     return files
+
+
+def _plot_tables(plots, canopy, *, heights, mask, source):
+    """``plots.csv`` and ``plots.geojson`` ({file name: text}) of `plots` on `canopy`'s grid.
+
+    `heights` and `mask` are on that grid; `source` names the orthophoto in errors.
+    """
+    from .plots import check_plot_crs, plot_table, rasterize_plots, table_columns
+    from .tables import polygon_geometries, table_csv, table_geojson
+
+    check_plot_crs(plots, canopy.crs, raster=source)
+    labels = rasterize_plots(plots, transform=canopy.transform, shape=heights.shape)
+    if not labels.any():
+        raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
+    rows = plot_table(plots, labels, mask=mask, heights=heights, pixel_area_m2=canopy.pixel_area_m2)
+    return {
+        "plots.csv": table_csv(rows, table_columns(plots)),
+        "plots.geojson": table_geojson(rows, polygon_geometries(plots), crs=canopy.crs),
+    }

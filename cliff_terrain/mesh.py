@@ -77,16 +77,18 @@ class MeshArrays:
 
     def edge_face_counts(self) -> np.ndarray:
         """Number of faces using each undirected edge (2 everywhere for a watertight mesh)."""
+        _, counts = np.unique(self._corner_edge_keys(), return_counts=True)
+        return counts
+
+    def _corner_edge_keys(self) -> np.ndarray:
+        """(n_corners,) int64 key of the edge from each corner to the next: min * n_vertices + max."""
         starts = self.face_offsets
         nxt = np.arange(1, self.corner_verts.size + 1, dtype=np.int64)
         # The corner after the last corner of a face is that face's first corner.
-        ends = starts + self.face_sizes
-        nxt[ends - 1] = starts
+        nxt[starts + self.face_sizes - 1] = starts
         a = self.corner_verts.astype(np.int64)
-        b = self.corner_verts[nxt].astype(np.int64)
-        keys = np.minimum(a, b) * self.n_vertices + np.maximum(a, b)
-        _, counts = np.unique(keys, return_counts=True)
-        return counts
+        b = a[nxt]
+        return np.minimum(a, b) * self.n_vertices + np.maximum(a, b)
 
 
 class MeshSizes(NamedTuple):
@@ -266,51 +268,42 @@ def grid_topology(shape, *, two_sided=True):
     # Touch the pages now: place_vertices runs last, when nothing else can run beside it.
     vertices.fill(0.0)
     if not two_sided:
-        return MeshArrays(
-            vertices=vertices,
-            face_sizes=np.full(n_front, 4, dtype=np.int32),
-            corner_verts=corner_verts,
-            uvs=uvs,
-            n_front_faces=n_front,
-            grid_shape=(rows, cols),
-            edges=edges,
-            corner_edges=corner_edges,
-        )
+        face_sizes = np.full(n_front, 4, dtype=np.int32)
+    else:
+        ring = border_ring(rows, cols)
+        base_idx = np.arange(vr * vc, n_vertices, dtype=np.int32)
+        nxt = np.roll(np.arange(n_ring), -1)
+        # Walls face outwards: top_i, base_i, base_i+1, top_i+1; the base is one n-gon, clockwise
+        # from above so that its normal points down.
+        walls = corner_verts[4 * n_front : 4 * n_front + 4 * n_ring].reshape(n_ring, 4)
+        walls[:, 0], walls[:, 1], walls[:, 2], walls[:, 3] = ring, base_idx, base_idx[nxt], ring[nxt]
+        corner_verts[4 * n_front + 4 * n_ring :] = base_idx[::-1]
 
-    ring = border_ring(rows, cols)
-    base_idx = np.arange(vr * vc, n_vertices, dtype=np.int32)
-    nxt = np.roll(np.arange(n_ring), -1)
-    # Walls face outwards: top_i, base_i, base_i+1, top_i+1; the base is one n-gon, clockwise
-    # from above so that its normal points down.
-    walls = corner_verts[4 * n_front : 4 * n_front + 4 * n_ring].reshape(n_ring, 4)
-    walls[:, 0], walls[:, 1], walls[:, 2], walls[:, 3] = ring, base_idx, base_idx[nxt], ring[nxt]
-    corner_verts[4 * n_front + 4 * n_ring :] = base_idx[::-1]
+        # Back UVs: the front UV of the vertex (or of the border vertex a base vertex sits under), u + 1.
+        back = corner_verts[4 * n_front :]
+        front_vertex = np.where(back >= vr * vc, ring[np.clip(back - vr * vc, 0, n_ring - 1)], back)
+        # The left edge (u = 0) moves in by half a texel, so that u > 1 holds for every back corner.
+        uvs[4 * n_front :, 0] = np.maximum(u[front_vertex % vc], np.float32(0.5 / cols)) + 1.0
+        uvs[4 * n_front :, 1] = v[front_vertex // vc]
 
-    # Back UVs: the front UV of the vertex (or of the border vertex a base vertex sits under), u + 1.
-    back = corner_verts[4 * n_front :]
-    front_vertex = np.where(back >= vr * vc, ring[np.clip(back - vr * vc, 0, n_ring - 1)], back)
-    # The left edge (u = 0) moves in by half a texel, so that u > 1 holds for every back corner.
-    uvs[4 * n_front :, 0] = np.maximum(u[front_vertex % vc], np.float32(0.5 / cols)) + 1.0
-    uvs[4 * n_front :, 1] = v[front_vertex // vc]
+        # New edges: the vertical wall edges top_i-base_i, then the base ring base_i-base_i+1.
+        wall_edge = n_h + n_v + np.arange(n_ring, dtype=np.int32)
+        base_edge = wall_edge + n_ring
+        edges[wall_edge, 0], edges[wall_edge, 1] = ring, base_idx
+        edges[base_edge, 0], edges[base_edge, 1] = base_idx, base_idx[nxt]
+        # The grid edge between consecutive ring vertices: horizontal on a row, else vertical.
+        a, b = ring, ring[nxt]
+        lo = np.minimum(a, b)
+        same_row = (a // vc) == (b // vc)
+        ring_edge = np.where(same_row, (lo // vc) * cols + lo % vc, n_h + lo).astype(np.int32)
+        wall_edges = corner_edges[4 * n_front : 4 * n_front + 4 * n_ring].reshape(n_ring, 4)
+        wall_edges[:, 0], wall_edges[:, 1] = wall_edge, base_edge
+        wall_edges[:, 2], wall_edges[:, 3] = wall_edge[nxt], ring_edge
+        # Base n-gon corner j is base vertex n-1-j; its next corner is base vertex n-2-j.
+        corner_edges[4 * n_front + 4 * n_ring :] = base_edge[np.roll(np.arange(n_ring), 1)][::-1]
 
-    # New edges: the vertical wall edges top_i-base_i, then the base ring base_i-base_i+1.
-    wall_edge = n_h + n_v + np.arange(n_ring, dtype=np.int32)
-    base_edge = wall_edge + n_ring
-    edges[wall_edge, 0], edges[wall_edge, 1] = ring, base_idx
-    edges[base_edge, 0], edges[base_edge, 1] = base_idx, base_idx[nxt]
-    # The grid edge between consecutive ring vertices: horizontal on a row, else vertical.
-    a, b = ring, ring[nxt]
-    lo = np.minimum(a, b)
-    same_row = (a // vc) == (b // vc)
-    ring_edge = np.where(same_row, (lo // vc) * cols + lo % vc, n_h + lo).astype(np.int32)
-    wall_edges = corner_edges[4 * n_front : 4 * n_front + 4 * n_ring].reshape(n_ring, 4)
-    wall_edges[:, 0], wall_edges[:, 1] = wall_edge, base_edge
-    wall_edges[:, 2], wall_edges[:, 3] = wall_edge[nxt], ring_edge
-    # Base n-gon corner j is base vertex n-1-j; its next corner is base vertex n-2-j.
-    corner_edges[4 * n_front + 4 * n_ring :] = base_edge[np.roll(np.arange(n_ring), 1)][::-1]
-
-    face_sizes = np.full(n_front + n_ring + 1, 4, dtype=np.int32)
-    face_sizes[-1] = n_ring
+        face_sizes = np.full(n_front + n_ring + 1, 4, dtype=np.int32)
+        face_sizes[-1] = n_ring
     return MeshArrays(
         vertices=vertices,
         face_sizes=face_sizes,
@@ -537,22 +530,15 @@ def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
 
 def _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, grid_shape):
     """MeshArrays with its edges and corner edges derived from the faces."""
-    n_vertices = len(vertices)
-    starts = np.zeros(len(face_sizes), dtype=np.int64)
-    np.cumsum(face_sizes[:-1], out=starts[1:])
-    nxt = np.arange(1, corner_verts.size + 1, dtype=np.int64)
-    nxt[starts + face_sizes - 1] = starts
-    a = corner_verts.astype(np.int64)
-    b = a[nxt]
-    keys, corner_edges = np.unique(np.minimum(a, b) * n_vertices + np.maximum(a, b), return_inverse=True)
-    edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1).astype(np.int32)
-    return MeshArrays(
+    mesh = MeshArrays(
         vertices=np.ascontiguousarray(vertices, dtype=np.float32),
         face_sizes=np.ascontiguousarray(face_sizes, dtype=np.int32),
         corner_verts=np.ascontiguousarray(corner_verts, dtype=np.int32),
         uvs=np.ascontiguousarray(uvs, dtype=np.float32),
         n_front_faces=int(n_front),
         grid_shape=tuple(int(n) for n in grid_shape),
-        edges=edges,
-        corner_edges=corner_edges.astype(np.int32).ravel(),
     )
+    keys, corner_edges = np.unique(mesh._corner_edge_keys(), return_inverse=True)
+    mesh.edges = np.stack([keys // mesh.n_vertices, keys % mesh.n_vertices], axis=1).astype(np.int32)
+    mesh.corner_edges = corner_edges.astype(np.int32).ravel()
+    return mesh

@@ -138,22 +138,7 @@ def synthetic_field(
     centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
     radii = np.asarray(radii, dtype=np.float64)
 
-    mask = np.zeros((rows, cols), dtype=bool)
-    rr, cc = np.mgrid[:rows, :cols]
-    leaf_noise = _noise(rows, cols, rng, scale=3.0)
-    for (pr, pc), radius in zip(centres, radii, strict=True):
-        r0, r1 = int(max(0, pr - radius - 1)), int(min(rows, pr + radius + 2))
-        c0, c1 = int(max(0, pc - radius - 1)), int(min(cols, pc + radius + 2))
-        d = np.hypot(rr[r0:r1, c0:c1] - pr, cc[r0:r1, c0:c1] - pc)
-        inside = d <= radius
-        mask[r0:r1, c0:c1] |= inside
-        # Canopy: green, darker towards the edge (self-shading), leafy texture.
-        shade = 1.0 - 0.35 * (d / radius) ** 2
-        base = np.array([52.0, 128.0, 44.0]) * rng.uniform(0.85, 1.15)
-        texture = 1.0 + 0.25 * leaf_noise[r0:r1, c0:c1]
-        colour = base[None, None, :] * (shade * texture)[..., None]
-        patch = image[r0:r1, c0:c1]
-        patch[inside] = colour[inside]
+    mask = _draw_plants(image, centres, radii, rng)
     image = np.clip(image, 0, 255).astype(np.uint8)
     canopy_height = float(np.median(radii)) if radii.size else 0.0
     return image, FieldTruth(centres=centres, radii=radii, mask=mask, canopy_height=canopy_height)

@@ -57,13 +57,6 @@ class TiffPhoto(OpenImage):
         self._info["relative_altitude_m"] = None
         self._info["geotiff_gsd"] = geotiff_gsd
 
-    @property
-    def metadata(self):
-        info = dict(self._info, decoded_width=self.shape[1], decoded_height=self.shape[0])
-        info["valid_fraction"] = None
-        info["valid_mask"] = None
-        return _metadata(self._name, info, self._gsd, self._height_above_ground)
-
     def decode(self):
         if not self._open:
             raise RasterReadError(f"image {self._name!r} was already decoded or closed")

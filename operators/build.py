@@ -19,7 +19,8 @@ from pathlib import Path
 
 import bpy
 
-from ..scene.material import load_photo, relief_material
+from ..scene.datablocks import remove_datablocks, textured_object
+from ..scene.material import load_photo
 from ..scene.mesh_data import allocate_mesh, checked_topology, fill_topology, mesh_from_arrays, set_positions
 from .properties import PARAMETER_NAMES, ReliefParameters
 
@@ -63,7 +64,7 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         # Imported here, not at registration: the core pulls in SciPy, scikit-image and OpenCV,
         # which would slow every Blender start-up.
         try:
-            from ..cliff_terrain import CliffTerrainError, build_relief
+            from ..cliff_terrain import build_relief
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
             return {"CANCELLED"}
@@ -83,17 +84,10 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 progress(PIPELINE_SHARE, "building the mesh")
                 obj = build_relief_object(context, relief, path, params, created=created, mesh=sink.mesh)
                 progress(1.0, "done")
-        except CliffTerrainError as exc:
-            _remove(created)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
         except Exception as exc:
-            _remove(created)
-            traceback.print_exc()
-            self.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
-            return {"CANCELLED"}
+            return cancel_build(self, exc, created)
         except BaseException:
-            _remove(created)
+            remove_datablocks(created)
             raise
         show_relief(context, obj)
         info = obj["cliff_terrain"]
@@ -220,14 +214,7 @@ def build_relief_object(context, relief, path, params, *, created, mesh=None):
     image, image_created = load_photo(path, metadata=relief.metadata, fallback_rgb=relief.image, name=name)
     if image_created:
         created.append(image)
-    material = relief_material(name, image)
-    created.append(material)
-    mesh.materials.append(material)
-
-    obj = bpy.data.objects.new(name, mesh)
-    created.append(obj)
-    collection = context.collection or context.scene.collection
-    collection.objects.link(obj)
+    obj = textured_object(name, mesh, image, context.collection or context.scene.collection, created=created)
     obj["cliff_terrain"] = build_record(relief, path, params, scale)
     obj.location = context.scene.cursor.location
     for other in context.view_layer.objects.selected:
@@ -289,20 +276,18 @@ def key_figures(relief):
     return figures
 
 
-def _remove(datablocks):
-    """Remove what a failed build made, newest first (the object before its mesh and material)."""
-    collections = (
-        (bpy.types.Object, bpy.data.objects),
-        (bpy.types.Mesh, bpy.data.meshes),
-        (bpy.types.Material, bpy.data.materials),
-        (bpy.types.Image, bpy.data.images),
-    )
-    while datablocks:
-        block = datablocks.pop()
-        for kind, collection in collections:
-            if isinstance(block, kind):
-                collection.remove(block)
-                break
+def cancel_build(operator, exc, created):
+    """Remove every datablock in `created`, report `exc` as the module's error policy says and
+    return CANCELLED: a :class:`CliffTerrainError` with its message, anything else as a bug."""
+    from ..cliff_terrain import CliffTerrainError
+
+    remove_datablocks(created)
+    if isinstance(exc, CliffTerrainError):
+        operator.report({"ERROR"}, str(exc))
+    else:
+        traceback.print_exc()
+        operator.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
+    return {"CANCELLED"}
 
 
 class _Progress:

@@ -8,20 +8,22 @@ mosaic's top-left corner, as custom properties: map coordinates in metres are to
 Blender's single-precision positions). Tiles are one-sided surfaces, side by side.
 """
 
-import traceback
 from pathlib import Path
 
 import bpy
 import numpy as np
 from bpy.props import FloatProperty, IntProperty, StringProperty
 
-from ..scene.material import image_from_array, relief_material
+from ..scene.datablocks import textured_object
+from ..scene.material import image_from_array
 from ..scene.mesh_data import mesh_from_arrays
+from .build import cancel_build
+from .file_operator import FileOperator
 
 GPU_TEXTURE_LIMIT = 16384
 
 
-class CLIFF_TERRAIN_OT_import_mosaic(bpy.types.Operator):
+class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     """Build the relief of a tiled GeoTIFF orthomosaic as one adaptive-mesh object per tile"""
 
     bl_idname = "cliff_terrain.import_mosaic"
@@ -50,16 +52,6 @@ class CLIFF_TERRAIN_OT_import_mosaic(bpy.types.Operator):
         default=0.0,
         precision=4,
     )
-
-    @classmethod
-    def poll(cls, context):
-        return context.mode == "OBJECT"
-
-    def invoke(self, context, event):
-        if not self.filepath:
-            context.window_manager.fileselect_add(self)
-            return {"RUNNING_MODAL"}
-        return self.execute(context)
 
     def execute(self, context):
         try:
@@ -106,47 +98,19 @@ class CLIFF_TERRAIN_OT_import_mosaic(bpy.types.Operator):
                     rgb, _ = reader.read(r0, r1, c0, c1)
                     image = image_from_array(part, rgb)
                     created.append(image)
-                    material = relief_material(part, image)
-                    created.append(material)
-                    data.materials.append(material)
-                    obj = bpy.data.objects.new(part, data)
-                    created.append(obj)
-                    context.collection.objects.link(obj)
+                    obj = textured_object(part, data, image, context.collection, created=created)
                     obj.parent = root
                     # The tile's bottom-left corner, y up from the mosaic's last row, in metres.
                     obj.location = (c0 * gsd, (rows - r1) * gsd, 0.0)
                     obj["cliff_terrain_tile"] = {"core": [r0, r1, c0, c1], "triangles": mesh.n_front_faces}
-        except CliffTerrainError as exc:
-            _remove(created)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
         except Exception as exc:
-            _remove(created)
-            traceback.print_exc()
-            self.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
-            return {"CANCELLED"}
+            return cancel_build(self, exc, created)
         for other in context.view_layer.objects.selected:
             other.select_set(False)
         root.select_set(True)
         context.view_layer.objects.active = root
         self.report({"INFO"}, f"Imported {name}: {len(root.children)} tiles")
         return {"FINISHED"}
-
-
-def _remove(datablocks):
-    """Remove what a failed import made, newest first."""
-    collections = (
-        (bpy.types.Object, bpy.data.objects),
-        (bpy.types.Mesh, bpy.data.meshes),
-        (bpy.types.Material, bpy.data.materials),
-        (bpy.types.Image, bpy.data.images),
-    )
-    while datablocks:
-        block = datablocks.pop()
-        for kind, collection in collections:
-            if isinstance(block, kind):
-                collection.remove(block)
-                break
 
 
 CLASSES = (CLIFF_TERRAIN_OT_import_mosaic,)

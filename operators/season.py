@@ -11,16 +11,19 @@ from pathlib import Path
 
 import bpy
 
+from .file_operator import FileOperator
+
 ANIMATION_DIR = "animation"
 
 
-class CLIFF_TERRAIN_OT_season_animation(bpy.types.Operator):
+class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
     """Animate a season computed by `cliff-terrain season`: one relief per date, one date per frame,
     rendered into the season folder's animation/ (PNG frames and a video)"""
 
     bl_idname = "cliff_terrain.season_animation"
     bl_label = "Season Animation"
     bl_options = {"REGISTER", "UNDO"}
+    path_property = "directory"
 
     directory: bpy.props.StringProperty(
         name="Season Folder",
@@ -33,16 +36,6 @@ class CLIFF_TERRAIN_OT_season_animation(bpy.types.Operator):
     render: bpy.props.BoolProperty(
         name="Render", description="Render the PNG frames and the video into animation/", default=True
     )
-
-    @classmethod
-    def poll(cls, context):
-        return context.mode == "OBJECT"
-
-    def invoke(self, context, event):
-        if not self.directory:
-            context.window_manager.fileselect_add(self)
-            return {"RUNNING_MODAL"}
-        return self.execute(context)
 
     def execute(self, context):
         try:

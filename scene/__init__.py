@@ -1,5 +1,6 @@
 """What the operators put into a Blender scene, none of it an operator: the relief's mesh
-(``mesh_data``) and material (``material``), and for the rendered figures the view rig of cameras
+(``mesh_data``), material (``material``) and object, with the removal of what a failed build
+made (``datablocks``), and for the rendered figures the view rig of cameras
 and light (``rig``), the render materials (``render_materials``), the render settings
 (``render_settings``) and the views themselves (``views``).
 

@@ -410,12 +410,13 @@ def test_failure_after_the_object_exists_removes_every_new_datablock(
 @needs_uav
 def test_failure_keeps_a_photo_that_was_already_loaded(addon, scene, monkeypatch):
     image = bpy.data.images.load(str(BROCCOLI))
-    build_module = importlib.import_module(f"{ADDON}.operators.build")
+    # The build's material is made by scene.datablocks.textured_object.
+    datablocks = importlib.import_module(f"{ADDON}.scene.datablocks")
 
     def fail(name, photo):
         raise RuntimeError("injected failure")
 
-    monkeypatch.setattr(build_module, "relief_material", fail)
+    monkeypatch.setattr(datablocks, "relief_material", fail)
     with pytest.raises(RuntimeError, match="injected failure"):
         bpy.ops.cliff_terrain.build_relief(filepath=str(BROCCOLI), max_size=32)
     assert list(bpy.data.images) == [image]

@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import SHARED_UAV
 from PIL import Image, ImageOps
 
 import cliff_terrain
@@ -21,8 +22,8 @@ from cliff_terrain.errors import CliffTerrainError, DependencyError
 from cliff_terrain.image_io import load_image
 
 ROOT = Path(__file__).resolve().parents[1]
-UAV = ROOT.parent / "shared" / "data" / "uav"
-BROCCOLI = UAV / "broccoli" / "01_clip_raw_test.jpg"
+# Optional here (the synthetic photos test the same paths): used when ../shared holds it.
+BROCCOLI = SHARED_UAV / "broccoli" / "01_clip_raw_test.jpg"
 
 
 def _jpeg(path, size=(161, 119), **save):

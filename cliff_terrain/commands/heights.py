@@ -40,19 +40,11 @@ def configure(parser):
 def run(args):
     import numpy as np
 
-    from ..canopy import measure_orthophoto
-    from ..errors import CliffTerrainError, GeoreferenceError
+    from ..canopy import _plot_tables, measure_orthophoto
+    from ..errors import CliffTerrainError
     from ..georaster import write_geotiff
-    from ..plots import check_plot_crs, plot_table, rasterize_plots, read_plots, table_columns
-    from ..tables import (
-        REGION_COLUMNS,
-        point_geometries,
-        polygon_geometries,
-        region_table,
-        table_csv,
-        table_geojson,
-        write_files,
-    )
+    from ..plots import read_plots
+    from ..tables import REGION_COLUMNS, point_geometries, region_table, table_csv, table_geojson, write_files
 
     out = args.out
     outputs = ["chm.tif", "regions.csv", "regions.geojson"] + (
@@ -81,13 +73,8 @@ def run(args):
         out / "regions.geojson": table_geojson(regions, point_geometries(regions), crs=canopy.crs),
     }
     if plots is not None:
-        check_plot_crs(plots, canopy.crs, raster=str(args.ortho))
-        plot_labels = rasterize_plots(plots, transform=canopy.transform, shape=chm.shape)
-        if not plot_labels.any():
-            raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {str(args.ortho)!r}")
-        rows = plot_table(plots, plot_labels, mask=plants, heights=chm, pixel_area_m2=canopy.pixel_area_m2)
-        files[out / "plots.csv"] = table_csv(rows, table_columns(plots))
-        files[out / "plots.geojson"] = table_geojson(rows, polygon_geometries(plots), crs=canopy.crs)
+        tables = _plot_tables(plots, canopy, heights=chm, mask=plants, source=str(args.ortho))
+        files.update({out / name: text for name, text in tables.items()})
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_files(files)

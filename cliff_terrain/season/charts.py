@@ -11,6 +11,7 @@ import datetime as dt
 import math
 
 from ..errors import CliffTerrainError
+from .runner import LEAD_COLUMNS, VALUE_COLUMNS
 
 # At most this many categories get their own colour, median and band.
 MAX_GROUPS = 10
@@ -82,23 +83,8 @@ def growth_chart(rows, path, *, color_by=None, title=None):
     plt.close(fig)
 
 
-_NOT_ATTRIBUTES = {
-    "date",
-    "date_source",
-    "image",
-    "plot",
-    "area_m2",
-    "cover",
-    "volume_m3",
-    "height_mean",
-    "height_p50",
-    "height_p90",
-    "height_max",
-    "height_mode",
-    "height_units",
-    "reason",
-    "error",
-}
+# The table's own columns: everything else in a row is a plot attribute.
+_NOT_ATTRIBUTES = {*LEAD_COLUMNS, *VALUE_COLUMNS}
 
 
 def _colours(plots, label_of, color_by, plt, np):

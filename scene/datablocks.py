@@ -1,0 +1,41 @@
+"""The relief objects the operators make, and the removal of what a failed build made.
+
+Every new datablock goes into a ``created`` list as soon as it exists, so that
+:func:`remove_datablocks` can leave the scene as it was when a later step fails.
+"""
+
+import bpy
+
+from .material import relief_material
+
+# What an operator may create, each with the collection that removes it.
+_COLLECTIONS = (
+    ("objects", bpy.types.Object),
+    ("meshes", bpy.types.Mesh),
+    ("materials", bpy.types.Material),
+    ("images", bpy.types.Image),
+)
+
+
+def textured_object(name, mesh, image, collection, *, created):
+    """Give `mesh` a relief material showing `image` and link a new object `name` into `collection`.
+
+    The material and the object are appended to `created`; the object is returned.
+    """
+    material = relief_material(name, image)
+    created.append(material)
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    created.append(obj)
+    collection.objects.link(obj)
+    return obj
+
+
+def remove_datablocks(datablocks):
+    """Remove what a failed build made, newest first (an object before its mesh and material)."""
+    while datablocks:
+        block = datablocks.pop()
+        for attribute, kind in _COLLECTIONS:
+            if isinstance(block, kind):
+                getattr(bpy.data, attribute).remove(block)
+                break
