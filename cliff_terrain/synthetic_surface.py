@@ -90,7 +90,7 @@ def synthetic_surface(
     Examples
     --------
     >>> img, dsm, truth = synthetic_surface(shape=(240, 360), seed=1)
-    >>> img.shape, dsm.dtype, bool(np.isnan(dsm).any()), len(truth.heights) == truth.labels.max()
+    >>> img.shape, dsm.dtype, bool(np.isnan(dsm).any()), bool(len(truth.heights) == truth.labels.max())
     ((240, 360, 3), dtype('float32'), True, True)
     """
     gsd = check_float("gsd", gsd, minimum=0.0, strict_minimum=True)
