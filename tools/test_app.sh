@@ -18,7 +18,7 @@ SHARED=$(cd "$REPO/.." && pwd)/shared
 PY=${PY:-$REPO/.venv/bin/python}
 CACHE=${CLIFF_TERRAIN_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/cliff-terrain}
 ROOTFS=$CACHE/debian13-blender
-CHROOT_PACKAGES="blender libegl-mesa0 libgl1-mesa-dri libglx-mesa0 xvfb xauth x11-apps imagemagick xdotool"
+CHROOT_PACKAGES="blender python3-numpy libegl-mesa0 libgl1-mesa-dri libglx-mesa0 xvfb xauth x11-apps imagemagick xdotool"
 
 say() { echo "[test-app] $*"; }
 fail() { echo "[test-app] FAILED: $*" >&2; exit 1; }
