@@ -478,10 +478,20 @@ def polygon_area(rings):
         return areas[0]
     # Nesting parity: a ring inside an odd number of other rings is a hole.
     total = 0.0
-    for i, ring in enumerate(rings):
-        depth = sum(_point_in_ring(ring[0], other) for j, other in enumerate(rings) if j != i)
-        total += -areas[i] if depth % 2 else areas[i]
+    for area, around in zip(areas, enclosing_rings(rings), strict=True):
+        total += -area if len(around) % 2 else area
     return total
+
+
+def enclosing_rings(rings):
+    """For each ring, the indices of the other rings it lies inside (tested at its first vertex).
+
+    A ring inside an odd number of others is a hole (the even-odd rule plots are filled with).
+    """
+    return [
+        [j for j, other in enumerate(rings) if j != i and _point_in_ring(ring[0], other)]
+        for i, ring in enumerate(rings)
+    ]
 
 
 def _point_in_ring(point, ring):

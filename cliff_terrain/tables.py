@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .plots import HEIGHT_COLUMNS, region_figures
+from .plots import HEIGHT_COLUMNS, enclosing_rings, region_figures
 
 REGION_COLUMNS = (
     "id",
@@ -162,10 +162,7 @@ def polygon_geometries(plots):
 
 def _outer_rings(rings, *, holes):
     """The outer rings (even depth), or (hole, index of its outer ring among them) for the holes."""
-    inside = [
-        [j for j, other in enumerate(rings) if j != i and _contains(other, ring[0])]
-        for i, ring in enumerate(rings)
-    ]
+    inside = enclosing_rings(rings)
     outer = [i for i in range(len(rings)) if len(inside[i]) % 2 == 0]
     if not holes:
         return [rings[i] for i in outer]
@@ -176,17 +173,6 @@ def _outer_rings(rings, *, holes):
             parent = max((j for j in inside[i] if j in outer), key=lambda j: len(inside[j]))
             found.append((rings[i], outer.index(parent)))
     return found
-
-
-def _contains(ring, point):
-    """Whether `point` (x, y) lies inside the closed `ring` ((n, 2) array), by ray casting."""
-    x, y = point
-    xs, ys = ring[:, 0], ring[:, 1]
-    xn, yn = np.roll(xs, -1), np.roll(ys, -1)
-    crosses = (ys > y) != (yn > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        at = xs + (y - ys) * (xn - xs) / (yn - ys)
-    return bool(np.count_nonzero(crosses & (x < at)) % 2)
 
 
 def write_files(files):
