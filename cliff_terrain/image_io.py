@@ -601,11 +601,12 @@ def _decode_jpeg_at_once(data, shape, reduction):
     file: its decoder stops rather than filling with grey) or its size disagrees with the
     (rows, cols) `shape` Pillow read from the header.
     """
-    if data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
-        # No end-of-image marker after the last scan: the file is cut. OpenCV 4.11 and newer return
-        # nothing then, older releases fill the missing rows with grey; Pillow words the error.
-        return None
     flags, swap = _cv2_colour_flags(reduction)
+    if swap and data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
+        # No end-of-image marker after the last scan: the file is cut. OpenCV 4.11 and newer (those
+        # with IMREAD_COLOR_RGB) return nothing then; older releases fill the missing rows with
+        # grey, so the bytes are checked for them only. Pillow words the error.
+        return None
     try:
         rgb = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
     except cv2.error:
