@@ -29,6 +29,7 @@ from ..cliff_terrain.settings import (
     DEFAULT_SUN_ELEVATION,
     MIN_VIEW_SIDE,
 )
+from .datablocks import remove_collection
 
 # The light's defaults (the command line offers the same): see the module notes.
 SUN_AZIMUTH = DEFAULT_SUN_AZIMUTH
@@ -283,18 +284,7 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
 
 def remove_rig(scene):
     """Remove the cameras and sun of an earlier rig (the collection ``Cliff Terrain Views``)."""
-    collection = bpy.data.collections.get(RIG_COLLECTION)
-    if collection is None:
-        return
-    for obj in list(collection.objects):
-        data = obj.data
-        bpy.data.objects.remove(obj)
-        if data is not None and data.users == 0:
-            if isinstance(data, bpy.types.Camera):
-                bpy.data.cameras.remove(data)
-            elif isinstance(data, bpy.types.Light):
-                bpy.data.lights.remove(data)
-    bpy.data.collections.remove(collection)
+    remove_collection(RIG_COLLECTION)
 
 
 def _camera(collection, name, kind):

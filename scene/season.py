@@ -20,6 +20,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..cliff_terrain.mesh import grid_mesh
+from .datablocks import remove_collection
 from .material import load_photo, relief_material
 from .mesh_data import mesh_from_arrays
 from .render_settings import engine_id, gpu_available, set_colour_management
@@ -105,22 +106,7 @@ def build_season_scene(context, season, *, plots=None, size=(1280, 720), engine=
 
 def remove_season(scene):
     """Remove a season collection (objects, meshes, materials, camera) made earlier, if any."""
-    collection = bpy.data.collections.get(COLLECTION)
-    if collection is None:
-        return
-    for obj in list(collection.objects):
-        data = obj.data
-        bpy.data.objects.remove(obj)
-        if isinstance(data, bpy.types.Mesh) and data.users == 0:
-            for material in data.materials:
-                if material is not None and material.users <= 1:
-                    bpy.data.materials.remove(material)
-            bpy.data.meshes.remove(data)
-        elif isinstance(data, bpy.types.Curve) and data.users == 0:
-            bpy.data.curves.remove(data)
-        elif isinstance(data, bpy.types.Camera) and data.users == 0:
-            bpy.data.cameras.remove(data)
-    bpy.data.collections.remove(collection)
+    remove_collection(COLLECTION)
 
 
 def render_season(season_scene, out_dir, *, hold=12, fps=12, video=True, log=print):
