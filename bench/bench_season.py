@@ -54,9 +54,9 @@ def main(argv=None):
         print(f"skipped: the soybean season is not at {SEASON}")
         return {}
 
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    from cliff_terrain.season.runner import plan_season, run_season
+    from cliff_terrain.season.runner import local_cluster, plan_season, run_season
 
     print(describe())
     jobs, plots = plan_season([SEASON], plots=SEASON / "plots.geojson", max_size=args.max_size)
@@ -72,14 +72,7 @@ def main(argv=None):
     )
 
     started = time.perf_counter()
-    cluster = LocalCluster(
-        n_workers=args.workers,
-        threads_per_worker=1,
-        processes=True,
-        memory_limit="auto",
-        dashboard_address=None,
-        host="127.0.0.1",
-    )
+    cluster = local_cluster(args.workers)  # the cluster `run_season(workers=N)` starts
     client = Client(cluster)
     client.run(_warm)
     startup = time.perf_counter() - started
@@ -95,7 +88,7 @@ def main(argv=None):
         for i in range(args.repeat):
             for mode in ("serial", "parallel"):
                 out = work / f"{mode}{i}"
-                kwargs = {"workers": 0} if mode == "serial" else {"scheduler": cluster.scheduler_address}
+                kwargs = {"workers": 0} if mode == "serial" else {"client": client}
                 t = time.perf_counter()
                 season = run_season(jobs, plots, out=out, progress=False, chart=False, **kwargs)
                 elapsed = time.perf_counter() - t
@@ -117,7 +110,7 @@ def main(argv=None):
             jobs,
             plots,
             out=work / "parallel0",
-            scheduler=cluster.scheduler_address,
+            client=client,
             progress=False,
             chart=False,
         )

@@ -84,8 +84,8 @@ class Relief:
         Euclidean distance map per region, in processing pixels.
     heights : (rows, cols) float32
         Heights in `units`.
-    mesh : MeshArrays
-        The relief mesh, x/y/z in `units`.
+    mesh : MeshArrays or None
+        The relief mesh, x/y/z in `units` (None when built with ``mesh=None``).
     units : {"m", "px"}
         Metres when the ground sampling distance is known, else processing pixels.
     pixel_size : float
@@ -107,7 +107,7 @@ class Relief:
     boundaries: np.ndarray
     distance: np.ndarray
     heights: np.ndarray
-    mesh: MeshArrays
+    mesh: MeshArrays | None
     units: str
     pixel_size: float
     params: dict = field(default_factory=dict)
@@ -184,11 +184,12 @@ def build_relief(
         region's measured p99 height (photo-resolution shapes, measured heights).
     two_sided : bool, optional
         Close the relief into a watertight solid with a base (back UVs have u > 1).
-    mesh : {"grid", "adaptive"}, optional
+    mesh : {"grid", "adaptive"} or None, optional
         ``"grid"``: one vertex per pixel corner. ``"adaptive"``: a triangulated irregular network
         within `max_error` of every pixel's height at its centre, with far fewer triangles where
         the ground is flat (see :func:`cliff_terrain.mesh.adaptive_mesh`); `mesh_sink` is then
-        not called, as the mesh's size is known only at the end.
+        not called, as the mesh's size is known only at the end. None: no mesh, only the
+        heights (what tables need, e.g. a season's); everything runs in the calling thread.
     max_error : float, optional
         The adaptive mesh's largest vertical error, in the relief's units (metres with a GSD,
         else processing pixels; > 0). Default: 5 mm with a GSD, else 1 % of the relief's height
@@ -226,7 +227,10 @@ def build_relief(
     gsd = check_float("gsd", gsd, minimum=0.0, strict_minimum=True, allow_none=True)
     if not isinstance(two_sided, bool | np.bool_):
         raise CliffTerrainError(f"`two_sided` must be True or False, got {two_sided!r}")
-    check_choice("mesh", mesh, ids(MESHES))
+    if mesh is not None:
+        check_choice("mesh", mesh, ids(MESHES))
+    if mesh is None and mesh_sink is not None:
+        raise CliffTerrainError(f"`mesh_sink` needs a mesh, got mesh=None and mesh_sink={mesh_sink!r}")
     max_error = check_float("max_error", max_error, minimum=0.0, strict_minimum=True, allow_none=True)
     if progress is not None and not callable(progress):
         raise CliffTerrainError(f"`progress` must be callable or None, got {progress!r}")
@@ -264,21 +268,20 @@ def build_relief(
         source_shape = source[0].shape[:2]
     grid_shape = resized_shape(source_shape, max_size)
 
-    # Decoding, resizing, filter, segmentation and heights run in a worker thread while this
-    # thread builds the mesh's faces, UVs and edges, which depend on the grid's shape only.
-    worker = _Worker(
-        progress, timings, _image_stages, source, max_size, segmentation, profile, exaggeration, max_height
-    )
-    started = time.perf_counter()
-    try:
-        # An adaptive mesh's size depends on the heights: it is built at the end, in one go.
-        mesh_arrays = _topology(grid_shape, bool(two_sided), mesh_sink, worker) if mesh == "grid" else None
-    finally:
-        timings["topology"] = time.perf_counter() - started
-        worker.relay(wait=True)
-        if isinstance(source, OpenImage):
-            source.close()  # the worker has finished; it may have failed before decoding
-    stages = worker.result()
+    args = (source, max_size, segmentation, profile, exaggeration, max_height)
+    if mesh == "grid":
+        stages = _with_grid_topology(args, grid_shape, bool(two_sided), mesh_sink, progress, timings)
+        mesh_arrays = stages.topology
+    else:
+        # An adaptive mesh's size depends on the heights: it is built at the end, in one go, and
+        # nothing is left to overlap with the image's stages.
+        try:
+            stages = _image_stages(
+                *args, clock=_Stages(progress, timings, stage="load"), on_watershed=lambda: None
+            )
+        finally:
+            if isinstance(source, OpenImage):
+                source.close()
     metadata, working = stages.metadata, stages.working
     clock = _Stages(progress, timings)
     clock.start("mesh", 0.8)
@@ -299,7 +302,9 @@ def build_relief(
             image_or_path, stages, dsm=dsm, dtm=dtm, mode=heights_mode, exaggeration=exaggeration
         )
         units = "m"
-    if mesh == "grid":
+    if mesh is None:
+        relief_mesh = None
+    elif mesh == "grid":
         relief_mesh = place_vertices(mesh_arrays, heights, pixel_size=pixel_size)
     else:
         if max_error is None:
@@ -345,6 +350,28 @@ def _check_heights(heights, dsm, dtm, image_or_path):
     return mode
 
 
+def _with_grid_topology(args, grid_shape, two_sided, mesh_sink, progress, timings):
+    """The image's stages, computed in a worker thread while this one builds the grid's topology.
+
+    Decoding, resizing, filter, segmentation and heights run in the worker while this thread
+    builds the mesh's faces, UVs and edges, which depend on the grid's shape only. The result's
+    ``topology`` holds them.
+    """
+    source = args[0]
+    worker = _Worker(progress, timings, _image_stages, *args)
+    started = time.perf_counter()
+    try:
+        topology = _topology(grid_shape, two_sided, mesh_sink, worker)
+    finally:
+        timings["topology"] = time.perf_counter() - started
+        worker.relay(wait=True)
+        if isinstance(source, OpenImage):
+            source.close()  # the worker has finished; it may have failed before decoding
+    stages = worker.result()
+    stages.topology = topology
+    return stages
+
+
 def _topology(grid_shape, two_sided, mesh_sink, worker):
     """The mesh's faces, UVs and edges, handed to `mesh_sink` step by step in time with `worker`."""
     if mesh_sink is None:
@@ -373,6 +400,7 @@ class _ImageStages:
     segmentation: Segmentation
     distance: np.ndarray
     heights_px: np.ndarray
+    topology: MeshArrays | None = None  # the grid's, built beside these stages
 
 
 class _Worker:

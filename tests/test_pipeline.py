@@ -27,6 +27,31 @@ def test_plants_counted_and_domes_as_tall_as_their_radii(field):
     assert relief.heights[soil].max() == 0.0
 
 
+def test_without_a_mesh_the_heights_are_the_grid_builds(field, tmp_path):
+    """``mesh=None`` (what a season's tables need): the same stages, no mesh, no helper thread."""
+    import threading
+
+    from PIL import Image
+
+    image, _ = field
+    path = tmp_path / "field.png"
+    Image.fromarray(image).save(path)
+    threads = []
+    seen = []
+
+    def progress(fraction, stage):
+        seen.append(stage)
+        threads.append(threading.active_count())
+
+    bare = build_relief(path, max_size=450, mesh=None, progress=progress)
+    full = build_relief(path, max_size=450)
+    assert bare.mesh is None and full.mesh is not None
+    for name in ("working", "mask", "labels", "distance", "heights"):
+        np.testing.assert_array_equal(getattr(bare, name), getattr(full, name))
+    assert seen == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
+    assert max(threads) == threading.active_count()  # nothing started beside this thread
+
+
 def test_stages_are_consistent(field):
     image, _ = field
     seen = []
@@ -228,6 +253,11 @@ def test_orthophoto_with_georeference_is_in_metres():
             "`mesh_sink` must have methods allocate, prepare and fill, or be None, got 'mesh'",
         ),
         ({"progress": 3}, "`progress` must be callable or None, got 3"),
+        ({"mesh": "tin"}, "`mesh` must be one of 'grid', 'adaptive', got 'tin'"),
+        (
+            {"mesh": None, "mesh_sink": "sink"},
+            "`mesh_sink` needs a mesh, got mesh=None and mesh_sink='sink'",
+        ),
     ],
 )
 def test_bad_settings_name_the_parameter(kwargs, match):

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import REPO, SHARED_UAV
+from cliff_terrain.errors import CliffTerrainError
 
 SOYBEAN = SHARED_UAV / "lamberton_soybean"
 DATES = (
@@ -480,3 +481,28 @@ def test_opencv_distance_is_exact_with_two_threads(soybean):
             np.testing.assert_array_equal(distance_map(labels), exact)
     finally:
         cv2.setNumThreads(saved)
+
+
+@pytest.mark.slow
+def test_given_client_is_used_and_left_open(serial, soybean, tmp_path):
+    """`run_season(client=...)`: a notebook's client runs the tasks (one per photo) and stays open;
+    the local cluster it runs on keeps glibc's adaptive allocator (no MALLOC_TRIM_THRESHOLD_)."""
+    from distributed import Client
+
+    from cliff_terrain.season.runner import local_cluster, plan_season, run_season
+
+    jobs, plots = plan_season([soybean], plots=soybean / "plots.geojson")
+    with local_cluster(1) as cluster, Client(cluster) as client:
+        env = client.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OPENCV_FOR_THREADS_NUM")))
+        assert list(env.values()) == [(None, "2")]
+        started = time.time()
+        client.get_task_stream(start=started)
+        done = run_season(jobs, plots, out=tmp_path, client=client, progress=False, chart=False)
+        stream = client.get_task_stream(start=started)
+        assert client.status == "running"
+        assert client.submit(sum, [1, 2]).result() == 3
+    assert done.computed == len(jobs) and not done.failures
+    assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+    assert sum(task["key"].startswith("season-") for task in stream) == len(jobs)
+    with pytest.raises(CliffTerrainError, match=r"`client` must be a distributed.Client, got 'tcp://x'"):
+        run_season(jobs, plots, out=tmp_path, client="tcp://x")

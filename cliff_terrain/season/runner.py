@@ -317,7 +317,7 @@ def _process(job):
         profile=params["profile"],
         exaggeration=params["exaggeration"],
         gsd=float(np.hypot(*photo_transform[:2, 0])),
-        two_sided=False,
+        mesh=None,  # the table needs the heights only
         **surface,
     )
     shape = relief.heights.shape
@@ -392,6 +392,7 @@ def run_season(
     out,
     workers=None,
     scheduler=None,
+    client=None,
     timeout=10.0,
     memory_limit="auto",
     progress=True,
@@ -410,6 +411,8 @@ def run_season(
         Local worker processes: None for one per core, 0 to run serially in this process.
     scheduler : str, optional
         Address of an existing ``dask.distributed`` scheduler (wins over `workers`).
+    client : distributed.Client, optional
+        A connected client (a notebook's, say) to run on, left open; wins over `scheduler`.
     timeout : float, optional
         Seconds to wait for `scheduler` before giving up.
     memory_limit : str or int, optional
@@ -454,7 +457,9 @@ def run_season(
         results[index] = result
         bar.step(Path(jobs[index].path).name, ok=result.get("ok", False))
 
-    if scheduler is None and workers == 0:
+    if client is not None and not callable(getattr(client, "submit", None)):
+        raise CliffTerrainError(f"`client` must be a distributed.Client, got {client!r}")
+    if client is None and scheduler is None and workers == 0:
         for index, job in enumerate(jobs):
             finished(index, process_image(job.as_dict()))
     elif jobs:
@@ -465,6 +470,7 @@ def run_season(
             scheduler=scheduler,
             timeout=timeout,
             memory_limit=memory_limit,
+            client=client,
         )
     bar.close()
 
@@ -502,16 +508,22 @@ def run_season(
     )
 
 
-def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
-    """Submit one task per image and hand each result to `finished(index, result)` as it arrives."""
+def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, client=None):
+    """Submit one task per image and hand each result to `finished(index, result)` as it arrives.
+
+    A given `client` is used as it is and left open (its owner closes it).
+    """
     try:
-        from distributed import Client, LocalCluster, as_completed
+        from distributed import Client, as_completed
     except ImportError:
         raise CliffTerrainError(
             "Dask is not installed: pip install 'cliff-terrain[season]', or run serially with --workers 0"
         ) from None
     cluster = None
     try:
+        if client is not None:
+            _submit(client, jobs, finished, as_completed)
+            return
         if scheduler is not None:
             try:
                 client = Client(scheduler, timeout=timeout, set_as_default=False)
@@ -530,32 +542,54 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit):
                     raise CliffTerrainError(
                         f"`memory_limit` must be a size such as 2GiB or 'auto', got {memory_limit!r}"
                     ) from None
-            cluster = LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                memory_limit=memory_limit,
-                dashboard_address=None,
-                host="127.0.0.1",
-                # Two OpenCV threads per worker (see _exact_opencv), not one per core in every worker.
-                env={OPENCV_THREADS: "2"},
-            )
+            cluster = local_cluster(n, memory_limit=memory_limit)
             client = Client(cluster, set_as_default=False)
         with client:
-            futures = {}
-            run = uuid.uuid4().hex[:8]  # task names of this run only, whoever else uses the scheduler
-            for index, job in enumerate(jobs):
-                name = f"season-{run}-{index}-{Path(job.path).name}"
-                futures[client.submit(process_image, job.as_dict(), key=name, pure=False)] = index
-            for future in as_completed(futures, loop=client.loop):
-                try:
-                    result = future.result()
-                except Exception as exc:  # the worker died (memory limit) or the task was lost
-                    result = {"ok": False, "error": f"{type(exc).__name__}: {exc}".replace("\n", " ")}
-                finished(futures[future], result)
+            _submit(client, jobs, finished, as_completed)
     finally:
         if cluster is not None:
             cluster.close()
+
+
+def _submit(client, jobs, finished, as_completed):
+    futures = {}
+    run = uuid.uuid4().hex[:8]  # task names of this run only, whoever else uses the scheduler
+    for index, job in enumerate(jobs):
+        name = f"season-{run}-{index}-{Path(job.path).name}"
+        futures[client.submit(process_image, job.as_dict(), key=name, pure=False)] = index
+    for future in as_completed(futures, loop=client.loop):
+        try:
+            result = future.result()
+        except Exception as exc:  # the worker died (memory limit) or the task was lost
+            result = {"ok": False, "error": f"{type(exc).__name__}: {exc}".replace("\n", " ")}
+        finished(futures[future], result)
+
+
+def local_cluster(workers, *, memory_limit="auto"):
+    """A ``distributed.LocalCluster`` of `workers` single-threaded processes on loopback, for a season.
+
+    Two settings differ from Dask's defaults, both measured on the soybean season
+    (``bench/bench_season.py``):
+
+    - glibc's trimming stays at its default. Dask sets ``MALLOC_TRIM_THRESHOLD_=65536`` in new
+      workers, which also turns off glibc's adaptive mmap threshold, so every array above 128 KiB
+      comes from fresh pages; a task then takes 0.12 s instead of 0.09 s. A task's memory is
+      bounded (about 170 MB a worker), so there is little to give back.
+    - OpenCV gets two threads per worker (see :func:`_exact_opencv`), not one per core each.
+    """
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            memory_limit=memory_limit,
+            dashboard_address=None,
+            host="127.0.0.1",
+            env={OPENCV_THREADS: "2"},
+        )
 
 
 def _usable_cores():
