@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import REPO, SHARED_UAV
+
 from cliff_terrain.errors import CliffTerrainError
 
 SOYBEAN = SHARED_UAV / "lamberton_soybean"
@@ -493,7 +494,9 @@ def test_given_client_is_used_and_left_open(serial, soybean, tmp_path):
 
     jobs, plots = plan_season([soybean], plots=soybean / "plots.geojson")
     with local_cluster(1) as cluster, Client(cluster) as client:
-        env = client.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OPENCV_FOR_THREADS_NUM")))
+        env = client.run(
+            lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OPENCV_FOR_THREADS_NUM"))
+        )
         assert list(env.values()) == [(None, "2")]
         started = time.time()
         client.get_task_stream(start=started)
