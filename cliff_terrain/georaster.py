@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import CliffTerrainError, DependencyError, GeoreferenceError, RasterReadError
-from .plots import as_affine
+from .plots import affine_inverse, as_affine
 
 # GeoKey ids (GeoTIFF 1.1, section 7) and the unit codes this module accepts or refuses.
 _GT_MODEL_TYPE, _GT_RASTER_TYPE, _GEOGRAPHIC_TYPE = 1024, 1025, 2048
@@ -417,7 +417,7 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
     # Target pixel index (centre at +0.5) -> map -> source pixel index (centre at +0.5).
     shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
     unshift = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
-    m = unshift @ np.linalg.inv(raster.transform) @ t @ shift
+    m = unshift @ affine_inverse(raster.transform) @ t @ shift
     source = raster.data
     scale = min(abs(np.linalg.det(m[:2, :2])) ** -0.5, 1e9)
     if scale < 0.5:
