@@ -58,6 +58,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
             from ..cliff_terrain import CliffTerrainError
             from ..cliff_terrain.mesh import adaptive_mesh
             from ..cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tile, tile_windows
+            from ..cliff_terrain.seams import border, stitch
             from ..cliff_terrain.settings import DEFAULT_MAX_ERROR_M
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
@@ -86,19 +87,27 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                     "shape": list(reader.shape),
                     "max_error": max_error,
                 }
+                # Each tile's right and bottom borders wait for the tile that shares them, which
+                # closes the crack between the two with a seam (cliff_terrain.seams).
+                right, bottom = {}, {}
                 for k, window in enumerate(tile_windows(reader.shape, tile=self.tile, overlap=self.overlap)):
                     tile = relief_tile(reader, window, settings)
                     r0, r1, c0, c1 = window.core
                     mesh = adaptive_mesh(
                         tile.heights * np.float32(gsd), max_error=max_error, pixel_size=gsd, two_sided=False
                     )
+                    right[(r0, c1)], bottom[(r1, c0)] = border(mesh, "right"), border(mesh, "bottom")
+                    shared = {"left": right.pop((r0, c0), None), "top": bottom.pop((r0, c0), None)}
+                    mesh = stitch(mesh, {side: b for side, b in shared.items() if b is not None})
                     part = f"{name}_{k:04d}"
                     data = mesh_from_arrays(part, mesh)
                     created.append(data)
                     rgb, _ = reader.read(r0, r1, c0, c1)
                     image = image_from_array(part, rgb)
                     created.append(image)
-                    obj = textured_object(part, data, image, context.collection, created=created)
+                    obj = textured_object(
+                        part, data, image, context.collection, created=created, extension="EXTEND"
+                    )
                     obj.parent = root
                     # The tile's bottom-left corner, y up from the mosaic's last row, in metres.
                     obj.location = (c0 * gsd, (rows - r1) * gsd, 0.0)

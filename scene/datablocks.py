@@ -19,12 +19,13 @@ _COLLECTIONS = (
 )
 
 
-def textured_object(name, mesh, image, collection, *, created):
+def textured_object(name, mesh, image, collection, *, created, extension="REPEAT"):
     """Give `mesh` a relief material showing `image` and link a new object `name` into `collection`.
 
-    The material and the object are appended to `created`; the object is returned.
+    The material and the object are appended to `created`; the object is returned. `extension`
+    is the texture's (see :func:`relief_material`).
     """
-    material = relief_material(name, image)
+    material = relief_material(name, image, extension=extension)
     created.append(material)
     mesh.materials.append(material)
     obj = bpy.data.objects.new(name, mesh)

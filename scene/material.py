@@ -97,7 +97,7 @@ def image_from_array(name, rgb):
     return image
 
 
-def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
+def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear", extension="REPEAT"):
     """Create the relief material for `image`.
 
     Parameters
@@ -110,6 +110,10 @@ def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
         The UV map with front (u <= 1) and back (u > 1) corners.
     interpolation : str, optional
         Texture interpolation ("Linear", "Closest", "Cubic", "Smart").
+    extension : {"REPEAT", "EXTEND"}, optional
+        "REPEAT" for a two-sided relief, whose back corners have u = x + 1. "EXTEND" for a
+        one-sided tile of a mosaic: its border texels then blend with nothing, where "REPEAT"
+        would blend them with the opposite border's and draw a line along every tile border.
 
     Returns
     -------
@@ -127,7 +131,7 @@ def relief_material(name, image, *, uv_name=UV_NAME, interpolation="Linear"):
         uv.uv_map = uv_name
         tex = nodes.new("ShaderNodeTexImage")
         tex.image = image
-        tex.extension = "REPEAT"
+        tex.extension = extension
         tex.interpolation = interpolation
         split = nodes.new("ShaderNodeSeparateXYZ")
         is_back = nodes.new("ShaderNodeMath")

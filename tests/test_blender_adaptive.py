@@ -199,8 +199,20 @@ def test_a_mosaic_comes_in_as_adaptive_tiles_under_one_georeferenced_empty(addon
             (600 - r1) * 0.02
         )
         covered += (r1 - r0) * (c1 - c0)
-        images = [n.image for n in obj.active_material.node_tree.nodes if n.type == "TEX_IMAGE"]
+        textures = [n for n in obj.active_material.node_tree.nodes if n.type == "TEX_IMAGE"]
+        images = [n.image for n in textures]
         assert images and tuple(images[0].size) == (c1 - c0, r1 - r0)
+        # One-sided tiles clamp their texture: repeating it would draw a line along each border.
+        assert textures[0].extension == "EXTEND"
         assert max(images[0].size) <= 16384
     assert covered == 600 * 700
     assert sum(len(o.data.polygons) for o in tiles) < 0.2 * 2 * 600 * 700
+    # The tiles close into one surface: no crack where a plant crosses a tile border.
+    from test_seams import cracks, welded_open_edges
+
+    parts = []
+    for obj in tiles:
+        co, _, corners, _ = mesh_arrays(obj.data)
+        parts.append((co + np.array(obj.location), corners.reshape(-1, 3)))
+    edges, points = welded_open_edges(parts, 0.02)
+    assert len(edges) > 0 and len(cracks(edges, points, 700, 600)) == 0

@@ -413,7 +413,7 @@ def test_failure_keeps_a_photo_that_was_already_loaded(addon, scene, monkeypatch
     # The build's material is made by scene.datablocks.textured_object.
     datablocks = importlib.import_module(f"{ADDON}.scene.datablocks")
 
-    def fail(name, photo):
+    def fail(name, photo, **settings):
         raise RuntimeError("injected failure")
 
     monkeypatch.setattr(datablocks, "relief_material", fail)
