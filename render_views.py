@@ -410,18 +410,19 @@ def write_figures(relief, out, side, metrics, *, transect=None):
         title = (
             "Side view from the south" if transect is None else f"Side view of the transect {transect.text}"
         )
-        xz = save(
-            "xz_annotated.png",
-            figures.annotate_side_view(
+        if side["top"] > 0:
+            xz = figures.annotate_side_view(
                 read("xz.png"),
                 ground_row=side["ground_row"],
                 rows_per_unit=side["rows_per_unit"],
-                max_height=relief.max_height,
+                max_height=side["top"],
                 units=relief.units,
                 exaggeration=side["exaggeration"],
                 title=title,
-            ),
-        )
+            )
+        else:  # a transect across bare ground only: nothing to put a ruler on
+            xz = figures.contact_sheet([(f"{title}: bare ground", read("xz.png"))], tile=480, columns=1)
+        xz = save("xz_annotated.png", xz)
         mesh = save(
             "mesh_annotated.png",
             figures.annotate_colour_bar(read("mesh.png"), max_height=relief.max_height, units=relief.units),
@@ -469,7 +470,7 @@ def write_figures(relief, out, side, metrics, *, transect=None):
         **crop,
         "side_view": {
             key: side[key]
-            for key in ("exaggeration", "ground_row", "rows_per_unit", "strip_columns", "transect")
+            for key in ("exaggeration", "top", "ground_row", "rows_per_unit", "strip_columns", "transect")
         },
         "figures": {"raw_renders": "unchanged", "annotated": list(FIGURES), "height_label_unit": unit},
     }

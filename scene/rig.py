@@ -227,7 +227,8 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
     Returns
     -------
     dict
-        ``size`` (cols, rows), ``exaggeration``, ``ground_row`` (image row of height 0, from the top
+        ``size`` (cols, rows), ``exaggeration``, ``top`` (the highest point framed, in the
+        relief's units: the strip's own with a transect), ``ground_row`` (image row of height 0, from the top
         edge), ``rows_per_unit`` (image rows per unit of the relief's heights), ``strip_columns``
         (image columns where the strip starts and ends), ``transect``.
     """
@@ -255,6 +256,10 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
     length = along.length
     direction = along / length
     view_dir = Vector((-direction.y, direction.x, 0.0))  # the strip's right-hand side looks across it
+    if transect is not None:
+        # The strip's own top, not the whole relief's: a transect through low plants is drawn
+        # as tall as one through the highest, and its ruler fits it.
+        relief_top = strip_top(obj, start, end, half, ground, default=relief_top)
     if exaggeration is None:
         exaggeration = vertical_exaggeration(length, relief_top) if relief_top > 0 else 1.0
     top = ground + relief_top * exaggeration
@@ -274,12 +279,38 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
     return {
         "size": (cols, rows),
         "exaggeration": float(exaggeration),
+        # The highest point the view frames, in the relief's units: the strip's with a transect.
+        "top": relief_top / units_per_unit,
         "ground_row": (z_centre + 0.5 * rows * pixel - ground) / pixel,
         "rows_per_unit": exaggeration * units_per_unit / pixel,
         # Image columns (pixel edges) where the strip starts and ends.
         "strip_columns": (0.5 * cols - 0.5 * length / pixel, 0.5 * cols + 0.5 * length / pixel),
         "transect": None if transect is None else transect.text,
     }
+
+
+def strip_top(obj, start, end, half, ground, *, default):
+    """The height above `ground` of `obj`'s highest vertex within `half` of the segment from
+    `start` to `end` (world x, y); `default` when no vertex lies in the strip.
+
+    The relief's surface is flat between its vertices (grid or TIN), so its highest point in
+    the strip is a vertex, up to the strip's edges.
+    """
+    mesh = obj.data
+    co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.vertices.foreach_get("co", co)
+    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    world = co.reshape(-1, 3).astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    direction = np.array([end.x - start.x, end.y - start.y])
+    length = float(np.hypot(*direction))
+    direction /= length
+    offset = world[:, :2] - [start.x, start.y]
+    along = offset @ direction
+    across = offset @ [-direction[1], direction[0]]
+    inside = (along >= 0) & (along <= length) & (np.abs(across) <= half)
+    if not inside.any():
+        return default
+    return max(float(world[inside, 2].max()) - ground, 0.0)
 
 
 def remove_rig(scene):

@@ -98,6 +98,34 @@ def test_side_view_ruler_matches_the_rendered_relief(transect_run):
     assert f"vertical exaggeration {side['exaggeration']:g}x" in proc.stdout
 
 
+def test_a_transect_through_low_plants_is_exaggerated_for_them(tmp_path):
+    """The side view's exaggeration comes from the strip's own top, not the whole relief's."""
+    image, _ = synthetic_field(shape=(240, 320), seed=1)
+    photo = tmp_path / "field.png"
+    Image.fromarray(image).save(photo)
+    relief = build_relief(str(photo))
+    # The 16-row band whose plants are lowest (but present): well below the relief's top.
+    tops = [relief.heights[r : r + 16].max() for r in range(0, 224, 4)]
+    start = int(np.argmin([t if t > 0.1 * relief.max_height else np.inf for t in tops])) * 4
+    band_top = float(tops[start // 4])
+    assert band_top < 0.5 * relief.max_height
+    out = tmp_path / "views"
+    proc = run(str(photo), "--out", str(out), "--transect", f"rows={start}:{start + 16}", "--samples", "1")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    side = json.loads((out / "metrics.json").read_text())["side_view"]
+    # The view frames the strip's top (its highest mesh vertex: pixel corners, which average the
+    # pixels around them, so a little below the band's highest pixel), not the relief's.
+    assert 0.7 * band_top <= side["top"] <= band_top + 1e-6, (side["top"], band_top)
+    view = read(out / "xz.png")
+    drawn = top_opaque_rows(view)
+    summit = side["ground_row"] - side["top"] * side["rows_per_unit"]
+    assert abs(drawn[drawn >= 0].min() - summit) <= 2.0  # drawn where the ruler puts it
+    # It rises to a useful share of the view, as a band through the tallest plant does.
+    rise = (side["ground_row"] - summit) / view.shape[1]
+    assert 0.12 <= rise <= 0.3, (rise, side["exaggeration"])
+    assert f"vertical exaggeration {side['exaggeration']:g}x" in proc.stdout
+
+
 def test_transect_is_outlined_on_the_top_view(transect_run):
     out, image, _, _, band, _, _ = transect_run
     annotated = read(out / "xy_annotated.png")
