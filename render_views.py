@@ -334,153 +334,12 @@ def start_blender(*, usage="blender -b -P render_views.py -- IMAGE"):
 # --------------------------------------------------------------------------------------------
 
 
-def write_maps(relief, out):
-    """filtered.png, mask.png, distance.png (8-bit) and height.tif (float32 heights, in relief.units)."""
-    import numpy as np
-    import tifffile
-    from PIL import Image
-
-    filtered = np.round(np.clip(relief.filtered, 0.0, 1.0) * 255.0).astype(np.uint8)
-    Image.fromarray(filtered).save(out / "filtered.png")
-    Image.fromarray(relief.mask.astype(np.uint8) * 255).save(out / "mask.png")
-    top = float(relief.distance.max(initial=0.0))
-    distance = relief.distance / top if top > 0 else relief.distance
-    Image.fromarray(np.round(distance * 255.0).astype(np.uint8)).save(out / "distance.png")
-    tifffile.imwrite(
-        out / "height.tif",
-        np.ascontiguousarray(relief.heights, dtype=np.float32),
-        photometric="minisblack",
-        metadata={"units": relief.units, "pixel_size": float(relief.pixel_size)},
-    )
-
-
-def crop_figures(relief):
-    """Plants, ground cover and plant heights (each region's highest point), in the relief's units."""
-    import numpy as np
-    from scipy import ndimage
-
-    n = relief.n_regions
-    tops = ndimage.maximum(relief.heights, relief.labels, np.arange(1, n + 1)) if n else []
-    tops = np.asarray(tops, dtype=np.float64)
-    return {
-        "plants": n,
-        "cover": float(relief.mask.mean()),
-        "plant_height_median": float(np.median(tops)) if n else None,
-        "plant_height_p90": float(np.percentile(tops, 90)) if n else None,
-    }
-
-
-def write_figures(relief, out, side, metrics, *, transect=None):
-    """xy_annotated.png, xz_annotated.png, mesh_annotated.png and summary.png; returns what
-    metrics.json records about them (the side view's exaggeration, the crop's key figures)."""
-    import numpy as np
-    from PIL import Image
-
-    figures = core_module("figures")
-
-    def read(name):
-        with Image.open(out / name) as image:
-            return np.asarray(image.convert("RGBA" if "A" in image.mode else "RGB"))
-
-    def save(name, array):
-        Image.fromarray(array).save(out / name)
-        return array
-
-    meta = relief.metadata
-    crop = crop_figures(relief)
-    factor, unit = (
-        figures.display_units(relief.max_height, relief.units)
-        if relief.max_height > 0
-        else (1.0, relief.units)
-    )
-    lit = read("xy.png")
-    gsd = meta.gsd_m_per_px
-    metres_per_pixel = gsd * meta.width / lit.shape[1] if gsd else None
-    xy = save(
-        "xy_annotated.png",
-        figures.annotate_top_view(
-            lit,
-            metres_per_pixel=metres_per_pixel,
-            georeferenced=meta.gsd_source == "geotiff",
-            transect=transect,
-            photo_shape=(meta.height, meta.width),
-        ),
-    )
-    if relief.max_height > 0:
-        title = (
-            "Side view from the south" if transect is None else f"Side view of the transect {transect.text}"
-        )
-        if side["top"] > 0:
-            xz = figures.annotate_side_view(
-                read("xz.png"),
-                ground_row=side["ground_row"],
-                rows_per_unit=side["rows_per_unit"],
-                max_height=side["top"],
-                units=relief.units,
-                exaggeration=side["exaggeration"],
-                title=title,
-            )
-        else:  # a transect across bare ground only: nothing to put a ruler on
-            xz = figures.contact_sheet([(f"{title}: bare ground", read("xz.png"))], tile=480, columns=1)
-        xz = save("xz_annotated.png", xz)
-        mesh = save(
-            "mesh_annotated.png",
-            figures.annotate_colour_bar(read("mesh.png"), max_height=relief.max_height, units=relief.units),
-        )
-        heights = np.round(figures.height_colours(relief.heights / relief.max_height) * 255).astype(np.uint8)
-        heights = figures.annotate_colour_bar(heights, max_height=relief.max_height, units=relief.units)
-    else:
-        # Nothing rose: no ruler or colour bar can be labelled; the figures say so instead.
-        note = f"flat relief: no {'plant' if crop['plants'] == 0 else 'height'} to measure"
-        xz = save("xz_annotated.png", figures.contact_sheet([(note, read("xz.png"))], tile=480, columns=1))
-        mesh = save(
-            "mesh_annotated.png", figures.contact_sheet([(note, read("mesh.png"))], tile=480, columns=1)
-        )
-        heights = np.zeros(relief.heights.shape, np.uint8)
-
-    def height(value):
-        return "n/a" if value is None else f"{value * factor:.3g} {unit}"
-
-    if gsd:
-        units_line = f"GSD {gsd * 100:.3g} cm/px ({meta.gsd_source})"
-    else:
-        units_line = "no GSD: heights in processing pixels"
-    facts = [
-        f"plants: {crop['plants']}",
-        f"ground cover: {100 * crop['cover']:.1f} %",
-        f"plant height: median {height(crop['plant_height_median'])}",
-        f"    90th percentile {height(crop['plant_height_p90'])}",
-        f"highest point: {height(relief.max_height)}",
-        f"lit top view: PSNR {metrics['psnr_xy']:.2f} dB, SSIM {metrics['ssim_xy']:.3f}",
-        f"flat top view: PSNR {metrics['psnr_xy_flat']:.2f} dB",
-        units_line,
-        f"side view: vertical exaggeration {side['exaggeration']:g}x",
-    ]
-    panels = [
-        ("photo", read("xy_flat.png")),
-        ("plants (mask)", read("mask.png")),
-        (f"heights ({unit})", heights),
-        ("lit top view (x-y)", xy),
-        ("3D view", read("view3d.png")),
-        ("mesh by height", mesh),
-        ("side view (x-z)", xz, 2),
-    ]
-    save("summary.png", figures.contact_sheet(panels, facts=facts, title=Path(meta.path).name))
-    return {
-        **crop,
-        "side_view": {
-            key: side[key]
-            for key in ("exaggeration", "top", "ground_row", "rows_per_unit", "strip_columns", "transect")
-        },
-        "figures": {"raw_renders": "unchanged", "annotated": list(FIGURES), "height_label_unit": unit},
-    }
-
-
 def run(args):
     image, out = check_inputs(args)
     log("starting Blender")
     bpy, addon, core = start_blender()
     evaluation = core_module("evaluation")
+    view_figures = core_module("view_figures")
     rig = importlib.import_module(f"{PACKAGE}.scene.rig")
     render_settings = importlib.import_module(f"{PACKAGE}.scene.render_settings")
     views = importlib.import_module(f"{PACKAGE}.scene.views")
@@ -563,7 +422,7 @@ def run(args):
 
     log("writing the maps")
     start = time.perf_counter()
-    write_maps(relief, out)
+    view_figures.write_maps(relief, out)
     stage("maps", start)
 
     if args.dsm or args.plots:
@@ -578,7 +437,9 @@ def run(args):
 
     log("drawing the figures")
     start = time.perf_counter()
-    figures_record = write_figures(relief, out, view_rig.side, metrics, transect=args.transect_strip)
+    figures_record = view_figures.write_figures(
+        relief, out, view_rig.side, metrics, transect=args.transect_strip
+    )
     stage("figures", start)
 
     log("saving scene.blend")

@@ -245,12 +245,23 @@ def build_record(relief, path, params, scale):
         "max_error": float(relief.max_error or 0.0),
         "front_faces": int(relief.mesh.n_front_faces),
         "max_height": relief.max_height,
+        # Tells a rebuild of the relief from its photo (Render Views' figures) from another photo.
+        "mask_digest": mask_digest(relief.mask),
         "image_width": int(relief.metadata.width),
         "image_height": int(relief.metadata.height),
         # ID properties hold no None: an unknown GSD is stored as 0, as in the settings.
         "params": {key: (0.0 if value is None else value) for key, value in params.items()},
         **key_figures(relief),
     }
+
+
+def mask_digest(mask):
+    """A short hash of a plant mask (the segmentation, which a rebuild reproduces bit for bit)."""
+    import hashlib
+
+    import numpy as np
+
+    return hashlib.blake2b(np.packbits(mask, axis=None).tobytes(), digest_size=8).hexdigest()
 
 
 def key_figures(relief):

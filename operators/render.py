@@ -16,6 +16,7 @@ import os
 import tempfile
 import time
 import traceback
+from pathlib import Path
 
 import bpy
 from bpy.props import EnumProperty, IntProperty
@@ -135,12 +136,70 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
         out_dir = os.path.join(folder, bpy.path.clean_name(obj.name))
         os.makedirs(out_dir, exist_ok=True)  # views are replaced, as F12 replaces its result
         metrics = self.run(context, out_dir, tuple(views.VIEW_FILES))
+        metrics.update(self.write_figures(obj, out_dir, metrics))
         with open(os.path.join(out_dir, "metrics.json"), "w", encoding="utf-8") as stream:
             json.dump(json_safe(metrics), stream, indent=2)
         self.report(
             {"INFO"}, f"Rendered {len(views.VIEW_FILES)} views into {out_dir}: {metrics_summary(metrics)}"
         )
         return {"FINISHED"}
+
+    def write_figures(self, obj, out_dir, metrics):
+        """The maps and annotated figures render_views.py writes beside the views (summary.png...),
+        from the relief rebuilt from its photo and settings; skipped with a warning when the photo
+        is gone or has changed since the build. Returns what metrics.json records about them."""
+        from ..cliff_terrain import view_figures
+
+        relief, reason = relief_from_record(obj["cliff_terrain"])
+        if relief is None:
+            self.report({"WARNING"}, f"No annotated figures: {reason}")
+            return {}
+        view_figures.write_maps(relief, Path(out_dir))
+        return view_figures.write_figures(relief, Path(out_dir), metrics["side_view"], metrics)
+
+
+def relief_from_record(record):
+    """``(relief, None)``: the core's relief of a relief object, rebuilt (without a mesh) from the
+    photo and settings its record holds; ``(None, reason)`` when that is not the relief shown."""
+    import numpy as np
+
+    from ..cliff_terrain import CliffTerrainError, build_relief
+    from .build import mask_digest
+
+    source = str(record["source"])
+    if not os.path.isfile(source):
+        return None, f"the photo {source!r} is not there any more"
+    params = dict(record["params"])
+
+    def optional(key):  # ID properties hold no None: the build stored 0 (or "") for "not given"
+        value = params.get(key)
+        return None if value in (None, 0, 0.0, "") else value
+
+    try:
+        relief = build_relief(
+            source,
+            max_size=int(params["max_size"]),
+            segmentation=str(params["segmentation"]),
+            profile=str(params["profile"]),
+            exaggeration=float(params["exaggeration"]),
+            max_height=optional("max_height"),
+            gsd=optional("gsd"),
+            mesh=None,
+            dsm=optional("dsm"),
+            dtm=optional("dtm"),
+            heights=str(params.get("heights") or "inflated"),
+        )
+    except (CliffTerrainError, OSError) as exc:
+        return None, f"the photo {source!r} no longer builds: {exc}"
+    shape = (int(record["grid_rows"]), int(record["grid_cols"]))
+    same = relief.heights.shape == shape and np.isclose(
+        relief.max_height, float(record["max_height"]), rtol=1e-5
+    )
+    if same and "mask_digest" in record:  # reliefs built by earlier versions lack it
+        same = mask_digest(relief.mask) == record["mask_digest"]
+    if not same:
+        return None, f"the photo {source!r} has changed since the relief was built"
+    return relief, None
 
 
 class CLIFF_TERRAIN_OT_evaluate(_ViewSettings, bpy.types.Operator):

@@ -21,6 +21,7 @@ from conftest import SHARED_UAV as UAV
 from PIL import Image
 
 from cliff_terrain import synthetic_field
+from cliff_terrain.view_figures import FIGURES, MAPS
 
 pytestmark = pytest.mark.blender
 if importlib.util.find_spec("bpy") is None:
@@ -337,67 +338,45 @@ def test_operators_render_and_evaluate_the_active_relief(field, tmp_path):
     written = tmp_path / "field"
     for name in ("xy.png", "xy_flat.png", "xz.png", "view3d.png", "mesh.png", "metrics.json"):
         assert (written / name).is_file(), name
-    assert json.loads((written / "metrics.json").read_text())["samples"] == 4
+    record = json.loads((written / "metrics.json").read_text())
+    assert record["samples"] == 4
+    # The maps and annotated figures of render_views.py too, from the relief rebuilt from its photo:
+    # the same maps, and the same key figures.
+    for name in (*MAPS, *FIGURES):
+        assert (written / name).is_file(), name
+    assert read(written / "mask.png").tolist() == read(out / "mask.png").tolist()
+    for key in ("plants", "cover", "plant_height_median", "plant_height_p90"):
+        assert record[key] == pytest.approx(script[key], rel=1e-6), key
+    assert record["figures"]["annotated"] == list(FIGURES)
+    with Image.open(written / "summary.png") as summary:
+        assert min(summary.size) > 400
 
 
-AS_BLENDER = textwrap.dedent(
+CHANGED_PHOTO = OPERATORS_HEAD + textwrap.dedent(
     r"""
-    import os, runpy, sys
-    import bpy  # as inside Blender: bpy is there before the script runs
-    script, args = sys.argv[1], sys.argv[2:]
-    sys.argv = ["/opt/blender/blender", "-b", "--factory-startup", "-P", script, *args]
-    try:
-        runpy.run_path(script, run_name="__main__")
-        code = 0
-    except SystemExit as exc:
-        code = exc.code
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-    """
-)
-
-
-def test_blender_command_line_takes_the_arguments_after_the_double_dash(field, tmp_path):
-    photo, out, _, _, _ = field
-    views = tmp_path / "views"
-    proc = run("-c", AS_BLENDER, str(SCRIPT), "--", str(photo), "--out", str(views), "--resolution", "64")
-    assert proc.returncode == 0, proc.stderr
-    assert sorted(p.name for p in views.iterdir()) == sorted(RENDER_VIEWS_OUTPUTS)
-    assert json.loads((views / "metrics.json").read_text())["render_size"] == [64, 48]
-    # Without "--" Blender's own arguments are not taken for the script's.
-    check_error(run("-c", AS_BLENDER, str(SCRIPT)), "IMAGE")
-
-
-TINY_RELIEFS = OPERATORS_HEAD + textwrap.dedent(
-    r"""
-    settings = rv.core_module("settings")
-    resolution = bpy.ops.cliff_terrain.evaluate.get_rna_type().properties["resolution"]
-    out = {"same_limits": resolution.hard_max == settings.MAX_RESOLUTION}
-    bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2])
-    out["evaluate"] = sorted(bpy.ops.cliff_terrain.evaluate(samples=1))
-    out["ssim"] = scene.cliff_terrain.ssim
-    bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[3])
-    try:
-        bpy.ops.cliff_terrain.evaluate(samples=1, resolution=16)
-    except RuntimeError as exc:
-        out["refused"] = str(exc)
+    import os, shutil
+    from PIL import Image
+    copy = os.path.join(sys.argv[3], "copy.png")
+    shutil.copy(sys.argv[2], copy)
+    bpy.ops.cliff_terrain.build_relief(filepath=copy, max_size=160)
+    # The same photo mirrored: the same size and plants, another relief.
+    with Image.open(sys.argv[2]) as photo:
+        photo.transpose(Image.Transpose.FLIP_LEFT_RIGHT).save(copy)
+    scene.cliff_terrain.output_dir = sys.argv[3]
+    out = {"render": sorted(bpy.ops.cliff_terrain.render_views(samples=1))}
     print("RESULT " + json.dumps(out), flush=True)
     rv.leave(0)
     """
 )
 
 
-def test_evaluate_enlarges_the_views_of_a_tiny_relief_and_refuses_too_small_a_resolution(tmp_path):
-    tiny, strip = tmp_path / "tiny.png", tmp_path / "strip.png"
-    Image.fromarray(np.full((2, 2, 3), (40, 160, 40), np.uint8)).save(tiny)
-    Image.fromarray(np.full((2, 64, 3), (120, 90, 60), np.uint8)).save(strip)
-    proc = run("-c", TINY_RELIEFS, str(ROOT), str(tiny), str(strip))
+def test_render_views_of_a_changed_photo_renders_and_warns(field, tmp_path):
+    photo, *_ = field
+    proc = run("-c", CHANGED_PHOTO, str(ROOT), str(photo), str(tmp_path))
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     result = json.loads(proc.stdout.split("RESULT ", 1)[1].splitlines()[0])
-    assert result["same_limits"] is True  # the operator's limit is the one of settings.py
-    # A 2 x 2 relief: its views are enlarged to 16 x 16, so SSIM can compare them with the photo.
-    assert result["evaluate"] == ["FINISHED"] and 0.0 < result["ssim"] <= 1.0
-    # A 2 x 64 strip at 16 pixels would be 1 pixel across: refused, naming the setting and the fix.
-    assert "Resolution 16 makes the top views 1 pixel across the 64 x 2 grid" in result["refused"]
-    assert "use Resolution 224 or more" in result["refused"]
+    assert result["render"] == ["FINISHED"]
+    assert "No annotated figures: the photo" in proc.stdout + proc.stderr
+    assert "has changed since the relief was built" in proc.stdout + proc.stderr
+    written = tmp_path / "copy"
+    assert (written / "xy.png").is_file() and not (written / "summary.png").exists()
