@@ -44,6 +44,34 @@ def _noop(i):
     return i
 
 
+def _pool_task(job):
+    """One image in a fresh cache, as a task of the multiprocessing peer."""
+    from cliff_terrain.season.runner import process_image
+
+    result = process_image({**job, "cache": tempfile.mkdtemp(prefix="bench_season_pool_")})
+    assert result["ok"], result
+    return result
+
+
+def pool_peer(jobs, workers, repeat):
+    """The same tasks on a plain ``multiprocessing`` pool (no scheduler, no Dask): the speed-up
+    two processes reach on this machine at all, against a serial loop of the same tasks."""
+    import multiprocessing
+
+    serial_s, pool_s = [], []
+    with multiprocessing.get_context("spawn").Pool(workers) as pool:
+        pool.map(_pool_task, jobs[:workers], chunksize=1)  # imports and first calls, as for Dask
+        for _ in range(repeat):
+            t = time.perf_counter()
+            for job in jobs:
+                _pool_task(job)
+            serial_s.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            pool.map(_pool_task, jobs, chunksize=1)
+            pool_s.append(time.perf_counter() - t)
+    return min(serial_s), min(pool_s)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
@@ -121,6 +149,13 @@ def main(argv=None):
         cluster.close()
         shutil.rmtree(work, ignore_errors=True)
 
+    # The peer: what two processes reach here without Dask (the same task function).
+    from cliff_terrain import __version__
+    from cliff_terrain.season.cache import file_hash
+
+    plain = [{**j.as_dict(), "plots_hash": file_hash(j.plots), "version": __version__} for j in jobs]
+    pool_serial, pool_parallel = pool_peer(plain, args.workers, args.repeat)
+
     photo_mb = statistics.mean(Path(j.path).stat().st_size for j in jobs) / 1e6
     speedup = min(serial_s) / min(parallel_s)
     figures = {
@@ -132,6 +167,9 @@ def main(argv=None):
         "parallel_s": min(parallel_s),
         "speedup": speedup,
         "tables_identical": tables["serial"] == tables["parallel"],
+        "pool_serial_s": pool_serial,
+        "pool_parallel_s": pool_parallel,
+        "pool_speedup": pool_serial / pool_parallel,
         "cluster_startup_s": startup,
         "image_s_mean": statistics.mean(image_s),
         "image_s_max": max(image_s),
@@ -149,6 +187,10 @@ def main(argv=None):
         f"{min(serial_s):.2f} s, {args.workers} Dask workers {min(parallel_s):.2f} s -> {speedup:.2f}x "
         f"(goal >= 1.7x; 7 equal tasks on 2 workers cannot beat 7/4 = 1.75x); tables identical: "
         f"{figures['tables_identical']}; peak RSS per worker {figures['worker_peak_rss_mb']} MB"
+    )
+    print(
+        f"peer, a multiprocessing pool of {args.workers} processes running the same tasks (no Dask): "
+        f"serial loop {pool_serial:.2f} s, pool {pool_parallel:.2f} s -> {figures['pool_speedup']:.2f}x"
     )
     print(estimate(figures))
     return figures

@@ -495,9 +495,13 @@ def test_given_client_is_used_and_left_open(serial, soybean, tmp_path):
     jobs, plots = plan_season([soybean], plots=soybean / "plots.geojson")
     with local_cluster(1) as cluster, Client(cluster) as client:
         env = client.run(
-            lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OPENCV_FOR_THREADS_NUM"))
+            lambda: (
+                os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+                os.environ.get("OPENCV_FOR_THREADS_NUM"),
+                __import__("dask").config.get("distributed.worker.profile.enabled"),
+            )
         )
-        assert list(env.values()) == [(None, "2")]
+        assert list(env.values()) == [(None, "2", False)]
         started = time.time()
         client.get_task_stream(start=started)
         done = run_season(jobs, plots, out=tmp_path, client=client, progress=False, chart=False)
