@@ -438,6 +438,8 @@ def run_season(
         )
     if workers is not None:
         workers = check_int("workers", workers, minimum=0)
+    if client is not None and not callable(getattr(client, "submit", None)):
+        raise CliffTerrainError(f"`client` must be a distributed.Client, got {client!r}")
     timeout = check_float("timeout", timeout, minimum=0.0, strict_minimum=True)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -457,8 +459,6 @@ def run_season(
         results[index] = result
         bar.step(Path(jobs[index].path).name, ok=result.get("ok", False))
 
-    if client is not None and not callable(getattr(client, "submit", None)):
-        raise CliffTerrainError(f"`client` must be a distributed.Client, got {client!r}")
     if client is None and scheduler is None and workers == 0:
         for index, job in enumerate(jobs):
             finished(index, process_image(job.as_dict()))
@@ -514,7 +514,7 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, c
     A given `client` is used as it is and left open (its owner closes it).
     """
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise CliffTerrainError(
             "Dask is not installed: pip install 'cliff-terrain[season]', or run serially with --workers 0"
@@ -522,7 +522,7 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, c
     cluster = None
     try:
         if client is not None:
-            _submit(client, jobs, finished, as_completed)
+            _submit(client, jobs, finished)
             return
         if scheduler is not None:
             try:
@@ -545,13 +545,16 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, c
             cluster = local_cluster(n, memory_limit=memory_limit)
             client = Client(cluster, set_as_default=False)
         with client:
-            _submit(client, jobs, finished, as_completed)
+            _submit(client, jobs, finished)
     finally:
         if cluster is not None:
             cluster.close()
 
 
-def _submit(client, jobs, finished, as_completed):
+def _submit(client, jobs, finished):
+    """One task per job on `client`, under names of this run only; results to `finished` as they come."""
+    from distributed import as_completed
+
     futures = {}
     run = uuid.uuid4().hex[:8]  # task names of this run only, whoever else uses the scheduler
     for index, job in enumerate(jobs):
