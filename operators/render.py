@@ -146,8 +146,9 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
 
     def write_figures(self, obj, out_dir, metrics):
         """The maps and annotated figures render_views.py writes beside the views (summary.png...),
-        from the relief rebuilt from its photo and settings; skipped with a warning when the photo
-        is gone or has changed since the build. Returns what metrics.json records about them."""
+        from the relief rebuilt from its photo and settings (a core run without a mesh); skipped
+        with a warning when the photo has changed since the build. Returns what metrics.json
+        records about them."""
         from ..cliff_terrain import view_figures
 
         relief, reason = relief_from_record(obj["cliff_terrain"])
