@@ -48,7 +48,8 @@ def _pool_task(job):
     """One image in a fresh cache, as a task of the multiprocessing peer."""
     from cliff_terrain.season.runner import process_image
 
-    result = process_image({**job, "cache": tempfile.mkdtemp(prefix="bench_season_pool_")})
+    with tempfile.TemporaryDirectory(prefix="bench_season_pool_") as cache:
+        result = process_image({**job, "cache": cache})
     assert result["ok"], result
     return result
 
@@ -90,14 +91,8 @@ def main(argv=None):
     jobs, plots = plan_season([SEASON], plots=SEASON / "plots.geojson", max_size=args.max_size)
     _warm()
     # First-call costs (lazy imports, caches) out of the timing.
-    run_season(
-        jobs[:1],
-        plots,
-        out=tempfile.mkdtemp(prefix="bench_season_warm_"),
-        workers=0,
-        progress=False,
-        chart=False,
-    )
+    with tempfile.TemporaryDirectory(prefix="bench_season_warm_") as warm:
+        run_season(jobs[:1], plots, out=warm, workers=0, progress=False, chart=False)
 
     started = time.perf_counter()
     cluster = local_cluster(args.workers)  # the cluster `run_season(workers=N)` starts
