@@ -5,7 +5,8 @@ becomes an adaptive mesh (cliff_terrain.mesh.adaptive_mesh) in metres with its o
 photo as texture (never larger than the tile, at most 16384 pixels: GPUs' texture limit). The tiles
 are parented to one empty that carries the georeference (EPSG code and the map coordinates of the
 mosaic's top-left corner, as custom properties: map coordinates in metres are too large for
-Blender's single-precision positions). Tiles are one-sided surfaces, side by side.
+Blender's single-precision positions). Tiles are one-sided surfaces, side by side, each joined to its
+left and top neighbours by a seam (cliff_terrain.seams), so no crack opens where a plant crosses a border.
 """
 
 from pathlib import Path
