@@ -184,6 +184,13 @@ def _indices_below(indices, n):
     return indices.size == 0 or int(indices.view(np.uint32).max()) < n
 
 
+def positions(mesh):
+    """`mesh`'s vertex positions as an (n, 3) float32 array (one bulk read of ``position``)."""
+    co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.attributes["position"].data.foreach_get("vector", co)
+    return co.reshape(-1, 3)
+
+
 def set_positions(mesh, vertices, *, scale=1.0):
     """Write (n, 3) `vertices` times `scale` into `mesh`'s positions, then update it."""
     vertices = np.ascontiguousarray(vertices, dtype=np.float32)

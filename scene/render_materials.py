@@ -16,6 +16,7 @@ import numpy as np
 # The colour map (jet) is the core's, so the colour bar drawn on mesh.png is this view's own legend.
 from ..cliff_terrain.figures import height_colours
 from .material import empty_node_tree
+from .mesh_data import positions
 
 HEIGHT_ATTRIBUTE = "Cliff Terrain Height"
 
@@ -88,9 +89,7 @@ def add_height_colours(mesh):
     Returns the attribute (active for display, so Workbench's Attribute colour mode shows it).
     """
     n = len(mesh.vertices)
-    z = np.empty(3 * n, dtype=np.float32)
-    mesh.attributes["position"].data.foreach_get("vector", z)
-    z = z[2::3]
+    z = positions(mesh)[:, 2]
     top = float(z.max(initial=0.0))
     t = z / top if top > 0 else np.zeros_like(z)
     rgba = np.ones((n, 4), dtype=np.float32)

@@ -30,6 +30,7 @@ from ..cliff_terrain.settings import (
     MIN_VIEW_SIDE,
 )
 from .datablocks import remove_collection
+from .mesh_data import positions
 
 # The light's defaults (the command line offers the same): see the module notes.
 SUN_AZIMUTH = DEFAULT_SUN_AZIMUTH
@@ -296,11 +297,8 @@ def strip_top(obj, start, end, half, ground, *, default):
     The relief's surface is flat between its vertices (grid or TIN), so its highest point in
     the strip is a vertex, up to the strip's edges.
     """
-    mesh = obj.data
-    co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
-    mesh.vertices.foreach_get("co", co)
     matrix = np.array(obj.matrix_world, dtype=np.float64)
-    world = co.reshape(-1, 3).astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    world = positions(obj.data).astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
     direction = np.array([end.x - start.x, end.y - start.y])
     length = float(np.hypot(*direction))
     direction /= length

@@ -23,6 +23,7 @@ from ..cliff_terrain.evaluation import (
     resize_nearest,
     slope_degrees,
 )
+from .mesh_data import positions
 from .render_materials import add_height_colours, flat_material, height_material, make_matte, relief_image
 from .render_settings import FLAT_SAMPLES, SAMPLES, configure, gpu_available
 
@@ -180,15 +181,11 @@ def front_corner_heights(obj, grid_shape):
         n_front = int(np.argmax(sizes != 3)) if (sizes != 3).any() else len(sizes)
         corners = np.empty(len(mesh.loops), dtype=np.int32)
         mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
-        co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
-        mesh.attributes["position"].data.foreach_get("vector", co)
         triangles = corners[: 3 * n_front].reshape(-1, 3)
-        return sample_front(co.reshape(-1, 3), triangles, grid_shape)[::2, ::2]
+        return sample_front(positions(mesh), triangles, grid_shape)[::2, ::2]
     if len(mesh.vertices) < n:
         raise ValueError(f"{obj.name!r} has {len(mesh.vertices)} vertices, fewer than a {rows} x {cols} grid")
-    co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
-    mesh.attributes["position"].data.foreach_get("vector", co)
-    return co[2 : 3 * n : 3].reshape(rows + 1, cols + 1).astype(np.float64)
+    return positions(mesh)[:n, 2].reshape(rows + 1, cols + 1).astype(np.float64)
 
 
 def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):
