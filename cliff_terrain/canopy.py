@@ -271,11 +271,11 @@ def relief_tables(relief, *, plots=None, source=""):
         "regions.geojson": table_geojson(regions, point_geometries(regions), crs=canopy.crs),
     }
     if plots is not None:
-        files.update(_plot_tables(plots, canopy, heights=canopy.chm, mask=relief.mask, source=source))
+        files.update(plot_table_files(plots, canopy, heights=canopy.chm, mask=relief.mask, source=source))
     return files
 
 
-def _plot_tables(plots, canopy, *, heights, mask, source):
+def plot_table_files(plots, canopy, *, heights, mask, source):
     """``plots.csv`` and ``plots.geojson`` ({file name: text}) of `plots` on `canopy`'s grid.
 
     `heights` and `mask` are on that grid; `source` names the orthophoto in errors.

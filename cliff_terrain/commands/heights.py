@@ -40,7 +40,7 @@ def configure(parser):
 def run(args):
     import numpy as np
 
-    from ..canopy import _plot_tables, measure_orthophoto
+    from ..canopy import measure_orthophoto, plot_table_files
     from ..errors import CliffTerrainError
     from ..georaster import write_geotiff
     from ..plots import read_plots
@@ -73,7 +73,7 @@ def run(args):
         out / "regions.geojson": table_geojson(regions, point_geometries(regions), crs=canopy.crs),
     }
     if plots is not None:
-        tables = _plot_tables(plots, canopy, heights=chm, mask=plants, source=str(args.ortho))
+        tables = plot_table_files(plots, canopy, heights=chm, mask=plants, source=str(args.ortho))
         files.update({out / name: text for name, text in tables.items()})
     try:
         out.mkdir(parents=True, exist_ok=True)
