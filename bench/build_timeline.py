@@ -34,7 +34,10 @@ STEPS = {
         "distance_map",
         "inflate",
         "place_vertices",
+        "adaptive_mesh",
     ],
+    "cliff_terrain.mesh": ["tin_mesh"],
+    "cliff_terrain.tin": ["triangulate"],
     "cliff_terrain.image_io": ["OpenImage.decode"],
     "cliff_terrain.segmentation": [
         "_vegetation_mask",
@@ -44,6 +47,7 @@ STEPS = {
         "_label4",
         "label_max",
         "_watershed_raveled",
+        "_flood_components",
         "inner_boundaries",
     ],
     "operators.build": [
@@ -51,7 +55,10 @@ STEPS = {
         "checked_topology",
         "fill_topology",
         "set_positions",
+        "mesh_from_arrays",
         "load_photo",
+        "textured_object",
+        "show_relief",
     ],
     "scene.datablocks": ["relief_material"],
 }
@@ -83,6 +90,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--max-size", type=int, default=2000, help="processing grid's longest side")
     parser.add_argument("--runs", type=int, default=3, help="runs to print (the first is often slow)")
+    parser.add_argument("--mesh", choices=("grid", "adaptive"), default="grid", help="the relief's mesh")
+    parser.add_argument("--photo", type=Path, help="this photo instead of the benchmark's")
     args = parser.parse_args(argv)
 
     import bpy
@@ -93,13 +102,17 @@ def main(argv=None):
     wrap_steps(log, clock)
     try:
         with tempfile.TemporaryDirectory(prefix="cliff_terrain_timeline_") as tmp:
-            photo = Path(tmp) / "bench_photo.jpg"
-            bench.write_photo(photo)
+            photo = args.photo
+            if photo is None:
+                photo = Path(tmp) / "bench_photo.jpg"
+                bench.write_photo(photo)
             for run in range(args.runs):
                 bench.clear_scene()
                 log.clear()
                 clock[0] = time.perf_counter()
-                result = bpy.ops.cliff_terrain.build_relief(filepath=str(photo), max_size=args.max_size)
+                result = bpy.ops.cliff_terrain.build_relief(
+                    filepath=str(photo), max_size=args.max_size, mesh=args.mesh
+                )
                 total = time.perf_counter() - clock[0]
                 assert result == {"FINISHED"}, result
                 print(f"run {run + 1}: {1000 * total:.0f} ms")

@@ -11,6 +11,7 @@ from skimage.draw import polygon
 from cliff_terrain import (
     CliffTerrainError,
     build_relief,
+    load_image,
     quaternion_filter,
     segment,
     synthetic_field,
@@ -163,6 +164,56 @@ def test_inner_boundaries_match_scikit_image():
     labels[100:140, 100:200] = labels.max() + 1  # touching regions too
     expected = find_boundaries(labels, mode="inner", connectivity=1) & (labels > 0)
     np.testing.assert_array_equal(inner_boundaries(labels), expected)
+
+
+@pytest.mark.parametrize(("seed", "threads"), [(seed, threads) for seed in range(4) for threads in (1, 2, 4)])
+def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threads, monkeypatch):
+    """Groups of components flooded in threads, each on its band of rows, give exactly
+    scikit-image's single watershed: plateaus (few levels) are where the queue's order decides.
+    The markers' own levels differ: between equal ones the heap's layout decides (see
+    _flood_components)."""
+    import cv2
+    from skimage.segmentation import watershed
+
+    import cliff_terrain.segmentation as segmentation
+
+    monkeypatch.setattr(segmentation, "_FLOOD_GROUP_PIXELS", 1)
+    monkeypatch.setattr(segmentation, "_FLOOD_THREADS", threads)
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(60, 160)), int(rng.integers(60, 160)))
+    landscape = rng.integers(0, 3, shape).astype(np.float64)
+    # Blobs of random sizes (many touch, some share rows), a few markers in each.
+    mask = np.zeros(shape, bool)
+    for _ in range(30):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        mask[max(r - rng.integers(1, 12), 0) : r + rng.integers(1, 12), max(c - 8, 0) : c + rng.integers(1, 8)] = True
+    count, components, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=4)
+    markers = np.zeros(shape, np.int32)
+    seeds = mask & (rng.random(shape) < 0.03)
+    markers[seeds] = np.arange(1, int(seeds.sum()) + 1)
+    landscape[seeds] = -rng.permutation(int(seeds.sum()))  # below the plateaus, all different
+    flooded = rng.random(count) < 0.8
+    flooded[0] = False
+    assert flooded.sum() >= 4, "enough components for four groups"
+    calls = []
+    with segmentation._before_watershed(lambda: calls.append("kernels")):
+        result = segmentation._flood_components(landscape, markers, components, flooded, stats)
+    expected = watershed(landscape, markers, mask=flooded[components], connectivity=1)
+    np.testing.assert_array_equal(result, expected)
+    assert calls == ["kernels"]
+
+
+def test_a_real_photo_splits_the_same_with_one_thread_or_several(monkeypatch):
+    import cliff_terrain.segmentation as segmentation
+
+    from cliff_terrain.pipeline import resize_longest
+
+    image, _ = load_image(uav_image("caliterra/IMG_9370.jpg"))
+    image = resize_longest(image, 1500)
+    parallel = segment(image, filtered=quaternion_filter(image))
+    monkeypatch.setattr(segmentation, "_FLOOD_THREADS", 1)
+    np.testing.assert_array_equal(segment(image, filtered=quaternion_filter(image)).labels, parallel.labels)
+    assert parallel.n_regions > 100
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -14,6 +14,7 @@ from conftest import uav_image
 from cliff_terrain import CliffTerrainError, build_relief
 from cliff_terrain.mesh import adaptive_mesh, grid_mesh
 from cliff_terrain.settings import DEFAULT_MAX_ERROR_M, DEFAULT_MAX_ERROR_SHARE
+import cliff_terrain.tin as tin_module
 from cliff_terrain.tin import Tin, default_max_error, sample_tin, tin_error, triangulate
 
 
@@ -114,14 +115,18 @@ def _front_at_pixel_centres(mesh):
     return sample_tin(tin)[1::2, 1::2]
 
 
+@pytest.mark.parametrize("tile", [None, 16, 5])
 @pytest.mark.parametrize("two_sided", [True, False])
-def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertight(two_sided):
+def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertight(two_sided, tile, monkeypatch):
+    """Also with the TIN built in tiles (3 x 4 and 8 x 11 of them) joined by strips."""
+    if tile is not None:
+        monkeypatch.setattr(tin_module, "_TILE", tile)
     heights = _rough_raster((40, 57), seed=3) * 0.05  # metres
     mesh = adaptive_mesh(heights, max_error=0.01, pixel_size=0.02, two_sided=two_sided, base_depth=0.1)
     surface = _front_at_pixel_centres(mesh)
     assert not np.isnan(surface).any()
     assert np.abs(surface - heights).max() <= 0.01 + 1e-6  # float32 vertices
-    assert mesh.n_front_faces < 0.5 * 2 * heights.size
+    assert mesh.n_front_faces < (0.5 if tile != 5 else 0.9) * 2 * heights.size
 
     # Front faces point up and cover the image's rectangle exactly once.
     v = mesh.vertices.astype(np.float64)
