@@ -24,6 +24,7 @@ _EXPORTS = {
     "OpenImage": "image_io",
     "Relief": "pipeline",
     "Segmentation": "segmentation",
+    "adaptive_mesh": "mesh",
     "build_relief": "pipeline",
     "distance_map": "segmentation",
     "grid_mesh": "mesh",

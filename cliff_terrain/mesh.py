@@ -49,6 +49,9 @@ class MeshArrays:
     corner_edges : (n_corners,) int32, optional
         The edge from each corner to the next corner of its face (Blender's ``.corner_edge``).
         With both, Blender need not derive the edges itself (its slowest step for big grids).
+    flat_faces : (n_faces,) bool, optional
+        Faces to shade flat. By default the walls and base (every face after the front); an
+        adaptive mesh also flattens its level front triangles (see :func:`adaptive_mesh`).
     """
 
     vertices: np.ndarray
@@ -59,6 +62,7 @@ class MeshArrays:
     grid_shape: tuple[int, int]
     edges: np.ndarray | None = None
     corner_edges: np.ndarray | None = None
+    flat_faces: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
@@ -379,6 +383,8 @@ def adaptive_mesh(heights, *, max_error, pixel_size=1.0, two_sided=True, base_de
     the image's border, so the mesh covers the image exactly as :func:`grid_mesh` does; the front
     UVs are planar (u = x / width, v = y / height), so a top view still shows every pixel of the
     texture. Walls, base and back UVs (u > 1) follow the outer border as in :func:`grid_mesh`.
+    Level front triangles (bare soil, a plateau's top) are in ``flat_faces`` with the walls and
+    base: shaded smooth, a large level triangle would take the slope of the plant rims it touches.
 
     Parameters
     ----------
@@ -479,6 +485,11 @@ def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
     front = np.concatenate(faces).astype(np.int32)
     n_front = len(front)
 
+    # Level triangles (bare soil, a plateau's top) are shaded flat: smooth shading would spread
+    # the slope of a plant's rim, through the normals of the rim's vertices, over every large
+    # level triangle that touches it (a grid's level quads are a pixel wide; a TIN's are not).
+    front_z = z[front]
+    level = (front_z[:, 0] == front_z[:, 1]) & (front_z[:, 1] == front_z[:, 2])
     u_vertex = (x / cols).astype(np.float32)
     v_vertex = (y / rows).astype(np.float32)
     if not two_sided:
@@ -486,7 +497,7 @@ def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
         face_sizes = np.full(n_front, 3, dtype=np.int32)
         corner_verts = front.ravel()
         uvs = np.stack([u_vertex[corner_verts], v_vertex[corner_verts]], axis=1)
-        return _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols))
+        return _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols), level)
 
     # The outer border ring, counter-clockwise from the bottom-left corner (as border_ring).
     ring = np.concatenate(
@@ -525,10 +536,11 @@ def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
     )
     uvs[3 * n_front :, 0] = np.maximum(u_vertex[front_vertex], np.float32(0.5 / cols)) + 1.0
     uvs[3 * n_front :, 1] = v_vertex[front_vertex]
-    return _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols))
+    flat = np.concatenate([level, np.ones(n_ring + 1, dtype=bool)])  # the walls and base too
+    return _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols), flat)
 
 
-def _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, grid_shape):
+def _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, grid_shape, flat_faces=None):
     """MeshArrays with its edges and corner edges derived from the faces."""
     mesh = MeshArrays(
         vertices=np.ascontiguousarray(vertices, dtype=np.float32),
@@ -537,6 +549,7 @@ def _with_edges(vertices, face_sizes, corner_verts, uvs, n_front, grid_shape):
         uvs=np.ascontiguousarray(uvs, dtype=np.float32),
         n_front_faces=int(n_front),
         grid_shape=tuple(int(n) for n in grid_shape),
+        flat_faces=None if flat_faces is None else np.ascontiguousarray(flat_faces, dtype=bool),
     )
     keys, corner_edges = np.unique(mesh._corner_edge_keys(), return_inverse=True)
     mesh.edges = np.stack([keys // mesh.n_vertices, keys % mesh.n_vertices], axis=1).astype(np.int32)

@@ -503,13 +503,12 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     markers, n_markers = _label4(peaks)
     if n_markers <= n:  # nothing to split
         return components
-    # Only components holding two or more markers need a watershed: one call floods them all
-    # (the mask keeps the others out), the rest keep their component.
+    # Only components holding two or more markers need a watershed (flooded in groups, see
+    # _flood_components); the rest keep their component.
     marker_component = np.zeros(n_markers + 1, dtype=np.int64)
     marker_component[markers[peaks]] = components[peaks]  # every marker lies in one component
     split = np.bincount(marker_component[1:], minlength=n + 1) > 1
     split[0] = False
-    flood_mask = split[components]
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
         # The edge strength's 99th percentile over the mask, from every 7th pixel.

@@ -4,8 +4,9 @@ A TIN here has its vertices at pixel *centres* of the raster: vertex ``k`` sits 
 ``(rows[k], cols[k])`` (integers) with height ``heights[rows[k], cols[k]]``. Its triangles cover the
 rectangle spanned by the outermost pixel centres. :func:`triangulate` builds one by greedy
 insertion (Garland and Heckbert's algorithm, as implemented by ``pydelatin``), adding the pixel
-of largest error until every pixel centre lies within `max_error` of the surface;
-:func:`tin_error` measures that error independently, exactly, at every pixel centre.
+of largest error until every pixel centre lies within `max_error` of the surface, in tiles of
+about 128 pixels joined into one conforming TIN; :func:`tin_error` measures that error
+independently, exactly, at every pixel centre.
 """
 
 from __future__ import annotations
@@ -64,6 +65,13 @@ def triangulate(heights, *, max_error):
         With at least the four corner pixels as vertices. Rasters of one row or one column are
         not triangulated: every pixel is a vertex and there are no triangles.
 
+    Notes
+    -----
+    Greedy insertion runs in blocks of about 128 x 128 pixel centres, each with its own corners
+    (4x faster on a 12 MP raster than in one piece, for 2 % more triangles). Two neighbouring
+    blocks' borders are a pixel apart; triangles zipped between their vertices join them, and
+    hold no pixel centre of their own, so the bound still holds at every pixel centre.
+
     Examples
     --------
     >>> import numpy as np
@@ -107,8 +115,8 @@ def triangulate(heights, *, max_error):
 
 
 # Greedy insertion costs more per point on a large raster than on a small one: in tiles of about
-# 128 pixels it runs 4x faster on a 12 MP relief (1.44 -> 0.36 s) and 1.5x on a 1 MP one, with
-# as many triangles (bench/bench_adaptive_mesh.py). Tiles are blocks of pixel centres, joined by
+# 128 pixels it runs 4x faster on a 12 MP relief (1.44 -> 0.36 s) and 1.3x on a 1 MP one, for
+# 2 % more triangles (bench/bench_adaptive_mesh.py). Tiles are blocks of pixel centres, joined by
 # strips a pixel wide (see _tile_joins).
 _TILE = 128
 
@@ -145,7 +153,8 @@ def _tile_joins(rows, cols, row_edges, col_edges):
     their corners is two triangles.
     """
     joins = []
-    # Strips between tile rows: border vertices by (segment = tile column, position = column).
+    # Strips across the row cuts (one per cut and tile column, vertices along the columns), then
+    # across the column cuts (one per cut and tile row, vertices along the rows).
     for inner, outer, positions, in_edges, across in (
         (rows, cols, cols, row_edges, col_edges),
         (cols, rows, rows, col_edges, row_edges),
@@ -162,7 +171,9 @@ def _tile_joins(rows, cols, row_edges, col_edges):
         after = (cut_after < len(cuts)) & (cuts[np.minimum(cut_after, len(cuts) - 1)] == inner)
         vertex = np.concatenate([np.flatnonzero(before), np.flatnonzero(after)])
         side = np.concatenate([np.zeros(before.sum(), np.int64), np.ones(after.sum(), np.int64)])
-        strip = np.concatenate([cut_before[before], cut_after[after]]) * (len(across) - 1) + segment_of[vertex]
+        strip = (
+            np.concatenate([cut_before[before], cut_after[after]]) * (len(across) - 1) + segment_of[vertex]
+        )
         joins.append(_zip_strips(strip, positions[vertex], side, vertex))
     # Squares where four tiles meet: the corners around pixel corner (r, c) of each inner cut.
     r_cuts, c_cuts = row_edges[1:-1], col_edges[1:-1]

@@ -37,9 +37,9 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
     Returns
     -------
     bpy.types.Mesh
-        The new mesh, one UV map (active for display and render), the first
-        ``n_front_faces`` faces smooth-shaded and the walls and base flat-shaded. Nothing is left
-        behind if this raises.
+        The new mesh, one UV map (active for display and render), the faces of
+        ``mesh_arrays.flat_faces`` flat-shaded and the others smooth (by default the first
+        ``n_front_faces`` smooth, the walls and base flat). Nothing is left behind if this raises.
     """
     mesh = topology_mesh(name, checked_topology(mesh_arrays), uv_name=uv_name)
     try:
@@ -60,6 +60,7 @@ class Topology(NamedTuple):
     n_front_faces: int
     edges: np.ndarray | None
     corner_edges: np.ndarray | None
+    flat_faces: np.ndarray | None = None
 
     @property
     def n_corners(self):
@@ -105,6 +106,11 @@ def checked_topology(mesh_arrays):
             raise ValueError(f"`corner_edges` must index the {edges.shape[0]} edges")
     else:
         edges = corner_edges = None
+    flat_faces = mesh_arrays.flat_faces
+    if flat_faces is not None:
+        flat_faces = np.ascontiguousarray(flat_faces, dtype=bool)
+        if flat_faces.shape != (n_faces,):
+            raise ValueError(f"`flat_faces` must have shape ({n_faces},), got {flat_faces.shape}")
     return Topology(
         n_vertices,
         corner_verts,
@@ -113,6 +119,7 @@ def checked_topology(mesh_arrays):
         int(mesh_arrays.n_front_faces),
         edges,
         corner_edges,
+        flat_faces,
     )
 
 
@@ -159,10 +166,13 @@ def fill_topology(mesh, topology, *, uv_name=UV_NAME):
     uv_layer = mesh.uv_layers[uv_name]
     mesh.uv_layers.active = uv_layer
     uv_layer.active_render = True
-    if topology.n_front_faces < topology.n_faces:
-        # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
+    # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges), unless
+    # the mesh says which faces are flat.
+    sharp = topology.flat_faces
+    if sharp is None and topology.n_front_faces < topology.n_faces:
         sharp = np.zeros(topology.n_faces, dtype=bool)
         sharp[topology.n_front_faces :] = True
+    if sharp is not None and sharp.any():
         mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
     if topology.edges is None:
         mesh.update(calc_edges=True)

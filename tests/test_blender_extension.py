@@ -102,6 +102,27 @@ def mesh_edges(mesh):
     return out.reshape(-1, 2)
 
 
+def test_an_adaptive_mesh_shades_its_level_triangles_flat(addon, core, scene):
+    """Bare soil beside a dome: the soil's large level triangles touch the dome's rim, and smooth
+    shading would tilt them with the rim's normals. Flat-shaded, every corner of a level triangle
+    points straight up, while the dome stays smooth."""
+    mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
+    rows, cols = np.indices((60, 80))
+    heights = np.sqrt(np.clip(20.0**2 - (rows - 30) ** 2 - (cols - 40) ** 2, 0, None)).astype(np.float32)
+    arrays = core.adaptive_mesh(heights, max_error=0.2)
+    mesh = mesh_data.mesh_from_arrays("tin", arrays)
+    sharp = np.empty(len(mesh.polygons), dtype=bool)
+    mesh.attributes["sharp_face"].data.foreach_get("value", sharp)
+    np.testing.assert_array_equal(sharp, arrays.flat_faces)
+    n_front = arrays.n_front_faces
+    assert sharp[n_front:].all() and 0 < sharp[:n_front].sum() < n_front
+    normals = np.empty(3 * len(mesh.loops), dtype=np.float32)
+    mesh.corner_normals.foreach_get("vector", normals)
+    normals = normals.reshape(-1, 3)[: 3 * n_front].reshape(-1, 3, 3)
+    np.testing.assert_allclose(normals[sharp[:n_front], :, 2], 1.0, atol=1e-6)
+    assert normals[~sharp[:n_front], :, 2].min() < 0.5  # the dome's rim stays smooth and steep
+
+
 def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene, datablock_counts):
     mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
     arrays = core.grid_mesh(np.zeros((3, 4)), two_sided=False)

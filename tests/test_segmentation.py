@@ -13,6 +13,7 @@ from cliff_terrain import (
     build_relief,
     load_image,
     quaternion_filter,
+    resize_longest,
     segment,
     synthetic_field,
     vegetation_index,
@@ -186,7 +187,9 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
     mask = np.zeros(shape, bool)
     for _ in range(30):
         r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
-        mask[max(r - rng.integers(1, 12), 0) : r + rng.integers(1, 12), max(c - 8, 0) : c + rng.integers(1, 8)] = True
+        mask[
+            max(r - rng.integers(1, 12), 0) : r + rng.integers(1, 12), max(c - 8, 0) : c + rng.integers(1, 8)
+        ] = True
     count, components, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=4)
     markers = np.zeros(shape, np.int32)
     seeds = mask & (rng.random(shape) < 0.03)
@@ -205,8 +208,6 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
 
 def test_a_real_photo_splits_the_same_with_one_thread_or_several(monkeypatch):
     import cliff_terrain.segmentation as segmentation
-
-    from cliff_terrain.pipeline import resize_longest
 
     image, _ = load_image(uav_image("caliterra/IMG_9370.jpg"))
     image = resize_longest(image, 1500)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from conftest import uav_image
 
+import cliff_terrain.tin as tin_module
 from cliff_terrain import CliffTerrainError, build_relief
 from cliff_terrain.mesh import adaptive_mesh, grid_mesh
 from cliff_terrain.settings import DEFAULT_MAX_ERROR_M, DEFAULT_MAX_ERROR_SHARE
-import cliff_terrain.tin as tin_module
 from cliff_terrain.tin import Tin, default_max_error, sample_tin, tin_error, triangulate
 
 
@@ -117,7 +117,9 @@ def _front_at_pixel_centres(mesh):
 
 @pytest.mark.parametrize("tile", [None, 16, 5])
 @pytest.mark.parametrize("two_sided", [True, False])
-def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertight(two_sided, tile, monkeypatch):
+def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertight(
+    two_sided, tile, monkeypatch
+):
     """Also with the TIN built in tiles (3 x 4 and 8 x 11 of them) joined by strips."""
     if tile is not None:
         monkeypatch.setattr(tin_module, "_TILE", tile)
@@ -158,6 +160,18 @@ def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertigh
     # Edges and corner edges describe the same faces.
     pairs = np.sort(np.stack([mesh.corner_verts, mesh.corner_verts[nxt]], axis=1), axis=1)
     np.testing.assert_array_equal(np.sort(mesh.edges, axis=1)[mesh.corner_edges], pairs)
+
+
+def test_level_triangles_and_the_walls_are_flat_shaded_and_the_rest_smooth():
+    heights = _rough_raster((40, 57), seed=3)
+    for two_sided in (True, False):
+        mesh = adaptive_mesh(heights, max_error=0.05, two_sided=two_sided)
+        n_front = mesh.n_front_faces
+        z = mesh.vertices[mesh.corner_verts[: 3 * n_front].reshape(-1, 3), 2]
+        level = (z.max(axis=1) - z.min(axis=1)) == 0
+        np.testing.assert_array_equal(mesh.flat_faces[:n_front], level)
+        assert mesh.flat_faces[n_front:].all() and len(mesh.flat_faces) == mesh.n_faces
+        assert 0 < level.sum() < n_front
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 6), (5, 1), (2, 2)])
