@@ -3,11 +3,13 @@
 The mosaic is generated in a temporary folder (a synthetic field repeated, written tile by tile,
 zlib-compressed; never decoded whole, never committed). Ours: cliff_terrain.mosaic (overview for
 the shared settings, then every 4096-pixel tile with a 512-pixel margin: mask, regions, heights)
-plus an adaptive mesh per tile, in a subprocess whose peak resident memory is read from the OS.
+plus an adaptive mesh per tile, in a subprocess whose peak resident memory is read from the OS;
+then the same with the tiles as Dask tasks on a local cluster (``relief_tiles(client=...)``, the
+meshes built in the client as they come, as Blender would), against the one-process run.
 The peer, in the same run: the single-photo pipeline (``build_relief``) on a 12 MP photo at full
 resolution (``max_size=4000``), the route that holds the whole image in memory.
 
-    python bench/bench_mosaic.py [--side 20480] [--tiles N]
+    python bench/bench_mosaic.py [--side 20480] [--tiles N] [--workers 2]
 
 `main(argv=None)` returns the figures as a dict (for bench/run_all.py).
 """
@@ -53,29 +55,42 @@ WRITE = textwrap.dedent(
 
 RUN = textwrap.dedent(
     """
-    import json, resource, sys, time
+    import contextlib, itertools, json, resource, sys, time
     import numpy as np
     from cliff_terrain.mesh import adaptive_mesh
-    from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tile, tile_windows
-    path, limit = sys.argv[1], int(sys.argv[2])
+    from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tiles, tile_windows
+    path, limit, workers = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     start = time.perf_counter()
-    with MosaicReader(path) as reader:
+    with contextlib.ExitStack() as stack:
+        client = None
+        if workers:  # the tiles as Dask tasks on a local cluster; the meshes here, as Blender would
+            from distributed import Client
+            from cliff_terrain.season.runner import local_cluster
+            client = stack.enter_context(Client(stack.enter_context(local_cluster(workers))))
+        cluster_s = time.perf_counter() - start
+        reader = stack.enter_context(MosaicReader(path))
         settings = mosaic_settings(reader)
-        settings_s = time.perf_counter() - start
-        windows = tile_windows(reader.shape)
-        windows = windows[:limit] if limit else windows
+        settings_s = time.perf_counter() - start - cluster_s
+        n_tiles = len(tile_windows(reader.shape))
+        n_tiles = min(limit, n_tiles) if limit else n_tiles
         pixels = plants = triangles = 0
-        for window in windows:
-            tile = relief_tile(reader, window, settings)
+        tiles = relief_tiles(reader, settings=settings, client=client)
+        for tile in itertools.islice(tiles, n_tiles):
             mesh = adaptive_mesh(tile.heights * np.float32(0.01), max_error=0.005, pixel_size=0.01, two_sided=False)
             pixels += tile.heights.size
             plants += int(tile.labels.max(initial=0))
             triangles += mesh.n_front_faces
+        tiles.close()
+        seconds = time.perf_counter() - start - cluster_s
         shape = reader.shape
-    seconds = time.perf_counter() - start
-    print(json.dumps({"shape": shape, "tiles": len(windows), "pixels": pixels, "plants": plants,
-        "triangles": triangles, "settings_s": settings_s, "seconds": seconds,
-        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6}))
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+        worker_peaks = []
+        if client is not None:
+            worker_peaks = sorted(v / 1e6 for v in client.run(
+                lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss).values())
+    print(json.dumps({"shape": shape, "tiles": n_tiles, "pixels": pixels, "plants": plants,
+        "triangles": triangles, "cluster_s": cluster_s, "settings_s": settings_s, "seconds": seconds,
+        "peak_rss_gb": peak, "worker_peak_rss_gb": worker_peaks}))
     """
 )
 
@@ -107,6 +122,9 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--side", type=int, default=20480, help="the mosaic's side in pixels (20480: 419 MP)")
     parser.add_argument("--tiles", type=int, default=0, help="process only the first N tiles (0: all)")
+    parser.add_argument(
+        "--workers", type=int, default=2, help="also run the tiles on N Dask workers (0: not)"
+    )
     args = parser.parse_args(argv)
     info = machine()
     print(f"machine: {describe(info)}")
@@ -118,15 +136,27 @@ def main(argv=None):
             f"mosaic: {args.side} x {args.side} ({args.side**2 / 1e6:.0f} MP), {path.stat().st_size / 1e6:.0f} MB "
             f"on disk, written in {time.perf_counter() - start:.1f} s"
         )
-        ours = _python(RUN, path, args.tiles)
-    mps = ours["pixels"] / 1e6 / ours["seconds"]
-    print(
-        f"ours: {ours['tiles']} tiles, {ours['pixels'] / 1e6:.0f} MP in {ours['seconds']:.1f} s "
-        f"(overview and settings {ours['settings_s']:.1f} s): {mps:.2f} MP/s, peak memory "
-        f"{ours['peak_rss_gb']:.2f} GB (goal <= {MEMORY_GOAL_GB:g} GB), {ours['plants']} plants, "
-        f"{ours['triangles']} triangles"
-    )
-    result = {"machine": info, "side": args.side, "ours": ours, "ours_mp_per_s": mps}
+        ours = _python(RUN, path, args.tiles, 0)
+        mps = ours["pixels"] / 1e6 / ours["seconds"]
+        print(
+            f"ours, one process: {ours['tiles']} tiles, {ours['pixels'] / 1e6:.0f} MP in {ours['seconds']:.1f} s "
+            f"(overview and settings {ours['settings_s']:.1f} s): {mps:.2f} MP/s, peak memory "
+            f"{ours['peak_rss_gb']:.2f} GB (goal <= {MEMORY_GOAL_GB:g} GB), {ours['plants']} plants, "
+            f"{ours['triangles']} triangles"
+        )
+        result = {"machine": info, "side": args.side, "ours": ours, "ours_mp_per_s": mps}
+        if args.workers:
+            dask = _python(RUN, path, args.tiles, args.workers)
+            dask_mps = dask["pixels"] / 1e6 / dask["seconds"]
+            print(
+                f"ours, tiles as Dask tasks on {args.workers} local workers (meshes in the client): "
+                f"{dask['pixels'] / 1e6:.0f} MP in {dask['seconds']:.1f} s (cluster start "
+                f"{dask['cluster_s']:.1f} s, not counted): {dask_mps:.2f} MP/s, {dask_mps / mps:.2f}x "
+                f"one process; peak memory client {dask['peak_rss_gb']:.2f} GB, workers "
+                + ", ".join(f"{gb:.2f}" for gb in dask["worker_peak_rss_gb"])
+                + f" GB; same plants and triangles: {(dask['plants'], dask['triangles']) == (ours['plants'], ours['triangles'])}"
+            )
+            result.update(dask=dask, dask_mp_per_s=dask_mps, dask_ratio=dask_mps / mps)
     if PHOTO_12MP.is_file():
         peer = _python(PEER, PHOTO_12MP)
         peer_mps = peer["pixels"] / 1e6 / peer["seconds"]

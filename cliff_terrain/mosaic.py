@@ -340,7 +340,7 @@ def relief_tile(reader, window, settings):
     return TileRelief(window.core, mask[cut], labels[cut], heights[cut])
 
 
-def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings=None, **kwargs):
+def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings=None, client=None, **kwargs):
     """Yield the :class:`TileRelief` of every tile of a mosaic, one at a time (row by row).
 
     Memory follows the tile (about 1 GB for 4096-pixel tiles with a 512-pixel margin), not the
@@ -355,11 +355,53 @@ def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings
         get the same mask, region and heights as in one piece.
     settings : MosaicSettings, optional
         Default :func:`mosaic_settings` of the reader (`kwargs` go to it).
+    client : distributed.Client, optional
+        Run the tiles as tasks on this Dask client (each task opens the mosaic by its path, so the
+        workers must see the same file; :func:`cliff_terrain.season.runner.local_cluster` makes a
+        local one). The tiles still come back one at a time and in order, with at most two per
+        worker computed ahead, so memory here stays a few tiles; each worker holds one tile's.
+        The client is left open. Tiles not yet taken when the caller stops are cancelled.
+
+    Examples
+    --------
+    >>> from distributed import Client  # doctest: +SKIP
+    >>> from cliff_terrain.season.runner import local_cluster  # doctest: +SKIP
+    >>> with local_cluster(2) as cluster, Client(cluster) as client, MosaicReader(path) as mosaic:  # doctest: +SKIP
+    ...     for part in relief_tiles(mosaic, client=client):
+    ...         print(part.core, part.heights.max())
     """
+    # Not a generator itself, so that bad arguments and the overview fail here, not at the first tile.
+    if client is not None and not callable(getattr(client, "submit", None)):
+        raise CliffTerrainError(f"`client` must be a distributed.Client, got {client!r}")
+    windows = tile_windows(reader.shape, tile=tile, overlap=overlap)
     if settings is None:
         settings = mosaic_settings(reader, tile=tile, **kwargs)
-    for window in tile_windows(reader.shape, tile=tile, overlap=overlap):
-        yield relief_tile(reader, window, settings)
+    if client is None:
+        return (relief_tile(reader, window, settings) for window in windows)
+    return _tiles_on_dask(client, reader.path, windows, settings)
+
+
+def _tiles_on_dask(client, path, windows, settings):
+    """relief_tile(path, window, settings) of each window as Dask tasks, results in order, bounded ahead."""
+    import collections
+    import itertools
+
+    ahead = 2 * max(1, len(client.scheduler_info().get("workers", {})))
+    pending = iter(windows)
+    futures = collections.deque()
+
+    def submit(batch):
+        futures.extend(client.submit(relief_tile, path, window, settings, pure=False) for window in batch)
+
+    submit(itertools.islice(pending, ahead))
+    try:
+        while futures:
+            result = futures.popleft().result()  # a task's exception is raised here, as in a loop
+            submit(itertools.islice(pending, 1))
+            yield result
+    finally:
+        if futures:  # the caller stopped early or a tile failed: drop the tiles still queued
+            client.cancel(list(futures))
 
 
 def _nodata(page):

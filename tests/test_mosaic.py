@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from conftest import uav_image
 from scipy.ndimage import label as _label
 
 from cliff_terrain import synthetic_field
-from cliff_terrain.errors import ImageTooLargeError
+from cliff_terrain.errors import CliffTerrainError, ImageTooLargeError
 from cliff_terrain.image_io import load_image
 from cliff_terrain.mosaic import (
     MosaicReader,
@@ -173,6 +174,49 @@ def test_a_tile_runs_from_the_path_alone(tmp_path):
         expected = relief_tile(reader, window, settings)
     got = relief_tile(str(path), window, settings)  # what a Dask task would run
     np.testing.assert_array_equal(got.heights, expected.heights)
+
+
+@pytest.mark.slow
+def test_tiles_run_as_dask_tasks_in_order_and_equal_the_serial_ones(tmp_path):
+    """`relief_tiles(client=...)`: each tile a task on a local cluster (2 processes), the tiles
+    back in order and equal to the serial run's; a caller that stops early leaves no task behind."""
+    from distributed import Client
+
+    from cliff_terrain.season.runner import local_cluster
+
+    rgb, _ = synthetic_field(shape=(300, 400), seed=4)
+    path = write_mosaic(tmp_path / "field.tif", rgb)
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader, tile=128)
+        serial = list(relief_tiles(reader, tile=128, overlap=32, settings=settings))
+        with local_cluster(2) as cluster, Client(cluster) as client:
+            started = time.time()
+            client.get_task_stream(start=started)
+            tiles = list(relief_tiles(reader, tile=128, overlap=32, settings=settings, client=client))
+            stream = client.get_task_stream(start=started)
+            assert sum(task["key"].startswith("relief_tile") for task in stream) == len(serial) == 12
+            first = relief_tiles(reader, tile=128, overlap=32, settings=settings, client=client)
+            assert next(first).core == serial[0].core
+            first.close()  # the caller stops: the tiles computed ahead are cancelled
+            deadline = time.time() + 30
+            while (
+                client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks))
+                and time.time() < deadline
+            ):
+                time.sleep(0.1)
+            assert client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0
+            assert client.status == "running"
+    assert [t.core for t in tiles] == [t.core for t in serial]
+    for got, expected in zip(tiles, serial, strict=True):
+        np.testing.assert_array_equal(got.labels, expected.labels)
+        np.testing.assert_array_equal(got.heights, expected.heights)
+
+
+def test_a_client_that_is_not_one_is_refused_before_any_tile(tmp_path):
+    rgb, _ = synthetic_field(shape=(100, 120), seed=4)
+    with MosaicReader(write_mosaic(tmp_path / "field.tif", rgb)) as reader:
+        with pytest.raises(CliffTerrainError, match=r"`client` must be a distributed.Client, got 'tcp://x'"):
+            relief_tiles(reader, tile=64, client="tcp://x")
 
 
 BIG_SCRIPT = textwrap.dedent(
