@@ -55,8 +55,9 @@ WRITE = textwrap.dedent(
 
 RUN = textwrap.dedent(
     """
-    import contextlib, itertools, json, resource, sys, time
+    import contextlib, itertools, json, sys, time
     import numpy as np
+    from cliff_terrain._memory import peak_rss
     from cliff_terrain.mesh import adaptive_mesh
     from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tiles, tile_windows
     path, limit, workers = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
@@ -83,11 +84,10 @@ RUN = textwrap.dedent(
         tiles.close()
         seconds = time.perf_counter() - start - cluster_s
         shape = reader.shape
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+        peak = peak_rss() / 1e9
         worker_peaks = []
         if client is not None:
-            worker_peaks = sorted(v / 1e6 for v in client.run(
-                lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss).values())
+            worker_peaks = sorted(v / 1e9 for v in client.run(peak_rss).values())
     print(json.dumps({"shape": shape, "tiles": n_tiles, "pixels": pixels, "plants": plants,
         "triangles": triangles, "cluster_s": cluster_s, "settings_s": settings_s, "seconds": seconds,
         "peak_rss_gb": peak, "worker_peak_rss_gb": worker_peaks}))
@@ -96,14 +96,15 @@ RUN = textwrap.dedent(
 
 PEER = textwrap.dedent(
     """
-    import json, resource, sys, time
+    import json, sys, time
+    from cliff_terrain._memory import peak_rss
     from cliff_terrain.pipeline import build_relief
     start = time.perf_counter()
     relief = build_relief(sys.argv[1], max_size=4000)
     seconds = time.perf_counter() - start
     rows, cols = relief.heights.shape
     print(json.dumps({"pixels": rows * cols, "seconds": seconds,
-        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6}))
+        "peak_rss_gb": peak_rss() / 1e9}))
     """
 )
 

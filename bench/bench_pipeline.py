@@ -25,11 +25,12 @@ ROOT = Path(__file__).resolve().parents[1]
 REAL_IMAGE = ROOT.parent / "shared" / "data" / "uav" / "caliterra" / "IMG_9370.jpg"  # 4000x3000 frame
 
 _CASE = r"""
-import json, resource, sys, time
+import json, sys, time
 sys.path.insert(0, {root!r})
 import numpy as np
 from PIL import Image
 from cliff_terrain import build_relief
+from cliff_terrain._memory import peak_rss
 case, path, repeat = sys.argv[1], sys.argv[2], int(sys.argv[3])
 times, timings = [], None
 for _ in range(repeat):
@@ -41,13 +42,7 @@ for _ in range(repeat):
         relief = build_relief(path, max_size=int(case))
         timings = relief.timings
     times.append(time.perf_counter() - t)
-# VmHWM: this process's own peak. ru_maxrss would carry over the parent's peak (Linux keeps it
-# across fork and exec), and bench/run_all.py's process has grown large by then.
-try:
-    with open("/proc/self/status") as status:
-        peak = next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmHWM:"))
-except (OSError, StopIteration):
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+peak = peak_rss()  # this process's own, not bench/run_all.py's (see cliff_terrain._memory)
 print(json.dumps({{"best_s": min(times), "peak_rss_bytes": peak, "timings": timings}}))
 """
 

@@ -35,6 +35,9 @@ def run_module(path):
     print(f"\n=== {path.stem} ===", flush=True)
     spec = importlib.util.spec_from_file_location(path.stem, path)
     module = importlib.util.module_from_spec(spec)
+    # Registered under its name, as an import would: a benchmark whose peer sends one of its
+    # functions to worker processes (bench_season's multiprocessing pool) pickles it by that name.
+    sys.modules[path.stem] = module
     start = time.perf_counter()
     try:
         spec.loader.exec_module(module)

@@ -341,7 +341,7 @@ def relief_tile(reader, window, settings):
 
 
 def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings=None, client=None, **kwargs):
-    """Yield the :class:`TileRelief` of every tile of a mosaic, one at a time (row by row).
+    """The :class:`TileRelief` of every tile of a mosaic, one at a time (row by row).
 
     Memory follows the tile (about 1 GB for 4096-pixel tiles with a 512-pixel margin), not the
     mosaic: a caller that keeps only what it needs of each tile (an adaptive mesh, statistics)
@@ -361,6 +361,11 @@ def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings
         local one). The tiles still come back one at a time and in order, with at most two per
         worker computed ahead, so memory here stays a few tiles; each worker holds one tile's.
         The client is left open. Tiles not yet taken when the caller stops are cancelled.
+
+    Returns
+    -------
+    iterator of TileRelief
+        Computed as they are taken (the arguments and the overview are checked at the call).
 
     Examples
     --------

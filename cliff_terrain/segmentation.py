@@ -552,8 +552,9 @@ def _before_watershed(callback):
 
 
 # The flooded components go in groups of at least this many pixels (at most _FLOOD_GROUPS groups):
-# below it, threads would cost more than they save.
-_FLOOD_GROUP_PIXELS = 250_000
+# below it, threads would cost more than they save. Segmenting broccoli 01 at 1000 px: 103 ms in
+# one group, 72 ms in four, the same labels (on four real photos at 1000 px, and at 12 MP).
+_FLOOD_GROUP_PIXELS = 50_000
 _FLOOD_GROUPS = 4
 _FLOOD_THREADS = min(os.cpu_count() or 1, _FLOOD_GROUPS)
 

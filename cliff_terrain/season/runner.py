@@ -25,6 +25,7 @@ import uuid
 from pathlib import Path
 
 from .. import settings
+from .._memory import peak_rss
 from .._validate import check_choice, check_float, check_int
 from ..errors import CliffTerrainError
 from .cache import Cache, cache_key, file_hash
@@ -275,7 +276,7 @@ def process_image(job):
             ok=True,
             seconds=time.perf_counter() - started,
             cpu_seconds=time.process_time() - cpu,
-            peak_rss=_peak_rss(),
+            peak_rss=peak_rss(),
             worker=f"{platform.node()}:{os.getpid()}",
         )
         cache.store(key, record, arrays)
@@ -369,17 +370,6 @@ def _plain(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
-
-
-def _peak_rss():
-    """This process's peak resident memory in bytes (Linux and macOS units differ)."""
-    try:
-        import resource
-
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    except ImportError:  # Windows
-        return None
-    return peak if sys.platform == "darwin" else peak * 1024
 
 
 # ---- running ----
