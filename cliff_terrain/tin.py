@@ -70,7 +70,8 @@ def triangulate(heights, *, max_error):
     Greedy insertion runs in blocks of about 128 x 128 pixel centres, each with its own corners
     (4x faster on a 12 MP raster than in one piece, for 2 % more triangles). Two neighbouring
     blocks' borders are a pixel apart; triangles zipped between their vertices join them, and
-    hold no pixel centre of their own, so the bound still holds at every pixel centre.
+    hold no pixel centre of their own, so the bound still holds at every pixel centre. A flat
+    raster stays two triangles.
 
     Examples
     --------
@@ -94,7 +95,10 @@ def triangulate(heights, *, max_error):
     from ._deps import import_optional
 
     Delatin = import_optional("pydelatin", feature="the adaptive mesh").Delatin
-    row_edges, col_edges = _tile_edges(n_rows), _tile_edges(n_cols)
+    if heights.min() == heights.max():  # a flat field (no plant): its corners, not a block's each
+        row_edges, col_edges = np.array([0, n_rows]), np.array([0, n_cols])
+    else:
+        row_edges, col_edges = _tile_edges(n_rows), _tile_edges(n_cols)
     tile_rows, tile_cols, tile_triangles = [], [], []
     n_vertices = 0
     for r0, r1 in zip(row_edges[:-1], row_edges[1:], strict=True):

@@ -214,8 +214,10 @@ def test_the_default_error_is_five_millimetres_with_a_gsd():
     assert explicit.max_error == 0.02 and explicit.mesh.n_faces < relief.mesh.n_faces
 
 
-def test_a_flat_relief_is_two_triangles_and_its_frame():
-    mesh = adaptive_mesh(np.zeros((60, 90), np.float32), max_error=0.01, two_sided=False)
+@pytest.mark.parametrize("shape", [(60, 90), (300, 500)])
+def test_a_flat_relief_is_two_triangles_and_its_frame(shape):
+    """Also when it spans several of the TIN's blocks."""
+    mesh = adaptive_mesh(np.zeros(shape, np.float32), max_error=0.01, two_sided=False)
     assert mesh.n_faces == 2 + 4 * 2 + 4 * 2
 
 
