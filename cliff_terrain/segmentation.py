@@ -590,38 +590,55 @@ def _flood_components(landscape, markers, components, flooded, stats):
             top = stats[group, cv2.CC_STAT_TOP]
             bands.append((group, int(top.min()), int((top + stats[group, cv2.CC_STAT_HEIGHT]).max())))
 
-    def flood_group(band):
-        group, r0, r1 = band
+    # Every group is prepared here, before the hook: the preparation needs the GIL, which the
+    # caller's own work (the hook's) then holds; the kernels need none.
+    kernels = []
+    for group, r0, r1 in bands:
         in_group = np.zeros(len(flooded), dtype=bool)
         in_group[group] = True
-        return _flood(landscape[r0:r1], markers[r0:r1], in_group[components[r0:r1]])
-
+        kernels.append(_flood_kernel(landscape[r0:r1], markers[r0:r1], in_group[components[r0:r1]]))
     on_watershed = getattr(_watershed_hook, "callback", None)
-    if on_watershed is not None:  # the pool's threads do not see this thread's hook
+    if on_watershed is not None:
         on_watershed()
+    with ThreadPoolExecutor(
+        min(_FLOOD_THREADS, len(bands)), thread_name_prefix="cliff_terrain_flood"
+    ) as pool:
+        list(pool.map(lambda kernel: kernel[0](), kernels))
     out = np.zeros(components.shape, dtype=np.int32)
-    threads = min(_FLOOD_THREADS, len(bands))
-    with ThreadPoolExecutor(threads, thread_name_prefix="cliff_terrain_flood") as pool:
-        for (_, r0, r1), part in zip(bands, pool.map(flood_group, bands), strict=True):
-            out[r0:r1] += part  # the groups' masks are disjoint; each part is 0 outside its own
+    for (_, r0, r1), (_, part) in zip(bands, kernels, strict=True):
+        out[r0:r1] += part  # the groups' masks are disjoint; each part is 0 outside its own
     return out
 
 
 def _flood(landscape, markers, mask):
     """``skimage.segmentation.watershed(landscape, markers, mask=mask)``, 4-connected.
 
-    The same preparation and the same flooding kernel as scikit-image's, called in two steps so
-    that the callback of :func:`_before_watershed` runs after the preparation (numpy steps that
-    need the GIL) and just before the kernel (which releases it). Falls back to the public
-    function if scikit-image's internals move.
+    The same preparation and the same flooding kernel as scikit-image's, called in two steps
+    (:func:`_flood_kernel`) so that the callback of :func:`_before_watershed` runs after the
+    preparation (numpy steps that need the GIL) and just before the kernel (which releases it).
     """
+    run, output = _flood_kernel(landscape, markers, mask)
     on_watershed = getattr(_watershed_hook, "callback", None)
+    if on_watershed is not None:
+        on_watershed()
+    run()
+    return output
+
+
+def _flood_kernel(landscape, markers, mask):
+    """scikit-image's watershed prepared: ``(run, output)``, where ``run()`` floods `output`.
+
+    As scikit-image's wrapper: float64 image, int8 mask and int32 markers (inside the mask), padded
+    by a pixel of zeros so that the kernel never steps past the border. Falls back to the public
+    function (preparation included in ``run``) if scikit-image's internals move.
+    """
     if _watershed_raveled is None:
-        if on_watershed is not None:
-            on_watershed()
-        return segmentation.watershed(landscape, markers, mask=mask)
-    # As scikit-image's wrapper: float64 image, int8 mask and int32 markers (inside the mask),
-    # padded by a pixel of zeros so that the kernel never steps past the border.
+        output = np.zeros(mask.shape, dtype=np.int32)
+
+        def run_public():
+            output[...] = segmentation.watershed(landscape, markers, mask=mask)
+
+        return run_public, output
     rows, cols = mask.shape
     image = np.zeros((rows + 2, cols + 2), dtype=np.float64)
     image[1:-1, 1:-1] = landscape
@@ -634,12 +651,13 @@ def _flood(landscape, markers, mask):
     neighbours = _offsets_to_raveled_neighbors(image.shape, footprint, center=offset)
     marker_locations = np.flatnonzero(output)
     strides = np.array(image.strides, dtype=np.intp) // image.itemsize
-    if on_watershed is not None:
-        on_watershed()
-    _watershed_raveled(
-        image.ravel(), marker_locations, neighbours, flat_mask, strides, 0.0, output.ravel(), False
-    )
-    return output[1:-1, 1:-1]
+
+    def run():
+        _watershed_raveled(
+            image.ravel(), marker_locations, neighbours, flat_mask, strides, 0.0, output.ravel(), False
+        )
+
+    return run, output[1:-1, 1:-1]
 
 
 def _label4(mask):
