@@ -108,7 +108,7 @@ def triangulate(heights, *, max_error):
             tile_cols.append(cols + c0)
             tile_triangles.append(triangles + n_vertices)
             n_vertices += len(rows)
-    rows, cols = np.concatenate(tile_rows), np.concatenate(tile_cols)
+    rows, cols = (np.concatenate(parts).astype(np.int32) for parts in (tile_rows, tile_cols))
     triangles = np.concatenate([*tile_triangles, *_tile_joins(rows, cols, row_edges, col_edges)])
     # Counter-clockwise in (col, row): a positive cross product of the two edges.
     c0, c1, c2 = (cols[triangles[:, k]].astype(np.int64) for k in range(3))

@@ -98,6 +98,7 @@ def test_real_reliefs_stay_within_max_error_at_every_pixel_centre(relative):
         # The bound is used, not met by keeping every pixel: far fewer vertices than pixels.
         assert len(tin.z) < 0.2 * heights.size
         np.testing.assert_array_equal(tin.z, heights[tin.rows, tin.cols])
+        assert tin.rows.dtype == tin.cols.dtype == tin.triangles.dtype == np.int32
 
 
 def _front_at_pixel_centres(mesh):
