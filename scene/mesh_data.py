@@ -22,6 +22,7 @@ UV_NAME = "UVMap"
 # renders a front that mixes them with smooth faces worse than an all-smooth one, though the mesh's
 # corner normals are the same: on caliterra the lit top view is 37.44 dB with flat level triangles
 # on Blender 4.2, 4.5 and 5.0 (the grid: 37.02), but 36.04 on 5.2 (36.52 all smooth; the grid 37.05).
+# Cycles' shading normals differ between 5.0 and 5.2 only on smooth triangles next to flat ones.
 LEVEL_FACES_FLAT = bpy.app.version < (5, 1, 0)
 
 
