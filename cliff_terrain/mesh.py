@@ -65,6 +65,13 @@ class MeshArrays:
     flat_faces: np.ndarray | None = None
 
     @property
+    def shaded_flat(self) -> np.ndarray:
+        """(n_faces,) bool: ``flat_faces``, or by default the faces after the front (walls, base)."""
+        if self.flat_faces is not None:
+            return self.flat_faces
+        return np.arange(self.n_faces) >= self.n_front_faces
+
+    @property
     def n_vertices(self) -> int:
         return int(self.vertices.shape[0])
 

@@ -155,8 +155,7 @@ def stitch(mesh, neighbours):
     face_sizes = np.concatenate([mesh.face_sizes, np.full(len(seams), 3, np.int32)])
     planar = (vertices[seams.ravel(), :2] / size).astype(np.float32)
     uvs = np.concatenate([mesh.uvs, planar])
-    flat = mesh.flat_faces if mesh.flat_faces is not None else np.arange(mesh.n_faces) >= mesh.n_front_faces
-    flat = np.concatenate([flat, np.ones(len(seams), dtype=bool)])  # seams stand on edge: flat
+    flat = np.concatenate([mesh.shaded_flat, np.ones(len(seams), dtype=bool)])  # seams stand on edge: flat
     return _with_edges(vertices, face_sizes, corner_verts, uvs, mesh.n_front_faces, mesh.grid_shape, flat)
 
 

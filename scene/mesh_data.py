@@ -67,7 +67,7 @@ class Topology(NamedTuple):
     n_front_faces: int
     edges: np.ndarray | None
     corner_edges: np.ndarray | None
-    flat_faces: np.ndarray | None = None
+    flat_faces: np.ndarray
 
     @property
     def n_corners(self):
@@ -113,11 +113,9 @@ def checked_topology(mesh_arrays):
             raise ValueError(f"`corner_edges` must index the {edges.shape[0]} edges")
     else:
         edges = corner_edges = None
-    flat_faces = mesh_arrays.flat_faces
-    if flat_faces is not None:
-        flat_faces = np.ascontiguousarray(flat_faces, dtype=bool)
-        if flat_faces.shape != (n_faces,):
-            raise ValueError(f"`flat_faces` must have shape ({n_faces},), got {flat_faces.shape}")
+    flat_faces = np.ascontiguousarray(mesh_arrays.shaded_flat, dtype=bool)
+    if flat_faces.shape != (n_faces,):
+        raise ValueError(f"`flat_faces` must have shape ({n_faces},), got {flat_faces.shape}")
     return Topology(
         n_vertices,
         corner_verts,
@@ -173,16 +171,12 @@ def fill_topology(mesh, topology, *, uv_name=UV_NAME):
     uv_layer = mesh.uv_layers[uv_name]
     mesh.uv_layers.active = uv_layer
     uv_layer.active_render = True
-    # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges), unless
-    # the mesh says which faces are flat.
+    # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
     sharp = topology.flat_faces
-    if sharp is not None and not LEVEL_FACES_FLAT:
+    if not LEVEL_FACES_FLAT:
         sharp = sharp.copy()
         sharp[: topology.n_front_faces] = False
-    if sharp is None and topology.n_front_faces < topology.n_faces:
-        sharp = np.zeros(topology.n_faces, dtype=bool)
-        sharp[topology.n_front_faces :] = True
-    if sharp is not None and sharp.any():
+    if sharp.any():
         mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
     if topology.edges is None:
         mesh.update(calc_edges=True)
