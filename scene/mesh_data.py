@@ -18,12 +18,15 @@ import numpy as np
 from mathutils import Matrix
 
 UV_NAME = "UVMap"
-# Level front triangles (MeshArrays.flat_faces) are shaded flat up to Blender 5.0 only. Cycles 5.1+
-# renders a front that mixes them with smooth faces worse than an all-smooth one, though the mesh's
-# corner normals are the same: on caliterra the lit top view is 37.44 dB with flat level triangles
-# on Blender 4.2, 4.5 and 5.0 (the grid: 37.02), but 36.04 on 5.2 (36.52 all smooth; the grid 37.05).
-# Cycles' shading normals differ between 5.0 and 5.2 only on smooth triangles next to flat ones.
-LEVEL_FACES_FLAT = bpy.app.version < (5, 1, 0)
+# A smooth face beside flat ones (a dome's rim beside level soil triangles, MeshArrays.flat_faces):
+# Blender 4.2-5.0 shade it with its vertices' normals, the average over all their faces; 5.2 splits
+# the normals at the flat faces' edges, which leaves the rims steeper. On caliterra the adaptive
+# mesh's lit top view is 37.44 dB on 4.2, 4.5 and 5.0 (the grid: 37.02), but 36.04 on 5.2 (36.52
+# with the whole front smooth; the grid 37.05). The vertex normals stored as custom normals on the
+# vertices (12 bytes each; flat faces stay flat in Cycles, EEVEE and Workbench) render 37.44 on 5.2.
+# From 5.1, the first release on 5.2's Python: where a release does not split them, the stored
+# normals are the ones it would use anyway.
+KEEP_VERTEX_NORMALS = bpy.app.version >= (5, 1, 0)
 
 
 def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
@@ -44,13 +47,18 @@ def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
     -------
     bpy.types.Mesh
         The new mesh, one UV map (active for display and render), the faces of
-        ``mesh_arrays.flat_faces`` flat-shaded and the others smooth (by default the first
-        ``n_front_faces`` smooth, the walls and base flat; see ``LEVEL_FACES_FLAT`` for the front's
-        level faces). Nothing is left behind if this raises.
+        ``mesh_arrays.shaded_flat`` flat-shaded and the others smooth (by default the first
+        ``n_front_faces`` smooth, the walls and base flat). Where the front mixes flat and smooth
+        faces, the smooth ones shade with their vertices' normals on every Blender version (see
+        ``KEEP_VERTEX_NORMALS``). Nothing is left behind if this raises.
     """
-    mesh = topology_mesh(name, checked_topology(mesh_arrays), uv_name=uv_name)
+    topology = checked_topology(mesh_arrays)
+    mesh = topology_mesh(name, topology, uv_name=uv_name)
     try:
         set_positions(mesh, mesh_arrays.vertices, scale=scale)
+        front_flat = topology.flat_faces[: topology.n_front_faces]
+        if KEEP_VERTEX_NORMALS and front_flat.any() and not front_flat.all():
+            keep_vertex_normals(mesh)
     except BaseException:
         bpy.data.meshes.remove(mesh)
         raise
@@ -173,9 +181,6 @@ def fill_topology(mesh, topology, *, uv_name=UV_NAME):
     uv_layer.active_render = True
     # Smooth relief, crisp walls and base (a face's flat shading also sharpens its edges).
     sharp = topology.flat_faces
-    if not LEVEL_FACES_FLAT:
-        sharp = sharp.copy()
-        sharp[: topology.n_front_faces] = False
     if sharp.any():
         mesh.attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", sharp)
     if topology.edges is None:
@@ -216,3 +221,16 @@ def set_positions(mesh, vertices, *, scale=1.0):
         # vertices, and the first touch of fresh memory is slow.
         mesh.transform(Matrix.Scale(scale, 4))
     mesh.update()
+
+
+def keep_vertex_normals(mesh):
+    """Shade `mesh`'s smooth faces with its vertices' normals, as Blender 4.2-5.0 do beside flat faces.
+
+    The vertex normals (the average over all of a vertex's faces) become custom normals on the
+    vertices, in one bulk write; flat faces stay flat. Call it once the vertices are placed: the
+    custom normals do not follow later moves.
+    """
+    normals = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    # Read before the attribute exists: with custom normals on the vertices, these are the custom ones.
+    mesh.vertex_normals.foreach_get("vector", normals)
+    mesh.attributes.new("custom_normal", "FLOAT_VECTOR", "POINT").data.foreach_set("vector", normals)

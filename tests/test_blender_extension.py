@@ -104,8 +104,10 @@ def mesh_edges(mesh):
 
 def test_an_adaptive_mesh_shades_its_level_triangles_flat(addon, core, scene):
     """Bare soil beside a dome: the soil's large level triangles touch the dome's rim, and smooth
-    shading would tilt them with the rim's normals. Flat-shaded (Blender 4.2-5.0), every corner of
-    a level triangle points straight up, while the dome stays smooth."""
+    shading would tilt them with the rim's normals. Flat-shaded, every corner of a level triangle
+    points straight up, while the dome's smooth faces shade with their vertices' normals, the
+    average over all their faces, flat ones included (as Blender 4.2-5.0 do; custom normals on
+    5.1+, which would split them at the flat faces)."""
     mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
     rows, cols = np.indices((60, 80))
     heights = np.sqrt(np.clip(20.0**2 - (rows - 30) ** 2 - (cols - 40) ** 2, 0, None)).astype(np.float32)
@@ -115,15 +117,42 @@ def test_an_adaptive_mesh_shades_its_level_triangles_flat(addon, core, scene):
     mesh.attributes["sharp_face"].data.foreach_get("value", sharp)
     n_front = arrays.n_front_faces
     assert sharp[n_front:].all() and 0 < arrays.flat_faces[:n_front].sum() < n_front
-    if not mesh_data.LEVEL_FACES_FLAT:  # Blender 5.1+: the front stays smooth (see LEVEL_FACES_FLAT)
-        assert not sharp[:n_front].any()
-        return
     np.testing.assert_array_equal(sharp, arrays.flat_faces)
+    if mesh_data.KEEP_VERTEX_NORMALS:
+        # Blender 5.1+: the vertex normals kept as custom normals on the vertices. (The renderers
+        # shade the flat faces flat; `corner_normals` gives every corner its vertex's normal.)
+        assert mesh.normals_domain == "POINT"
+        kept = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+        mesh.attributes["custom_normal"].data.foreach_get("vector", kept)
+        expected = _angle_weighted_normals(arrays)
+        np.testing.assert_allclose(kept.reshape(-1, 3), expected, atol=2e-4)  # float32 in Blender
+        return
+    assert "custom_normal" not in mesh.attributes
     normals = np.empty(3 * len(mesh.loops), dtype=np.float32)
     mesh.corner_normals.foreach_get("vector", normals)
-    normals = normals.reshape(-1, 3)[: 3 * n_front].reshape(-1, 3, 3)
-    np.testing.assert_allclose(normals[sharp[:n_front], :, 2], 1.0, atol=1e-6)
-    assert normals[~sharp[:n_front], :, 2].min() < 0.5  # the dome's rim stays smooth and steep
+    front = normals.reshape(-1, 3)[: 3 * n_front].reshape(-1, 3, 3)
+    np.testing.assert_allclose(front[sharp[:n_front], :, 2], 1.0, atol=1e-6)
+    assert front[~sharp[:n_front], :, 2].min() < 0.5  # the dome's rim stays smooth and steep
+
+
+def _angle_weighted_normals(arrays):
+    """Unit vertex normals of a MeshArrays: per face, Newell's normal times the corner's angle."""
+    vertices = arrays.vertices.astype(np.float64)
+    sizes = np.asarray(arrays.face_sizes)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    face = np.repeat(np.arange(len(sizes)), sizes)
+    at = np.arange(len(arrays.corner_verts)) - starts[face]
+    nxt = starts[face] + (at + 1) % sizes[face]
+    prv = starts[face] + (at - 1) % sizes[face]
+    here, after, before = (vertices[arrays.corner_verts[k]] for k in (np.arange(len(face)), nxt, prv))
+    face_normals = np.zeros((len(sizes), 3))
+    np.add.at(face_normals, face, np.cross(here, after))
+    face_normals /= np.linalg.norm(face_normals, axis=1, keepdims=True)
+    a, b = after - here, before - here
+    angle = np.arccos(np.clip((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1), -1, 1))
+    out = np.zeros_like(vertices)
+    np.add.at(out, arrays.corner_verts, face_normals[face] * angle[:, None])
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene, datablock_counts):
