@@ -276,13 +276,17 @@ def _split_edges(triangles, start, end, where, added):
     `start` at the lower position): each edge's one triangle becomes a fan from its third vertex,
     in the same orientation. A triangle with new vertices on two edges (a tile's corner) is split
     at one edge, then its fan's triangle at the other."""
+    # Only triangles with two corners among the edges' ends can hold one: a few per cent of them.
+    n_vertices = int(max(triangles.max(), end.max(), start.max(), added.max())) + 1
+    end_vertex = np.zeros(n_vertices, bool)
+    end_vertex[start], end_vertex[end] = True, True
+    candidate = end_vertex[triangles].sum(axis=1) >= 2
+    rest, triangles = triangles[~candidate], triangles[candidate]
     while len(start):
-        n_vertices = int(max(triangles.max(), end.max(), start.max())) + 1
         a = triangles.astype(np.int64)
         # Every directed edge of every triangle: corner k to corner k + 1.
         directed = (a * n_vertices + np.roll(a, -1, axis=1)).ravel()
         sort = np.argsort(directed)
-
         forward, at_forward = _find_sorted(directed, sort, start.astype(np.int64) * n_vertices + end)
         backward, at_backward = _find_sorted(directed, sort, end.astype(np.int64) * n_vertices + start)
         if not np.all(forward | backward):
@@ -302,6 +306,7 @@ def _split_edges(triangles, start, end, where, added):
         apex = a[tri, (corner + 2) % 3]
         group_start = np.r_[True, tri[1:] != tri[:-1]]
         group_end = np.r_[tri[1:] != tri[:-1], True]
+        # The fan along the walk: (previous, new, apex) for each new vertex, then (last new, end, apex).
         previous = np.where(group_start, walk_from, np.r_[0, added_o[:-1]])
         fan = np.stack([previous, added_o, apex], axis=1)
         last = np.stack([added_o[group_end], walk_to[group_end], apex[group_end]], axis=1)
@@ -309,7 +314,7 @@ def _split_edges(triangles, start, end, where, added):
         keep[tri] = False
         triangles = np.concatenate([triangles[keep], fan.astype(np.int32), last.astype(np.int32)])
         start, end, where, added = start[later], end[later], where[later], added[later]
-    return triangles
+    return np.concatenate([rest, triangles])
 
 
 def _find_sorted(values, sort, keys):
