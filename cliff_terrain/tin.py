@@ -2,8 +2,8 @@
 
 A TIN here has its vertices at pixel *centres* of the raster: vertex ``k`` sits at
 ``(rows[k], cols[k])`` (integers) with height ``z[k]``, the raster's value there (or, for vertices
-added on the borders of the blocks it is built in, the surface's, within the bound). Its triangles cover the
-rectangle spanned by the outermost pixel centres. :func:`triangulate` builds one by greedy
+added on the borders of the blocks it is built in, the surface's, within the bound). Its triangles
+cover the rectangle spanned by the outermost pixel centres. :func:`triangulate` builds one by greedy
 insertion (Garland and Heckbert's algorithm, as implemented by ``pydelatin``), adding the pixel
 of largest error until every pixel centre lies within `max_error` of the surface, in tiles of
 about 128 pixels joined into one conforming TIN; :func:`tin_error` measures that error
@@ -72,9 +72,9 @@ def triangulate(heights, *, max_error):
     -----
     Greedy insertion runs in blocks of about 128 x 128 pixel centres, each with its own corners
     (4x faster on a 12 MP raster than in one piece, for up to 3 % more triangles). Two
-    neighbouring blocks' borders are a pixel apart. Each position that has a vertex on one border gets one on
-    the other too, on the border edge there and at its height (the block's surface does not
-    change), and triangles zipped between the two borders, vertex for vertex, join the blocks:
+    neighbouring blocks' borders are a pixel apart. Each position that has a vertex on one border
+    gets one on the other too, on the border edge there and at its height (the block's surface
+    does not change), and triangles zipped between the two borders, vertex for vertex, join the blocks:
     they hold no pixel centre of their own, so the bound still holds at every pixel centre, and
     none reaches further along the strip than a step of its borders. A flat raster stays two
     triangles.
