@@ -13,7 +13,7 @@ import numpy as np
 from ._validate import check_float
 from .errors import GeoreferenceError
 from .georaster import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
-from .ground import DEFAULT_BLOCK_M, canopy_height, estimate_ground
+from .ground import DEFAULT_BLOCK_M, canopy_height, check_enough_soil, estimate_ground, ground_support
 
 
 @dataclass
@@ -30,6 +30,9 @@ class Canopy:
     ground_source : {"dtm", "estimated"}
     pixel_size : float
         Metres per pixel (mean of x and y).
+    support : (rows, cols) float32 or None
+        With an estimated ground, the share of bare soil around each pixel that carried it
+        (:func:`cliff_terrain.ground.ground_support`; 0: interpolated only); None with a DTM.
     """
 
     transform: np.ndarray
@@ -39,6 +42,7 @@ class Canopy:
     chm: np.ndarray
     ground_source: str
     pixel_size: float
+    support: np.ndarray | None = None
 
     @property
     def pixel_area_m2(self):
@@ -67,7 +71,16 @@ def load_surfaces(dsm, dtm=None):
 
 
 def measure_canopy(
-    dsm, *, plants, transform, crs, dtm=None, grid_name="the orthophoto", block_m=DEFAULT_BLOCK_M, valid=None
+    dsm,
+    *,
+    plants,
+    transform,
+    crs,
+    dtm=None,
+    grid_name="the orthophoto",
+    block_m=DEFAULT_BLOCK_M,
+    valid=None,
+    soil=None,
 ):
     """DSM (and DTM) resampled onto a grid, the ground, and the canopy height there.
 
@@ -89,6 +102,9 @@ def measure_canopy(
         Block size of the ground's trend (see :func:`cliff_terrain.ground.estimate_ground`).
     valid : (rows, cols) bool array, optional
         Pixels where the photo has data: only there can soil be told from plants.
+    soil : (rows, cols) bool array, optional
+        The bare soil that carries the ground (see :func:`cliff_terrain.segmentation.bare_soil`);
+        default: every pixel that is not a plant.
 
     Returns
     -------
@@ -98,6 +114,9 @@ def measure_canopy(
     ------
     GeoreferenceError
         CRSs differ or the rasters do not overlap the grid (the message names both).
+    GroundError
+        Without a DTM, too little bare soil with surface data to estimate the ground (the
+        message names the DSM and suggests a DTM).
     """
     dsm, dtm = load_surfaces(dsm, dtm)
     plants = np.asarray(plants, dtype=bool)
@@ -117,12 +136,19 @@ def measure_canopy(
             raise GeoreferenceError(f"{dtm.path!r} does not overlap {grid_name}")
         ground = resample(dtm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
         source = "dtm"
+        support = None
     else:
-        soil = ~plants if valid is None else ~plants & np.asarray(valid, dtype=bool)
+        has_data = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
+        soil = ~plants if soil is None else np.asarray(soil, dtype=bool)
+        soil = soil & has_data
+        check_enough_soil(soil, has_data, source=f"{dsm.path!r} over {grid_name}")
         ground = estimate_ground(surface, soil=soil, pixel_size=pixel_size, block_m=block_m)
+        support = ground_support(soil, pixel_size=pixel_size, block_m=block_m)
         source = "estimated"
     chm = canopy_height(surface, ground)
-    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size)
+    if valid is not None:  # where the photo has no data, nothing tells plant from soil
+        chm[~np.asarray(valid, dtype=bool)] = np.nan
+    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size, support)
 
 
 def plant_mask(rgb, *, valid=None):
@@ -131,9 +157,10 @@ def plant_mask(rgb, *, valid=None):
     Cheaper than :func:`cliff_terrain.segmentation.segment` on large orthophotos, where only
     plant/soil matters (the ground, plot cover).
     """
-    from .segmentation import _vegetation_mask
+    from .segmentation import blurred_index, index_threshold
 
-    mask, *_ = _vegetation_mask(rgb, "auto", valid)
+    vi, name = blurred_index(rgb)
+    mask = vi > index_threshold(vi if valid is None else vi[valid], index=name).threshold
     if valid is not None:
         mask &= valid
     return mask
@@ -173,6 +200,8 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
             rgb = cv2.resize(rgb, shape[::-1], interpolation=cv2.INTER_AREA)
             if valid is not None:
                 valid = cv2.resize(valid.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    from .segmentation import bare_soil
+
     plants = plant_mask(rgb, valid=valid)
     canopy = measure_canopy(
         dsm,
@@ -183,12 +212,13 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
         grid_name=ortho.path,
         block_m=block_m,
         valid=valid,
+        soil=None if dtm is not None else bare_soil(rgb, plants=plants, valid=valid),
     )
     has_data = np.isfinite(canopy.chm) if valid is None else (valid & np.isfinite(canopy.chm))
     return rgb, has_data, plants, canopy
 
 
-def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration):
+def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAULT_BLOCK_M):
     """The relief's heights (metres) on the processing grid of orthophoto `path` (used by build_relief).
 
     Returns ``(canopy, heights, pixel_size, georeference)``: ``"measured"`` heights are the CHM,
@@ -212,8 +242,19 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration):
         valid = (
             cv2.resize(meta.valid_mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
         )
+    from .segmentation import bare_soil
+
+    soil = None if dtm is not None else bare_soil(stages.working, plants=plants, valid=valid)
     canopy = measure_canopy(
-        dsm, plants=plants, transform=transform, crs=crs, dtm=dtm, grid_name=name, valid=valid
+        dsm,
+        plants=plants,
+        transform=transform,
+        crs=crs,
+        dtm=dtm,
+        grid_name=name,
+        valid=valid,
+        soil=soil,
+        block_m=block_m,
     )
     chm = np.nan_to_num(canopy.chm, nan=0.0)
     pixel_size = canopy.pixel_size
@@ -287,8 +328,12 @@ def plot_table_files(plots, canopy, *, heights, mask, source):
     labels = rasterize_plots(plots, transform=canopy.transform, shape=heights.shape)
     if not labels.any():
         raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
-    rows = plot_table(plots, labels, mask=mask, heights=heights, pixel_area_m2=canopy.pixel_area_m2)
+    # A terrain model carries the ground everywhere: full support.
+    support = np.ones(heights.shape, np.float32) if canopy.support is None else canopy.support
+    rows = plot_table(
+        plots, labels, mask=mask, heights=heights, pixel_area_m2=canopy.pixel_area_m2, support=support
+    )
     return {
-        "plots.csv": table_csv(rows, table_columns(plots)),
+        "plots.csv": table_csv(rows, table_columns(plots, support=True)),
         "plots.geojson": table_geojson(rows, polygon_geometries(plots), crs=canopy.crs),
     }

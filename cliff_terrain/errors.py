@@ -35,3 +35,7 @@ class GeoreferenceError(CliffTerrainError):
 
 class PlotFileError(CliffTerrainError):
     """A plot polygon file (GeoJSON or ESRI Shapefile) is missing, broken, empty or not polygons."""
+
+
+class GroundError(CliffTerrainError):
+    """Too little exposed soil to estimate the ground under the crop from one flight: give a DTM."""

@@ -199,6 +199,12 @@ def _trend(dsm, exposed, block):
             dr = (gr[:, None] - centres_r[ii][:, None]) / step
             dc = (gc[None, :] - centres_c[jj][None, :]) / step
             out += (wi_[:, None] * wj_[None, :]) * (p[..., 0] + p[..., 1] * dr + p[..., 2] * dc)
+    if zs.size:
+        # A steep plane fitted to a little soil, extended over blocks without any, must not run
+        # away (on a real potato field it reached 12 m): the ground stays near the soil's heights.
+        low, high = np.percentile(zs, (0.5, 99.5))
+        margin = max(0.5, 0.5 * (high - low))
+        np.clip(out, low - margin, high + margin, out=out)
     return upsample_linear(out.astype(np.float32), sub, (rows, cols))
 
 
@@ -382,6 +388,71 @@ def _blur(image, sigma):
         small = cv2.GaussianBlur(small, (0, 0), sigma / factor, borderType=cv2.BORDER_REFLECT)
         return cv2.resize(small, (cols, rows), interpolation=cv2.INTER_LINEAR)
     return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+
+
+# Below this share of bare soil (of the pixels with data) one flight cannot carry a ground.
+MIN_SOIL_FRACTION = 0.01
+MIN_SOIL_PIXELS = 100
+
+
+def ground_support(soil, *, pixel_size, block_m=DEFAULT_BLOCK_M):
+    """How much bare soil carried the ground at each pixel: its share in a block around the pixel.
+
+    The share of `soil` pixels in the `block_m` x `block_m` window centred on each pixel, the
+    scale at which :func:`estimate_ground` fits its trend. 0 means that no soil lies within
+    half a block: the ground there is interpolated from farther blocks. A block needs at least
+    0.2 % of its pixels as soil (and 30 points) to fit a plane of its own.
+
+    Parameters
+    ----------
+    soil : (rows, cols) bool array
+        The soil the ground was estimated from.
+    pixel_size : float
+        Metres per pixel (> 0).
+    block_m : float, optional
+        Block side in metres.
+
+    Returns
+    -------
+    (rows, cols) float32 array in [0, 1]
+
+    Examples
+    --------
+    >>> soil = np.zeros((100, 100), bool); soil[:, :10] = True
+    >>> support = ground_support(soil, pixel_size=0.1, block_m=2.0)
+    >>> float(support[50, 0]), float(support[50, 50])
+    (0.5, 0.0)
+    """
+    import cv2
+
+    soil = np.asarray(soil, dtype=bool)
+    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
+    size = max(1, round(block_m / pixel_size)) | 1  # odd: centred on the pixel
+    share = cv2.blur(soil.astype(np.float32), (size, size), borderType=cv2.BORDER_CONSTANT)
+    # The window's part inside the raster: the border's missing pixels are not missing soil.
+    inside = cv2.blur(np.ones(soil.shape, np.float32), (size, size), borderType=cv2.BORDER_CONSTANT)
+    return np.clip(share / np.maximum(inside, 1e-6), 0.0, 1.0).astype(np.float32)
+
+
+def check_enough_soil(soil, valid, *, source):
+    """Refuse a single-flight ground carried by too little bare soil (:class:`GroundError`).
+
+    `source` names the surface model in the message. Returns the soil's share of `valid`.
+    """
+    from .errors import GroundError
+
+    n_soil = int(np.count_nonzero(soil))
+    n_valid = max(1, int(np.count_nonzero(valid)))
+    share = n_soil / n_valid
+    if n_soil < MIN_SOIL_PIXELS or share < MIN_SOIL_FRACTION:
+        raise GroundError(
+            f"{source}: only {n_soil} bare-soil pixels ({share:.2%} of the pixels with data) to estimate "
+            f"the ground under the crop from; at least {MIN_SOIL_FRACTION:.0%} and {MIN_SOIL_PIXELS} "
+            "pixels are needed, or the heights would be measured from the canopy. Give a terrain model "
+            "(--dtm, `dtm=`)"
+        )
+    return share
 
 
 def canopy_height(dsm, ground):

@@ -22,6 +22,7 @@ from .quaternion import quaternion_filter
 from .segmentation import METHODS, Segmentation, _before_watershed, distance_map, segment
 from .settings import (
     DEFAULT_EXAGGERATION,
+    DEFAULT_GROUND_BLOCK_M,
     DEFAULT_MAX_SIZE,
     DEFAULT_MESH,
     DEFAULT_PROFILE,
@@ -141,6 +142,7 @@ def build_relief(
     dsm=None,
     dtm=None,
     heights="inflated",
+    ground_block=None,
 ):
     """Turn one UAV photo into a relief: filter, segment, inflate, mesh.
 
@@ -178,6 +180,9 @@ def build_relief(
     dtm : str or os.PathLike, optional
         A terrain model: the ground; without it the ground is estimated from the soil pixels
         (see :func:`cliff_terrain.ground.estimate_ground`).
+    ground_block : float, optional
+        Block size in metres of the estimated ground's trend (default 5; see
+        :func:`cliff_terrain.ground.estimate_ground`); only with a `dsm` and no `dtm`.
     heights : {"inflated", "calibrated", "measured"}, optional
         ``"inflated"``: domes from the photo (the only mode without a DSM). ``"measured"``: the
         canopy height model. ``"calibrated"``: each region's dome scaled so its top equals the
@@ -242,6 +247,8 @@ def build_relief(
         )
     # Measured heights (issue 13): the photo must be a georeferenced orthophoto of the DSM.
     heights_mode = _check_heights(heights, dsm, dtm, image_or_path)
+    if ground_block is not None:
+        ground_block = check_float("ground_block", ground_block, minimum=0.0, strict_minimum=True)
     params = {
         "max_size": max_size,
         "segmentation": segmentation,
@@ -283,6 +290,14 @@ def build_relief(
             if isinstance(source, OpenImage):
                 source.close()
     metadata, working = stages.metadata, stages.working
+    seg = stages.segmentation
+    # Which plant/soil threshold the photo got, and why (the photo's own, or the prior band).
+    params["threshold"] = {
+        "index": seg.index,
+        "value": round(float(seg.threshold), 4),
+        "source": seg.threshold_source,
+        "valley": round(float(seg.valley), 3),  # NaN in paper mode
+    }
     clock = _Stages(progress, timings)
     clock.start("mesh", 0.8)
 
@@ -299,7 +314,13 @@ def build_relief(
         from .canopy import relief_heights
 
         canopy, heights, pixel_size, params["georeference"] = relief_heights(
-            image_or_path, stages, dsm=dsm, dtm=dtm, mode=heights_mode, exaggeration=exaggeration
+            image_or_path,
+            stages,
+            dsm=dsm,
+            dtm=dtm,
+            mode=heights_mode,
+            exaggeration=exaggeration,
+            block_m=DEFAULT_GROUND_BLOCK_M if ground_block is None else ground_block,
         )
         units = "m"
     if mesh is None:

@@ -396,7 +396,7 @@ def _fill_even_odd(rings, rows, cols):
     return r0, c0, block
 
 
-def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units="m"):
+def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units="m", support=None):
     """One row per plot: its attributes, area, plant cover and canopy heights.
 
     Heights are taken over every pixel of the plot with a height (soil counts as its own, about
@@ -417,6 +417,10 @@ def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units
         Ground area of one pixel in square metres (> 0).
     height_units : {"m", "cm", "mm"}, optional
         Units of `heights`; the table is in metres.
+    support : (rows, cols) float array, optional
+        The ground's support (:func:`cliff_terrain.ground.ground_support`); adds the column
+        ``ground_support``, its mean over the plot's pixels (0: the ground under the plot was
+        interpolated from soil elsewhere; 1 with a terrain model).
 
     Returns
     -------
@@ -456,6 +460,16 @@ def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units
     figures = region_figures(
         plot_labels, n, mask=mask, heights=heights, pixel_area_m2=pixel_area_m2, to_m=to_m
     )
+    if support is not None:
+        support = np.asarray(support, dtype=np.float64)
+        if support.shape != plot_labels.shape:
+            raise CliffTerrainError(
+                f"`support` must have the shape of `plot_labels` {plot_labels.shape}, got {support.shape}"
+            )
+        counts = np.bincount(plot_labels.ravel(), minlength=n + 1)[1 : n + 1]
+        sums = np.bincount(plot_labels.ravel(), weights=support.ravel(), minlength=n + 1)[1 : n + 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            plot_support = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
     full_areas = [polygon_area(rings) for rings in plots.polygons]
     rows = []
     for index in range(n):
@@ -471,22 +485,27 @@ def plot_table(plots, plot_labels, *, mask, heights, pixel_area_m2, height_units
         else:
             row["error"] = ""
         del row["pixels"], row["valid_pixels"]
+        if support is not None:
+            row["ground_support"] = float(plot_support[index])
         rows.append(row)
     return rows
 
 
 def _attribute_name(name):
     """An attribute's column: its own name, unless it is one of ours (then with ``_attr``)."""
-    return f"{name}_attr" if name in PLOT_COLUMNS or name in ("pixels", "valid_pixels") else name
+    ours = (*PLOT_COLUMNS, "ground_support", "pixels", "valid_pixels")
+    return f"{name}_attr" if name in ours else name
 
 
-def table_columns(plots):
+def table_columns(plots, *, support=False):
     """Columns of :func:`plot_table`'s rows: ``plot``, the attributes, then the figures.
 
     An attribute named like one of the figures (a plot file's own ``plot`` field, say) keeps its
-    value under its name with ``_attr`` appended.
+    value under its name with ``_attr`` appended. With `support`, ``ground_support`` comes before
+    ``error``.
     """
-    return ["plot", *(_attribute_name(name) for name in plots.fields), *PLOT_COLUMNS[1:]]
+    figures = [*PLOT_COLUMNS[1:-1], *(["ground_support"] if support else []), PLOT_COLUMNS[-1]]
+    return ["plot", *(_attribute_name(name) for name in plots.fields), *figures]
 
 
 def polygon_area(rings):

@@ -12,9 +12,11 @@ Two modes:
     Plants rise, soil stays flat. A vegetation index decides what is plant: the excess-green index
     ExG = 2g - r - b on chromatic coordinates for colour photos, or (NIR - B) / (NIR + B) for
     false-colour NIR frames (detected when no pixel is green and green is the weakest channel of
-    most pixels). The
-    threshold is Otsu's, kept within a band so that an image of bare soil yields (almost) nothing
-    and pale or bluish plants are not lost to a brighter grass class. Touching plants are split by a
+    most pixels). The threshold is the photo's own when its index histogram is clearly two-class
+    (see :func:`index_threshold`): Otsu's threshold then lies in an almost empty valley, and
+    is used as it is (never below the band's floor, where bare soil and grey objects lie). Otherwise
+    Otsu's threshold is kept within a prior band, so that an image of bare soil yields (almost)
+    nothing and a closed canopy is not split into a bright and a dark class. Touching plants are split by a
     watershed whose markers are the distance map's peaks and whose landscape adds the quaternion
     filter's colour-edge strength, so boundaries follow colour edges between plants. Holes are
     filled only where they are plausibly inside a plant (see :func:`plant_holes`): soil enclosed
@@ -46,10 +48,19 @@ from .settings import SEGMENTATIONS, ids
 METHODS = ids(SEGMENTATIONS)
 INDICES = ("auto", "green", "nir")
 
-# Threshold bands (Otsu's threshold is clipped into them): bare soil and grey objects sit at or
-# below 0, pale or bluish plants and yellow senescent canopy above about 0.15.
+# Threshold bands (Otsu's threshold is clipped into them unless the photo is clearly two-class):
+# bare soil and grey objects sit at or below 0, pale or bluish plants and yellow senescent canopy
+# above about 0.15. The lower end is a floor in every case.
 _GREEN_BAND = (0.06, 0.14)
 _NIR_BAND = (0.12, 0.3)
+# A photo is clearly two-class when the histogram at Otsu's threshold is at most this fraction of
+# its mean between the two class means (0: an empty valley; about 1: no valley at all). On real
+# annotated photos (README, "Validation on real fields") dark-soil fields whose own threshold is
+# right measured 0.09-0.38, closed canopies that Otsu splits in two 0.75-1.11.
+TWO_CLASS_VALLEY = 0.5
+# Soil sure enough to carry the ground: index within this many robust standard deviations of the
+# soil class's mode (the lower side of the soil peak, which no plant pixel widens).
+SOIL_SPREAD = 5.0
 
 
 @dataclass
@@ -68,6 +79,12 @@ class Segmentation:
         The threshold used (on the index or on the grey level).
     index : str
         ``"green"``, ``"nir"`` or ``"grey"`` (paper mode).
+    threshold_source : str
+        ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"band"`` (Otsu's
+        kept within the prior band) or ``"otsu"`` (paper mode: Otsu's on the grey level).
+    valley : float
+        The histogram at the threshold relative to its mean between the class means (see
+        :func:`index_threshold`); NaN in paper mode.
     distance : (rows, cols) float32
         ``distance_map(mask)``: each plant pixel's distance to flat ground (the watershed's, kept
         for the plateau profile).
@@ -79,6 +96,8 @@ class Segmentation:
     threshold: float
     index: str
     distance: np.ndarray | None = None
+    threshold_source: str = "band"
+    valley: float = float("nan")
 
     @property
     def n_regions(self) -> int:
@@ -234,8 +253,10 @@ def segment(
         if filtered is None:
             raise CliffTerrainError("`filtered` is required when `method` is 'paper', got None")
         mask, threshold, index_name = _paper_mask(filtered, valid)
+        source, valley = "otsu", float("nan")
     else:
-        mask, threshold, index_name, vi = _vegetation_mask(image, index, valid)
+        mask, rule, vi = _vegetation_mask(image, index, valid)
+        threshold, index_name, source, valley = rule.threshold, rule.index, rule.source, rule.valley
     if valid is not None:
         mask &= valid
 
@@ -252,6 +273,8 @@ def segment(
         threshold=threshold,
         index=index_name,
         distance=distance,
+        threshold_source=source,
+        valley=valley,
     )
 
 
@@ -262,13 +285,161 @@ def _paper_mask(filtered, valid):
 
 
 def _vegetation_mask(image, index, valid):
+    """``(mask, ThresholdRule, blurred index)`` of the vegetation mode."""
+    vi, name = blurred_index(image, index=index)
+    rule = index_threshold(vi if valid is None else vi[valid], index=name)
+    return vi > rule.threshold, rule, vi
+
+
+def blurred_index(image, *, index="auto"):
+    """:func:`vegetation_index` lightly blurred (sigma 1 px): what the threshold applies to.
+
+    Single noisy pixels should neither rise nor punch holes. Returns ``(vi, name)``.
+    """
     vi, name = vegetation_index(image, index=index)
-    # A light blur: single noisy pixels should neither rise nor punch holes.
-    vi = cv2.GaussianBlur(vi, (0, 0), 1.0)
-    otsu = _otsu(vi if valid is None else vi[valid])
-    low, high = _GREEN_BAND if name == "green" else _NIR_BAND
-    threshold = float(np.clip(otsu, low, high))
-    return vi > threshold, threshold, name, vi
+    return cv2.GaussianBlur(vi, (0, 0), 1.0), name
+
+
+@dataclass(frozen=True)
+class ThresholdRule:
+    """How the plant/soil threshold of a photo was chosen (see :func:`index_threshold`)."""
+
+    threshold: float
+    index: str
+    source: str
+    otsu: float
+    valley: float
+
+    def record(self):
+        """The rule as the relief's parameters and ``metrics.json`` record it."""
+        return {
+            "threshold": round(self.threshold, 4),
+            "threshold_source": self.source,
+            "otsu_threshold": round(self.otsu, 4),
+            "valley": None if not np.isfinite(self.valley) else round(self.valley, 3),
+        }
+
+
+def index_threshold(values, *, index="green"):
+    """The plant/soil threshold of a vegetation index: the photo's own when clearly two-class.
+
+    Otsu's threshold is the photo's own. It is trusted when the histogram is clearly two-class:
+    the density at the threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the mean density
+    between the two class means, that is, the threshold lies in a valley. Dark, wet soil whose
+    index reaches 0.3 beside green plants is such a case. Otherwise (one class, such as bare
+    soil or a closed canopy that Otsu would split into sunlit and shaded leaves) Otsu's threshold
+    is kept within the prior band of `index`. The band's lower end is a floor in both cases:
+    soil and grey objects score at or below 0.
+
+    Parameters
+    ----------
+    values : array of float
+        Index values of the pixels with data (any shape; a sample is taken from large arrays).
+    index : {"green", "nir"}, optional
+        Which index, for its prior band.
+
+    Returns
+    -------
+    ThresholdRule
+        ``threshold``, ``index``, ``source`` (``"photo"`` or ``"band"``), ``otsu`` (Otsu's
+        threshold) and ``valley`` (the density ratio; NaN when there is no spread).
+
+    Examples
+    --------
+    Soil around 0.2 (dark and wet) and plants around 0.8, an empty valley between them:
+
+    >>> rng = np.random.default_rng(0)
+    >>> vi = np.concatenate([rng.normal(0.2, 0.05, 9000), rng.normal(0.8, 0.1, 1000)])
+    >>> rule = index_threshold(vi)
+    >>> rule.source, bool(0.35 < rule.threshold < 0.65)
+    ('photo', True)
+
+    One class only (a closed canopy): Otsu's threshold would split it, the band keeps it whole.
+
+    >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000))
+    >>> rule.source, rule.threshold
+    ('band', 0.14)
+    """
+    check_choice("index", index, ("green", "nir"))
+    flat = np.asarray(values, dtype=np.float32).ravel()
+    if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
+        flat = flat[:: flat.size // 400_000]
+    low, high = _GREEN_BAND if index == "green" else _NIR_BAND
+    otsu = _otsu(flat)
+    valley = _valley(flat, otsu)
+    if valley <= TWO_CLASS_VALLEY:
+        return ThresholdRule(max(otsu, low), index, "photo", otsu, valley)
+    return ThresholdRule(float(np.clip(otsu, low, high)), index, "band", otsu, valley)
+
+
+def _valley(values, threshold):
+    """Histogram density at `threshold` over its mean between the two class means (NaN: no spread)."""
+    below, above = values[values <= threshold], values[values > threshold]
+    if below.size == 0 or above.size == 0:
+        return float("nan")
+    lo, hi = np.percentile(values, (0.5, 99.5))
+    if not hi > lo:
+        return float("nan")
+    hist, edges = np.histogram(values, 128, range=(float(lo), float(hi)))
+    # A Gaussian of 2 bins smooths the counts' noise without filling a valley.
+    smooth = np.convolve(hist.astype(np.float64), np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2), "same")
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    between = (centres >= below.mean()) & (centres <= above.mean())
+    if not between.any() or smooth[between].mean() <= 0:
+        return float("nan")
+    at = smooth[int(np.argmin(np.abs(centres - threshold)))]
+    return float(at / smooth[between].mean())
+
+
+def bare_soil(image, *, plants, valid=None, index="auto"):
+    """Pixels that are surely soil: the ground's support, stricter than "not a plant".
+
+    A pixel is bare soil when its (blurred) index lies within ``SOIL_SPREAD`` (5) robust standard
+    deviations of the soil class's mode, measured on the lower side of the soil peak, which no
+    plant pixel widens; and it is not a plant. Shaded, yellowing or senescent leaves that fall
+    below the plant threshold lie above that limit, and would otherwise lift the ground under a
+    canopy (on a real potato trial by 7 cm, see the README).
+
+    Parameters
+    ----------
+    image : (rows, cols, 3) uint8 array
+    plants : (rows, cols) bool array
+        The plant mask of `image`.
+    valid : (rows, cols) bool array, optional
+        Pixels with data.
+    index : {"auto", "green", "nir"}, optional
+
+    Returns
+    -------
+    (rows, cols) bool array
+
+    Examples
+    --------
+    >>> img = np.full((40, 40, 3), (120, 90, 60), np.uint8)
+    >>> img[:, 20:] = (70, 80, 50)                      # dull, yellowing leaves: not plant, not soil
+    >>> img[10:15, 25:30] = (40, 160, 40)
+    >>> plants = segment(img).mask
+    >>> soil = bare_soil(img, plants=plants)
+    >>> bool(soil[:, :15].all()), bool(soil[:, 22:].any())
+    (True, False)
+    """
+    image = check_rgb("image", image)
+    plants = np.asarray(plants, dtype=bool)
+    if plants.shape != image.shape[:2]:
+        raise CliffTerrainError(f"`plants` must have shape {image.shape[:2]}, got {plants.shape}")
+    candidates = ~plants if valid is None else ~plants & np.asarray(valid, dtype=bool)
+    vi, _ = blurred_index(image, index=index)
+    values = vi[candidates]
+    if values.size < 10:
+        return candidates
+    values = values[:: max(1, values.size // 400_000)]
+    hist, edges = np.histogram(values, 200)
+    smooth = np.convolve(hist.astype(np.float64), np.ones(3) / 3, "same")
+    mode = float(0.5 * (edges[:-1] + edges[1:])[int(np.argmax(smooth))])
+    lower = values[values <= mode]
+    spread = 1.4826 * float(np.median(mode - lower)) if lower.size else 0.0
+    spread = max(spread, float(edges[1] - edges[0]))
+    return candidates & (vi <= mode + SOIL_SPREAD * spread)
 
 
 def _otsu(values):

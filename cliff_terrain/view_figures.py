@@ -39,19 +39,10 @@ def write_maps(relief, out):
 
 
 def crop_figures(relief):
-    """Plants, ground cover and plant heights (each region's highest point), in the relief's units."""
-    import numpy as np
-    from scipy import ndimage
+    """The crop's key figures (:func:`cliff_terrain.key_figures.key_figures`: one definition everywhere)."""
+    from .key_figures import key_figures
 
-    n = relief.n_regions
-    tops = ndimage.maximum(relief.heights, relief.labels, np.arange(1, n + 1)) if n else []
-    tops = np.asarray(tops, dtype=np.float64)
-    return {
-        "plants": n,
-        "cover": float(relief.mask.mean()),
-        "plant_height_median": float(np.median(tops)) if n else None,
-        "plant_height_p90": float(np.percentile(tops, 90)) if n else None,
-    }
+    return key_figures(relief)
 
 
 def write_figures(relief, out, side, metrics, *, transect=None):
@@ -130,8 +121,10 @@ def write_figures(relief, out, side, metrics, *, transect=None):
     facts = [
         f"plants: {crop['plants']}",
         f"ground cover: {100 * crop['cover']:.1f} %",
-        f"plant height: median {height(crop['plant_height_median'])}",
-        f"    90th percentile {height(crop['plant_height_p90'])}",
+        f"canopy height: median {height(crop['canopy_height_p50_' + crop['units']])}",
+        f"    90th percentile {height(crop['canopy_height_p90_' + crop['units']])}",
+        f"plant height: median {height(crop['plant_height_median_' + crop['units']])}",
+        f"    90th percentile {height(crop['plant_height_p90_' + crop['units']])}",
         f"highest point: {height(relief.max_height)}",
         f"lit top view: PSNR {metrics['psnr_xy']:.2f} dB, SSIM {metrics['ssim_xy']:.3f}",
         f"flat top view: PSNR {metrics['psnr_xy_flat']:.2f} dB",

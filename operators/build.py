@@ -270,15 +270,18 @@ def key_figures(relief):
     The mesh is built near the world origin; ``map_offset`` is the map (x, y) of its local (0, 0)
     (the grid's bottom-left corner) in EPSG ``crs``: add it to a vertex to get map coordinates.
     """
-    import numpy as np
+    from ..cliff_terrain.key_figures import key_figures as core_figures
 
-    figures = {"cover": float(relief.mask.mean()), "canopy_p50_cm": -1.0, "canopy_p90_cm": -1.0}
+    # One definition of the figures (the core's), shown in the sidebar in centimetres.
+    core = core_figures(relief)
+    figures = {"cover": core["cover"], "canopy_p50_cm": -1.0, "canopy_p90_cm": -1.0}
     canopy = getattr(relief, "canopy", None)
     if canopy is not None:
-        chm = canopy.chm[relief.mask & np.isfinite(canopy.chm)]
-        if chm.size:
-            p50, p90 = np.percentile(chm, (50, 90)) * 100.0
-            figures.update(canopy_p50_cm=float(p50), canopy_p90_cm=float(p90))
+        if core["canopy_height_p90_m"] is not None:
+            figures.update(
+                canopy_p50_cm=core["canopy_height_p50_m"] * 100.0,
+                canopy_p90_cm=core["canopy_height_p90_m"] * 100.0,
+            )
         rows = relief.mesh.grid_shape[0]
         t = canopy.transform
         figures["map_offset"] = [float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2])]

@@ -456,11 +456,19 @@ def test_heights_command_writes_chm_and_tables(field_files):
     header, *rows = (out / "plots.csv").read_text().splitlines()
     assert header.split(",") == [
         "plot", "name", "area_m2", "cover", "height_mean_m", "height_p50_m", "height_p90_m",
-        "height_p99_m", "height_max_m", "volume_m3", "error",
+        "height_p99_m", "height_max_m", "volume_m3", "ground_support", "error",
     ]  # fmt: skip
     assert (
         rows[0].startswith("0,in,9.0") and rows[1].startswith("1,out,0.0") and "outside the raster" in rows[1]
     )
+    # The ground's support: the plot's mean share of bare soil around its pixels, as the raster says.
+    support = read_surface(out / "ground_support.tif")
+    assert support.shape == chm.shape and 0.0 <= np.nanmin(support.data) <= np.nanmax(support.data) <= 1.0
+    plot_support = float(rows[0].split(",")[-2])
+    assert 0.0 < plot_support < 1.0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["ground"] == "estimated" and summary["units"] == "m"
+    assert summary["canopy_height_p90_m"] == pytest.approx(np.percentile(truth.chm[plants & ok], 90), abs=0.03)
     geo = json.loads((out / "plots.geojson").read_text())
     assert geo["features"][0]["properties"]["name"] == "in"
     assert (out / "regions.csv").read_text().startswith("id,row,col,x,y,area_m2")

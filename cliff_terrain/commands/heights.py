@@ -1,8 +1,13 @@
 """``cliff-terrain heights ORTHO --dsm DSM [--dtm DTM] [--plots FILE] --out DIR``: measured canopy height.
 
-Writes ``chm.tif`` (float32 GeoTIFF, metres, NaN as no-data, the orthophoto's georeference),
-``regions.csv`` and ``regions.geojson`` (one row per plant), and with ``--plots`` ``plots.csv``
-and ``plots.geojson`` (one row per polygon). All files appear together or none does.
+Runs the relief's own stages (:func:`cliff_terrain.pipeline.build_relief` without a mesh, heights
+measured), so its plants, cover and heights are the ones ``render_views.py --dsm`` and the sidebar
+report for the same orthophoto and grid. Writes ``chm.tif`` (float32 GeoTIFF, metres, NaN as no-data,
+the grid's georeference), ``ground_support.tif`` beside it when the ground is estimated (the share of
+bare soil that carried the ground around each pixel, 0 where it is interpolated only),
+``regions.csv`` and ``regions.geojson`` (one row per plant), with ``--plots`` ``plots.csv`` and
+``plots.geojson`` (one row per polygon), and ``summary.json`` (the key figures, the ground's source
+and the plant/soil threshold). All files appear together or none does.
 """
 
 from __future__ import annotations
@@ -26,7 +31,14 @@ def configure(parser):
         "--resolution",
         type=float,
         default=None,
-        help="metres per pixel of the grid (default: the orthophoto's)",
+        help="metres per pixel of the grid (default: the orthophoto's, up to "
+        f"{settings.MAX_SIZE} pixels on its longest side)",
+    )
+    parser.add_argument(
+        "--max-size",
+        type=int,
+        default=None,
+        help="longest side of the grid in pixels, as render_views.py --max-size (default: the orthophoto's)",
     )
     parser.add_argument(
         "--block",
@@ -37,53 +49,102 @@ def configure(parser):
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 
-def run(args):
+def grid_size(ortho, *, resolution=None, max_size=None):
+    """Longest side (pixels) of the measuring grid: the orthophoto's own, or coarser on request."""
     import numpy as np
 
-    from ..canopy import measure_orthophoto, plot_table_files
+    from .._validate import check_float, check_int
     from ..errors import CliffTerrainError
+    from ..georaster import read_georeference
+
+    if resolution is not None and max_size is not None:
+        raise CliffTerrainError(
+            f"give `--resolution` or `--max-size`, not both (got {resolution} and {max_size})"
+        )
+    transform, _ = read_georeference(ortho)
+    from ..image_io import open_image
+
+    with open_image(ortho) as image:
+        rows, cols = image.shape
+    longest = max(rows, cols)
+    if max_size is not None:
+        max_size = check_int("--max-size", max_size, minimum=settings.MIN_SIZE)
+        return min(longest, max_size, settings.MAX_SIZE)
+    if resolution is not None:
+        resolution = check_float("--resolution", resolution, minimum=0.0, strict_minimum=True)
+        pixel = float(np.mean([np.hypot(*transform[:2, 0]), np.hypot(*transform[:2, 1])]))
+        longest = max(settings.MIN_SIZE, min(longest, round(longest * pixel / resolution)))
+    return min(longest, settings.MAX_SIZE)
+
+
+def run(args):
+    import json
+
+    import numpy as np
+
+    from ..canopy import relief_tables
+    from ..errors import CliffTerrainError
+    from ..evaluation import json_safe
     from ..georaster import write_geotiff
+    from ..key_figures import figures_line, key_figures
+    from ..pipeline import build_relief
     from ..plots import read_plots
-    from ..tables import REGION_COLUMNS, point_geometries, region_table, table_csv, table_geojson, write_files
+    from ..tables import write_files
 
     out = args.out
-    outputs = ["chm.tif", "regions.csv", "regions.geojson"] + (
-        ["plots.csv", "plots.geojson"] if args.plots else []
-    )
+    outputs = ["chm.tif", "ground_support.tif", "regions.csv", "regions.geojson"]
+    outputs += ["plots.csv", "plots.geojson"] if args.plots else []
+    outputs += ["summary.json"]
+    if args.dtm is not None:
+        outputs.remove("ground_support.tif")
     if not args.overwrite:
         existing = [name for name in outputs if (out / name).exists()]
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     plots = read_plots(args.plots) if args.plots else None  # a bad plot file fails before the work
-    rgb, has_data, plants, canopy = measure_orthophoto(
-        args.ortho, args.dsm, dtm=args.dtm, resolution=args.resolution, block_m=args.block
+    size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
+    relief = build_relief(
+        args.ortho,
+        max_size=size,
+        dsm=args.dsm,
+        dtm=args.dtm,
+        heights="measured",
+        mesh=None,
+        ground_block=args.block,
     )
-    from scipy import ndimage
-
-    labels, _ = ndimage.label(plants & has_data)
-    chm = np.where(has_data, canopy.chm, np.nan).astype(np.float32)
-    regions = region_table(
-        labels, heights=chm, pixel_size=canopy.pixel_size, transform=canopy.transform, valid=has_data
+    canopy = relief.canopy
+    tables = relief_tables(relief, plots=plots, source=str(args.ortho))
+    files = {out / name: text for name, text in tables.items()}
+    files[out / "chm.tif"] = lambda tmp: write_geotiff(
+        tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan")
     )
-    files = {
-        out / "chm.tif": lambda tmp: write_geotiff(
-            tmp, chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan")
-        ),
-        out / "regions.csv": table_csv(regions, REGION_COLUMNS),
-        out / "regions.geojson": table_geojson(regions, point_geometries(regions), crs=canopy.crs),
+    if canopy.support is not None:
+        files[out / "ground_support.tif"] = lambda tmp: write_geotiff(
+            tmp, canopy.support, transform=canopy.transform, crs=canopy.crs
+        )
+    figures = key_figures(relief)
+    summary = {
+        **figures,
+        "ground": canopy.ground_source,
+        "ground_support": None if canopy.support is None else float(np.mean(canopy.support[relief.mask])),
+        "threshold": relief.params["threshold"],
+        "grid": {
+            "rows": int(relief.mask.shape[0]),
+            "cols": int(relief.mask.shape[1]),
+            "pixel_size_m": canopy.pixel_size,
+        },
+        "ortho": str(args.ortho),
+        "dsm": str(args.dsm),
+        "dtm": None if args.dtm is None else str(args.dtm),
     }
-    if plots is not None:
-        tables = plot_table_files(plots, canopy, heights=chm, mask=plants, source=str(args.ortho))
-        files.update({out / name: text for name, text in tables.items()})
+    files[out / "summary.json"] = json.dumps(json_safe(summary), indent=2) + "\n"
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_files(files)
     except OSError as exc:
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
-    heights = chm[plants & has_data]
-    p50, p90 = (np.percentile(heights, (50, 90)) * 100) if heights.size else (float("nan"),) * 2
     print(
-        f"{args.ortho}: ground {canopy.ground_source}, {len(regions)} plants, cover {plants[has_data].mean():.1%}, "
-        f"canopy height p50 {p50:.1f} cm, p90 {p90:.1f} cm; wrote {', '.join(outputs)} into {out}"
+        f"{args.ortho}: ground {canopy.ground_source}, {figures_line(figures)}; "
+        f"wrote {', '.join(outputs)} into {out}"
     )
     return 0
