@@ -212,7 +212,7 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
         grid_name=ortho.path,
         block_m=block_m,
         valid=valid,
-        soil=None if dtm is not None else bare_soil(rgb, plants=plants, valid=valid),
+        soil=None if dtm is not None else bare_soil(rgb, valid=valid),
     )
     has_data = np.isfinite(canopy.chm) if valid is None else (valid & np.isfinite(canopy.chm))
     return rgb, has_data, plants, canopy
@@ -244,7 +244,7 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAUL
         )
     from .segmentation import bare_soil
 
-    soil = None if dtm is not None else bare_soil(stages.working, plants=plants, valid=valid)
+    soil = None if dtm is not None else bare_soil(stages.working, valid=valid)
     canopy = measure_canopy(
         dsm,
         plants=plants,

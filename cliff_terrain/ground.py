@@ -420,7 +420,7 @@ def ground_support(soil, *, pixel_size, block_m=DEFAULT_BLOCK_M):
     --------
     >>> soil = np.zeros((100, 100), bool); soil[:, :10] = True
     >>> support = ground_support(soil, pixel_size=0.1, block_m=2.0)
-    >>> float(support[50, 0]), float(support[50, 50])
+    >>> float(support[50, 9]), float(support[50, 50])
     (0.5, 0.0)
     """
     import cv2

@@ -78,7 +78,7 @@ def key_figures(relief):
     >>> img = np.full((60, 60, 3), (120, 90, 60), np.uint8); img[20:40, 20:40] = (40, 160, 40)
     >>> figures = key_figures(build_relief(img, mesh=None))
     >>> figures["plants"], round(figures["cover"], 3), figures["units"]
-    (1, 0.134, 'px')
+    (1, 0.133, 'px')
     """
     from scipy import ndimage
 

@@ -323,13 +323,16 @@ class ThresholdRule:
 def index_threshold(values, *, index="green"):
     """The plant/soil threshold of a vegetation index: the photo's own when clearly two-class.
 
-    Otsu's threshold is the photo's own. It is trusted when the histogram is clearly two-class:
-    the density at the threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the mean density
-    between the two class means, that is, the threshold lies in a valley. Dark, wet soil whose
-    index reaches 0.3 beside green plants is such a case. Otherwise (one class, such as bare
-    soil or a closed canopy that Otsu would split into sunlit and shaded leaves) Otsu's threshold
-    is kept within the prior band of `index`. The band's lower end is a floor in both cases:
-    soil and grey objects score at or below 0.
+    Otsu's threshold is the photo's own. The prior is Otsu's threshold kept within the band of
+    `index`. The photo's own wins when the histogram is clearly two-class and the prior is not in
+    its valley: the density at Otsu's threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the
+    mean density between the two class means, and the density at the prior's is above that, so
+    the band would cut into a class. Dark, wet soil whose index reaches 0.3 beside green plants
+    is such a case. Otherwise the prior stands: one class (bare soil, or a closed canopy that
+    Otsu would split into sunlit and shaded leaves), or two classes whose valley holds the prior
+    too (then either threshold gives the same mask but for the blurred rims, and the prior keeps
+    every figure measured with it). The band's lower end is a floor in both cases: soil and grey
+    objects score at or below 0.
 
     Parameters
     ----------
@@ -366,45 +369,51 @@ def index_threshold(values, *, index="green"):
         flat = flat[:: flat.size // 400_000]
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = _otsu(flat)
-    valley = _valley(flat, otsu)
-    if valley <= TWO_CLASS_VALLEY:
+    banded = float(np.clip(otsu, low, high))
+    valley, at_band = _valley(flat, otsu, (otsu, banded))
+    # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
+    if valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
         return ThresholdRule(max(otsu, low), index, "photo", otsu, valley)
-    return ThresholdRule(float(np.clip(otsu, low, high)), index, "band", otsu, valley)
+    return ThresholdRule(banded, index, "band", otsu, valley)
 
 
-def _valley(values, threshold):
-    """Histogram density at `threshold` over its mean between the two class means (NaN: no spread)."""
-    below, above = values[values <= threshold], values[values > threshold]
+def _valley(values, split, thresholds):
+    """Histogram density at each of `thresholds` over its mean between the class means of `split`.
+
+    0 is an empty valley, about 1 no valley at all; NaN when the values have no spread.
+    """
+    nan = (float("nan"),) * len(thresholds)
+    below, above = values[values <= split], values[values > split]
     if below.size == 0 or above.size == 0:
-        return float("nan")
+        return nan
     lo, hi = np.percentile(values, (0.5, 99.5))
     if not hi > lo:
-        return float("nan")
+        return nan
     hist, edges = np.histogram(values, 128, range=(float(lo), float(hi)))
     # A Gaussian of 2 bins smooths the counts' noise without filling a valley.
     smooth = np.convolve(hist.astype(np.float64), np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2), "same")
     centres = 0.5 * (edges[:-1] + edges[1:])
     between = (centres >= below.mean()) & (centres <= above.mean())
     if not between.any() or smooth[between].mean() <= 0:
-        return float("nan")
-    at = smooth[int(np.argmin(np.abs(centres - threshold)))]
-    return float(at / smooth[between].mean())
+        return nan
+    mean = smooth[between].mean()
+    return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
 
 
-def bare_soil(image, *, plants, valid=None, index="auto"):
-    """Pixels that are surely soil: the ground's support, stricter than "not a plant".
+def bare_soil(image, *, valid=None, index="auto"):
+    """Pixels that are surely soil, by colour: the ground's support, stricter than "not a plant".
 
-    A pixel is bare soil when its (blurred) index lies within ``SOIL_SPREAD`` (5) robust standard
-    deviations of the soil class's mode, measured on the lower side of the soil peak, which no
-    plant pixel widens; and it is not a plant. Shaded, yellowing or senescent leaves that fall
-    below the plant threshold lie above that limit, and would otherwise lift the ground under a
-    canopy (on a real potato trial by 7 cm, see the README).
+    A pixel is bare soil when its (blurred) index lies below the photo's plant threshold
+    (:func:`index_threshold`) and within ``SOIL_SPREAD`` (5) robust standard deviations of the
+    soil class's mode, measured on the lower side of the soil peak, which no plant pixel widens.
+    Shaded, yellowing or senescent leaves that fall below the plant threshold lie above that
+    limit, and would otherwise lift the ground under a canopy (on a real potato trial by 7 cm, see
+    the README). Soil seen through gaps in a plant counts: the relief fills such holes so that a
+    plant is one dome, but the ground under the plant is best seen there.
 
     Parameters
     ----------
     image : (rows, cols, 3) uint8 array
-    plants : (rows, cols) bool array
-        The plant mask of `image`.
     valid : (rows, cols) bool array, optional
         Pixels with data.
     index : {"auto", "green", "nir"}, optional
@@ -418,17 +427,20 @@ def bare_soil(image, *, plants, valid=None, index="auto"):
     >>> img = np.full((40, 40, 3), (120, 90, 60), np.uint8)
     >>> img[:, 20:] = (70, 80, 50)                      # dull, yellowing leaves: not plant, not soil
     >>> img[10:15, 25:30] = (40, 160, 40)
-    >>> plants = segment(img).mask
-    >>> soil = bare_soil(img, plants=plants)
+    >>> soil = bare_soil(img)
     >>> bool(soil[:, :15].all()), bool(soil[:, 22:].any())
     (True, False)
     """
     image = check_rgb("image", image)
-    plants = np.asarray(plants, dtype=bool)
-    if plants.shape != image.shape[:2]:
-        raise CliffTerrainError(f"`plants` must have shape {image.shape[:2]}, got {plants.shape}")
-    candidates = ~plants if valid is None else ~plants & np.asarray(valid, dtype=bool)
-    vi, _ = blurred_index(image, index=index)
+    vi, name = blurred_index(image, index=index)
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if valid.shape != vi.shape:
+            raise CliffTerrainError(f"`valid` must have shape {vi.shape}, got {valid.shape}")
+    threshold = index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    candidates = vi <= threshold
+    if valid is not None:
+        candidates &= valid
     values = vi[candidates]
     if values.size < 10:
         return candidates

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import REPO
+from PIL import Image
 
 pytestmark = pytest.mark.blender
 
@@ -47,7 +48,9 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
     np.testing.assert_allclose(z.reshape(-1, 3), reference.mesh.vertices, atol=1e-4)  # metres, no rescale
     chm = reference.canopy.chm[reference.mask & np.isfinite(reference.canopy.chm)]
     assert info["canopy_p90_cm"] == pytest.approx(np.percentile(chm, 90) * 100, abs=0.05)
-    assert info["cover"] == pytest.approx(reference.mask.mean())
+    # Cover counts the pixels with data only (the orthophoto's no-data corners are neither plant nor soil).
+    has_data = np.isfinite(reference.canopy.chm)
+    assert info["cover"] == pytest.approx((reference.mask & has_data).sum() / has_data.sum())
 
     from cliff_terrain_addon.panels.sidebar import key_figure_lines
 
@@ -119,3 +122,35 @@ def test_render_views_with_dsm_and_plots(tmp_path):
     area = float(row.split(",")[2])
     # 10 m x 10 m on a grid of ~0.55 m pixels (200 px across 107 m): whole pixels, about 18 x 18.
     assert area == pytest.approx(100.0, rel=0.15)
+    # One definition per number: `cliff-terrain heights` on the same orthophoto, DSM and grid prints
+    # the same plants, cover and canopy heights as render_views.py, under the same keys.
+    import subprocess
+    import sys
+
+    heights_out = tmp_path / "heights"
+    command = [
+        sys.executable,
+        "-m",
+        "cliff_terrain",
+        "heights",
+        ex2("odm_orthophoto.tif"),
+        "--dsm",
+        ex2("dsm.tif"),
+    ]
+    done = subprocess.run(
+        [*command, "--max-size", "200", "--out", str(heights_out)], capture_output=True, text=True, cwd=REPO
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads((heights_out / "summary.json").read_text())
+    assert metrics["plants"] > 20
+    for key in ("plants", "cover", "canopy_height_p50_m", "canopy_height_p90_m", "plant_height_median_m"):
+        assert summary[key] == pytest.approx(metrics[key], rel=1e-6), key
+    assert summary["threshold"] == metrics["params"]["threshold"]
+    # And both are what the CHM says: the p90 of the canopy height over the plant pixels.
+    from cliff_terrain.georaster import read_surface
+
+    chm = read_surface(heights_out / "chm.tif").data
+    with Image.open(out / "mask.png") as image:
+        plants = np.asarray(image) > 0
+    values = chm[plants & np.isfinite(chm)]
+    assert summary["canopy_height_p90_m"] == pytest.approx(np.percentile(values, 90), rel=1e-5)

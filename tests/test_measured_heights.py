@@ -468,7 +468,9 @@ def test_heights_command_writes_chm_and_tables(field_files):
     assert 0.0 < plot_support < 1.0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["ground"] == "estimated" and summary["units"] == "m"
-    assert summary["canopy_height_p90_m"] == pytest.approx(np.percentile(truth.chm[plants & ok], 90), abs=0.03)
+    assert summary["canopy_height_p90_m"] == pytest.approx(
+        np.percentile(truth.chm[plants & ok], 90), abs=0.03
+    )
     geo = json.loads((out / "plots.geojson").read_text())
     assert geo["features"][0]["properties"]["name"] == "in"
     assert (out / "regions.csv").read_text().startswith("id,row,col,x,y,area_m2")
@@ -609,3 +611,51 @@ def test_plot_geojson_keeps_holes_and_islands(tmp_path):
     expected = rasterize_plots(plots, transform=transform, shape=(40, 40))
     np.testing.assert_array_equal(rasterize_plots(again, transform=transform, shape=(40, 40)), expected)
     assert np.count_nonzero(expected == 1) == 18 * 18 - 10 * 10 + 4 * 4 + 6 * 6
+
+
+def test_a_canopy_without_bare_soil_is_refused_and_a_dtm_suggested(field_files):
+    # The whole orthophoto is leaves: one flight cannot say where the ground is. The heights must
+    # not be measured from the canopy; the message names the DSM and suggests --dtm.
+    folder, truth = field_files
+    rng = np.random.default_rng(3)
+    leaves = np.clip(rng.normal((50.0, 140.0, 45.0), 12.0, (300, 450, 3)), 0, 255).astype(np.float32)
+    write_tiff(
+        folder / "canopy.tif",
+        np.moveaxis(leaves, -1, 0),
+        scale=(0.02, 0.02),
+        tie=(500000.0, 4000000.0),
+        keys=geokeys(UTM16N),
+        planarconfig="separate",
+        photometric="minisblack",
+    )
+    done = run_cli("heights", folder / "canopy.tif", "--dsm", folder / "dsm.tif", "--out", folder / "bad")
+    assert done.returncode == 2, done.stderr
+    message = done.stderr.strip()
+    assert len(message.splitlines()) == 1
+    assert "dsm.tif" in message and "bare-soil pixels" in message and "--dtm" in message
+    assert not (folder / "bad").exists()
+    # With the terrain model it measures.
+    t = [[0.02, 0, 500000.0], [0, -0.02, 4000000.0]]
+    write_geotiff(folder / "dtm.tif", truth.ground.astype(np.float32), transform=t, crs=UTM16N)
+    args = ("heights", folder / "canopy.tif", "--dsm", folder / "dsm.tif", "--dtm", folder / "dtm.tif")
+    done = run_cli(*args, "--out", folder / "good")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((folder / "good" / "summary.json").read_text())
+    assert summary["ground"] == "dtm" and summary["ground_support"] is None
+    assert not (folder / "good" / "ground_support.tif").exists()
+
+
+def test_bare_soil_leaves_out_dull_leaves_that_the_threshold_calls_soil():
+    # Shaded, yellowing leaves below the plant threshold still stand on the canopy: they must not
+    # carry the ground. The synthetic surface's shadowed flanks are exactly that.
+    from cliff_terrain.segmentation import bare_soil
+
+    img, _, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=6)
+    soil = bare_soil(img)
+    plants = truth.labels > 0
+    not_plant = ~segment(img).mask
+    shadow_as_soil = truth.shadow & not_plant
+    assert shadow_as_soil.sum() > 100  # the threshold does call some shaded leaves soil
+    assert (soil & plants).sum() < 0.5 * (not_plant & plants).sum()
+    # ... while most of the real soil still counts.
+    assert soil[~plants].mean() > 0.8

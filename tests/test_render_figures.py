@@ -154,7 +154,11 @@ def test_key_figures_in_metrics_and_summary(transect_run):
     mask = read(out / "mask.png") > 0
     assert metrics["cover"] == pytest.approx(mask.mean())
     tops = [relief.heights[relief.labels == k].max() for k in range(1, relief.n_regions + 1)]
-    assert metrics["plant_height_median"] == pytest.approx(float(np.median(tops)), rel=1e-6)
+    # Without a GSD the heights are in processing pixels (exaggeration 1: the relief's own).
+    assert metrics["units"] == "px"
+    assert metrics["plant_height_median_px"] == pytest.approx(float(np.median(tops)), rel=1e-6)
+    plant_heights = relief.heights[relief.mask]
+    assert metrics["canopy_height_p90_px"] == pytest.approx(float(np.percentile(plant_heights, 90)), rel=1e-6)
     assert metrics["figures"]["raw_renders"] == "unchanged"
     summary = read(out / "summary.png")
     assert summary.ndim == 3 and summary.shape[1] >= 1000 and summary.shape[0] >= 1000

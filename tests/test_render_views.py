@@ -345,7 +345,7 @@ def test_operators_render_and_evaluate_the_active_relief(field, tmp_path):
     for name in (*MAPS, *FIGURES):
         assert (written / name).is_file(), name
     assert read(written / "mask.png").tolist() == read(out / "mask.png").tolist()
-    for key in ("plants", "cover", "plant_height_median", "plant_height_p90"):
+    for key in ("plants", "cover", "canopy_height_p50_px", "canopy_height_p90_px", "plant_height_median_px"):
         assert record[key] == pytest.approx(script[key], rel=1e-6), key
     assert record["figures"]["annotated"] == list(FIGURES)
     with Image.open(written / "summary.png") as summary:

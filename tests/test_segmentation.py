@@ -237,3 +237,89 @@ def test_flood_is_scikit_images_watershed_with_a_hook_before_the_kernel(seed):
     np.testing.assert_array_equal(_flood(landscape, markers, mask), flooded)  # no hook outside the block
     np.testing.assert_array_equal(flooded, watershed(landscape, markers, mask=mask))
     assert calls == ["kernel"]
+
+
+def _dark_wet_soil_field(seed=0):
+    """Green plants on dark, wet soil whose excess green is high (0.2-0.4): the band's clamp raises it."""
+    rng = np.random.default_rng(seed)
+    rows, cols = 240, 320
+    soil = np.array([38.0, 46.0, 30.0])  # dark, slightly greenish: index about 0.3
+    rgb = soil * (1.0 + 0.15 * rng.standard_normal((rows, cols, 1))) + rng.normal(0, 2.0, (rows, cols, 3))
+    truth = np.zeros((rows, cols), bool)
+    rr, cc = np.mgrid[:rows, :cols]
+    for r in range(30, rows, 60):
+        for c in range(30, cols, 60):
+            truth |= np.hypot(rr - r, cc - c) < 14 + 4 * rng.random()
+    leaves = np.array([55.0, 150.0, 45.0]) * (1.0 + 0.1 * rng.standard_normal((rows, cols, 1)))
+    rgb[truth] = leaves[truth]
+    return np.clip(np.round(rgb), 0, 255).astype(np.uint8), truth
+
+
+def test_dark_wet_soil_gets_the_photos_own_threshold():
+    from cliff_terrain.mask_quality import mask_agreement
+    from cliff_terrain.segmentation import _GREEN_BAND
+
+    image, truth = _dark_wet_soil_field()
+    vi, _ = vegetation_index(image)
+    assert np.percentile(vi[~truth], 50) > _GREEN_BAND[1]  # the soil itself lies above the band
+    seg = segment(image)
+    assert seg.threshold_source == "photo" and seg.threshold > _GREEN_BAND[1]
+    assert mask_agreement(seg.mask, truth)["iou"] > 0.9
+    # The relief stands on the plants, and the choice is recorded in the relief's parameters.
+    relief = build_relief(image, mesh=None)
+    on_plants = relief.heights[truth].sum() / relief.heights.sum()
+    assert on_plants > 0.95
+    assert relief.params["threshold"]["source"] == "photo"
+    assert relief.params["threshold"]["value"] == pytest.approx(seg.threshold, abs=1e-4)
+
+
+def test_a_closed_canopy_is_not_split_into_sunlit_and_shaded_leaves():
+    # Leaves only, from sunlit yellow-green to shaded deep green through every shade between (as in
+    # the annotated wheat plots of the README's validation): Otsu's threshold would cut the canopy
+    # in two; the histogram has no valley there, so the band keeps the whole canopy.
+    import cv2
+
+    rng = np.random.default_rng(1)
+    field = cv2.GaussianBlur(rng.standard_normal((240, 320)), (0, 0), 6.0)
+    shade = 1.0 / (1.0 + np.exp(-field / field.std() * 1.5))
+    sunlit, shaded = np.array([150.0, 180.0, 60.0]), np.array([30.0, 90.0, 35.0])
+    rgb = sunlit * (1 - shade[..., None]) + shaded * shade[..., None] + rng.normal(0, 3.0, (240, 320, 3))
+    image = np.clip(np.round(rgb), 0, 255).astype(np.uint8)
+    from cliff_terrain.segmentation import _otsu, blurred_index
+
+    vi, _ = blurred_index(image)
+    assert _otsu(vi) > 0.3  # Otsu alone would call the sunlit half of the canopy soil
+    seg = segment(image)
+    assert seg.threshold_source == "band" and seg.valley > 0.5
+    assert seg.mask.mean() > 0.99
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "broccoli/01_clip_raw_test.jpg",
+        "broccoli/2021a_grid_x03_y05-20220120171000-rze68yw.jpg",
+        "caliterra/IMG_9370.jpg",
+        "seneca_nir/IMG_0505.jpg",
+        "plantcv_dsm/rgb.tif",
+        "lamberton_soybean/20180815_Lamberton_clipped.tif",
+        "lamberton_soybean/20180925_Lamberton_clipped.tif",
+    ],
+)
+def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
+    # None of these photos has a two-class histogram whose own threshold lies above the band: the
+    # rule leaves their masks (and every figure checked on them) as they were.
+    from cliff_terrain.segmentation import _GREEN_BAND, _NIR_BAND, _otsu, blurred_index
+
+    image, meta = load_image(uav_image(name), max_size=1000)
+    image = resize_longest(image, 1000)
+    valid = meta.valid_mask
+    if valid is not None and valid.shape != image.shape[:2]:
+        import cv2
+
+        valid = cv2.resize(valid.astype(np.uint8), image.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0
+    seg = segment(image, valid=valid)
+    vi, index = blurred_index(image)
+    low, high = _GREEN_BAND if index == "green" else _NIR_BAND
+    otsu = _otsu(vi if valid is None else vi[valid])
+    assert seg.threshold == pytest.approx(float(np.clip(otsu, low, high)), abs=1e-6)
