@@ -372,8 +372,8 @@ def index_threshold(values, *, index="green"):
     banded = float(np.clip(otsu, low, high))
     valley, at_band = _valley(flat, otsu, (otsu, banded))
     # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
-    if valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
-        return ThresholdRule(max(otsu, low), index, "photo", otsu, valley)
+    if otsu > high and valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
+        return ThresholdRule(otsu, index, "photo", otsu, valley)
     return ThresholdRule(banded, index, "band", otsu, valley)
 
 
@@ -407,8 +407,8 @@ def bare_soil(image, *, valid=None, index="auto"):
     (:func:`index_threshold`) and within ``SOIL_SPREAD`` (5) robust standard deviations of the
     soil class's mode, measured on the lower side of the soil peak, which no plant pixel widens.
     Shaded, yellowing or senescent leaves that fall below the plant threshold lie above that
-    limit, and would otherwise lift the ground under a canopy (on a real potato trial by 7 cm, see
-    the README). Soil seen through gaps in a plant counts: the relief fills such holes so that a
+    limit, and would otherwise lift the ground under a canopy (on a real potato trial they stood
+    5.8 cm, median, above the early-season surface and lifted the ground by 4.5 cm; see the README). Soil seen through gaps in a plant counts: the relief fills such holes so that a
     plant is one dome, but the ground under the plant is best seen there.
 
     Parameters
