@@ -367,6 +367,8 @@ def index_threshold(values, *, index="green"):
     flat = np.asarray(values, dtype=np.float32).ravel()
     if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
         flat = flat[:: flat.size // 400_000]
+    # float64: numpy 2 refuses 128 histogram bins over a float32 range of a few ulps.
+    flat = flat.astype(np.float64)
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = _otsu(flat)
     banded = float(np.clip(otsu, low, high))
@@ -444,7 +446,7 @@ def bare_soil(image, *, valid=None, index="auto"):
     values = vi[candidates]
     if values.size < 10:
         return candidates
-    values = values[:: max(1, values.size // 400_000)]
+    values = values[:: max(1, values.size // 400_000)].astype(np.float64)
     hist, edges = np.histogram(values, 200)
     smooth = np.convolve(hist.astype(np.float64), np.ones(3) / 3, "same")
     mode = float(0.5 * (edges[:-1] + edges[1:])[int(np.argmax(smooth))])
