@@ -19,6 +19,7 @@ COMMANDS = {
     "synthetic": "synthetic",
     "season": "season",
     "heights": "heights",
+    "plots": "plots",
 }
 
 

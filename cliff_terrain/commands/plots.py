@@ -1,0 +1,196 @@
+"""``cliff-terrain plots ORTHO --grid CxR --plot-size WxL (--corners ... | --origin X,Y) --out FILE``: plot polygons.
+
+Builds a trial's plot polygons from its layout (:mod:`cliff_terrain.plot_grid`), optionally snapped to
+the crop (``--fit``, :mod:`cliff_terrain.plot_fit`; with no placement the fit places the grid itself),
+checks them against the orthophoto (inside it, not overlapping) and writes GeoJSON, or an ESRI
+Shapefile when FILE ends in ``.shp``, in the orthophoto's CRS. With ``--fit`` the fit's report is also
+written beside FILE as ``FILE.fit.json``. The output feeds ``heights --plots`` and ``season --plots``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+HELP = "plot polygons from a trial layout (columns x rows, plot size, alleys), optionally fitted to the crop"
+
+
+def configure(parser):
+    parser.add_argument("ortho", type=Path, help="the orthophoto GeoTIFF (its CRS is the plots')")
+    parser.add_argument(
+        "--grid", required=True, metavar="COLUMNSxROWS", help="plots across x along the columns"
+    )
+    parser.add_argument(
+        "--plot-size",
+        required=True,
+        metavar="WIDTHxLENGTH",
+        help="metres: width across the columns, length along",
+    )
+    parser.add_argument(
+        "--corners",
+        nargs=4,
+        metavar="X,Y",
+        default=None,
+        help="the grid's four outer corners (map), any order",
+    )
+    parser.add_argument("--origin", metavar="X,Y", default=None, help="map point of the grid's first corner")
+    parser.add_argument(
+        "--angle",
+        type=float,
+        default=None,
+        help="direction across the columns, degrees from east (counter-clockwise)",
+    )
+    parser.add_argument(
+        "--pitch", metavar="CxR", default=None, help="column and row pitch, metres (start to start)"
+    )
+    parser.add_argument(
+        "--alleys",
+        metavar="CxR",
+        default=None,
+        help="gaps between columns and between rows, metres; a comma list for uneven alleys (0.1x1,1.5,1)",
+    )
+    parser.add_argument("--numbering", choices=("serpentine", "rows", "columns"), default="serpentine")
+    parser.add_argument(
+        "--start", choices=("top-left", "top-right", "bottom-left", "bottom-right"), default="top-left",
+        help="the corner of plot 1 on the map (north up)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--buffer", default="0", metavar="B|WxL", help="metres trimmed from each side of a plot"
+    )
+    parser.add_argument(
+        "--field-book", type=Path, default=None, help="CSV joined by plot, or by column and row"
+    )
+    parser.add_argument(
+        "--fit", action="store_true", help="snap the grid to the crop (or place it, with no placement)"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="plots.geojson or plots.shp")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+
+
+def _counts(text):
+    from ..errors import CliffTerrainError
+
+    parts = text.lower().split("x")
+    try:
+        columns, rows = (int(p) for p in parts)
+    except ValueError:
+        raise CliffTerrainError(f"`--grid` must be COLUMNSxROWS like 14x10, got {text!r}") from None
+    if columns < 1 or rows < 1:
+        raise CliffTerrainError(f"`--grid` needs at least one column and one row, got {text!r}")
+    return columns, rows
+
+
+def _alleys(text):
+    from ..errors import CliffTerrainError
+
+    parts = text.lower().split("x")
+    if len(parts) != 2:
+        raise CliffTerrainError(
+            f"`--alleys` must be COLUMNxROW gaps like 0.1x1.0 (lists: 0.1x1,1.5,1), got {text!r}"
+        )
+    try:
+        return tuple([float(v) for v in part.split(",")] for part in parts)
+    except ValueError:
+        raise CliffTerrainError(f"`--alleys` must be numbers, got {text!r}") from None
+
+
+def run(args):
+    import json
+
+    import numpy as np
+
+    from ..errors import CliffTerrainError
+    from ..georaster import read_orthophoto
+    from ..plot_grid import (
+        check_plots_fit,
+        grid_layout,
+        parse_pair,
+        placement_from_corners,
+        plots_from,
+        read_field_book,
+        write_plots,
+    )
+
+    out = args.out
+    columns, rows = _counts(args.grid)
+    size = parse_pair(args.plot_size, "--plot-size")
+    pitch = parse_pair(args.pitch, "--pitch") if args.pitch else None
+    alleys = _alleys(args.alleys) if args.alleys else None
+    buffer = parse_pair(args.buffer, "--buffer") if "x" in args.buffer.lower() else (float(args.buffer),) * 2
+    corners = [parse_pair(c, "--corners") for c in args.corners] if args.corners else None
+    origin = parse_pair(args.origin, "--origin") if args.origin else None
+    if corners is not None and origin is not None:
+        raise CliffTerrainError("give `--corners` or `--origin`, not both")
+    if corners is None and origin is None and not args.fit:
+        raise CliffTerrainError("place the grid: give `--corners`, `--origin` (and `--angle`), or `--fit`")
+    outputs = [out] + (
+        [out.with_suffix(s) for s in (".shx", ".dbf", ".prj")] if out.suffix.lower() == ".shp" else []
+    )
+    if args.fit:
+        outputs.append(out.with_name(out.name + ".fit.json"))
+    if not args.overwrite:
+        existing = [p for p in outputs if p.exists()]
+        if existing:
+            raise CliffTerrainError(f"{str(existing[0])!r} exists; pass --overwrite to replace it")
+    book = read_field_book(args.field_book) if args.field_book else None  # a bad book fails before the work
+    ortho = read_orthophoto(args.ortho)
+    layout = grid_layout(columns, rows, plot_size=size, pitch=pitch, alleys=alleys)
+    placement = None
+    if corners is not None:
+        from ..plot_grid import plot_grid
+
+        rough = plot_grid(columns, rows, plot_size=size, corners=corners, pitch=pitch, alleys=alleys)
+        del rough  # validates the corners against the layout
+        placement = placement_from_corners(corners, layout.extent)
+        c = placement.corners
+        span = (
+            0.5 * (np.hypot(*(c[1] - c[0])) + np.hypot(*(c[2] - c[3]))),
+            0.5 * (np.hypot(*(c[3] - c[0])) + np.hypot(*(c[2] - c[1]))),
+        )
+        if pitch is None and alleys is None:
+            layout = grid_layout(columns, rows, plot_size=size, extent=span)
+    elif origin is not None:
+        from ..plot_grid import Placement
+
+        placement = Placement.rigid(origin, 0.0 if args.angle is None else args.angle, layout.extent)
+    report = None
+    if args.fit:
+        from ..canopy import plant_mask
+        from ..plot_fit import fit_grid
+
+        plants = plant_mask(ortho.data, valid=ortho.valid)
+        fit = fit_grid(
+            plants,
+            ortho.transform,
+            layout,
+            placement=placement if corners is not None else None,
+            angle=args.angle,
+            pitch=pitch,
+            origin=origin,
+        )
+        layout, placement, report = fit.layout, fit.placement, fit.report
+    plots = plots_from(
+        layout,
+        placement,
+        numbering=args.numbering,
+        start=args.start,
+        buffer=buffer,
+        field_book=book,
+        crs=ortho.crs,
+    )
+    check_plots_fit(plots, transform=ortho.transform, shape=ortho.shape, source=str(args.ortho))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_plots(plots, out, crs=ortho.crs)
+        if report is not None:
+            out.with_name(out.name + ".fit.json").write_text(json.dumps(report, indent=2) + "\n")
+    except OSError as exc:
+        raise CliffTerrainError(f"cannot write {str(out)!r}: {exc}") from None
+    line = f"{args.ortho}: {len(plots)} plots ({columns} columns x {rows} rows) in EPSG:{ortho.crs}"
+    if report is not None:
+        line += (
+            f"; fitted: angle {report['angle_deg']:.2f} deg, pitch {report['column_pitch_m']:.3f} x "
+            f"{report['row_pitch_m']:.3f} m, {report['plant_share_in_plots']:.1%} of the plant pixels in plots, "
+            f"confidence {report['confidence']:.2f}"
+        )
+    print(f"{line}; wrote {out}")
+    return 0
