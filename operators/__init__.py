@@ -3,10 +3,10 @@
 What they put into the scene (mesh, materials, cameras, light, render settings) is in ``scene/``.
 """
 
-from . import build, mosaic, properties, render, render_job, season
+from . import build, mosaic, plots, properties, render, render_job, season
 
 # The settings first: the build operator and the panel read them.
-_MODULES = (properties, build, render, render_job, season, mosaic)
+_MODULES = (properties, build, render, render_job, season, mosaic, plots)
 
 
 def register():

@@ -140,6 +140,15 @@ class ReliefParameters:
         return kwargs
 
 
+def _grid_changed(settings, context):
+    """Rebuild the active plot grid from the new layout (its placement stays where the user put it)."""
+    from ..scene.plot_grid import active_grid, update_grid_mesh
+
+    grid = active_grid(context)
+    if grid is not None:
+        update_grid_mesh(grid, settings)
+
+
 class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
     """Cliff Terrain settings of a scene: build parameters, render folder and the last evaluation."""
 
@@ -156,6 +165,65 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
     last_views: StringProperty(
         name="Last Views", description="Folder of the last rendered views", subtype="DIR_PATH"
     )
+
+    # ---- The plot grid (Add Plot Grid): edits rebuild the active grid object at once ----
+    plot_columns: IntProperty(
+        name="Columns",
+        description="Plots across the columns",
+        min=1,
+        soft_max=200,
+        default=4,
+        update=_grid_changed,
+    )
+    plot_rows: IntProperty(
+        name="Rows",
+        description="Plots along the columns",
+        min=1,
+        soft_max=200,
+        default=8,
+        update=_grid_changed,
+    )
+    plot_width: FloatProperty(
+        name="Plot Width", description="Metres across the columns", min=0.01, soft_max=50.0, default=1.5,
+        unit="LENGTH", update=_grid_changed,
+    )  # fmt: skip
+    plot_length: FloatProperty(
+        name="Plot Length", description="Metres along the columns", min=0.01, soft_max=50.0, default=5.0,
+        unit="LENGTH", update=_grid_changed,
+    )  # fmt: skip
+    plot_alley_across: FloatProperty(
+        name="Column Alley", description="Gap between columns, metres", min=0.0, soft_max=10.0, default=0.3,
+        unit="LENGTH", update=_grid_changed,
+    )  # fmt: skip
+    plot_alley_along: FloatProperty(
+        name="Row Alley", description="Gap between rows, metres", min=0.0, soft_max=10.0, default=1.0,
+        unit="LENGTH", update=_grid_changed,
+    )  # fmt: skip
+    plot_numbering: EnumProperty(
+        name="Numbering",
+        description="How plots are numbered from the start corner",
+        items=(
+            ("serpentine", "Serpentine", "Along the rows, turning back at each row's end"),
+            ("rows", "Rows", "Along each row, every row in the same direction"),
+            ("columns", "Columns", "Along each column first"),
+        ),
+        default="serpentine",
+    )
+    plot_start: EnumProperty(
+        name="Plot 1",
+        description="The corner of plot 1 on the map (north up)",
+        items=(
+            ("top-left", "Top Left", ""),
+            ("top-right", "Top Right", ""),
+            ("bottom-left", "Bottom Left", ""),
+            ("bottom-right", "Bottom Right", ""),
+        ),
+        default="top-left",
+    )
+    show_plot_labels: BoolProperty(
+        name="Plot Labels", description="Show each plot's number over the relief (when the plots are large enough on screen)",
+        default=False,
+    )  # fmt: skip
 
 
 CLASSES = (CliffTerrainSettings,)

@@ -192,7 +192,66 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         layout.operator(SEASON_OPERATOR, icon="RENDER_ANIMATION")
 
 
-CLASSES = (CLIFF_TERRAIN_PT_sidebar,)
+class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
+    """The plot grid: layout, Add Plot Grid, Fit to Field, Export Plots and the last fit's figures."""
+
+    bl_idname = "CLIFF_TERRAIN_PT_plots"
+    bl_label = "Plots"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Cliff Terrain"
+    bl_parent_id = "CLIFF_TERRAIN_PT_sidebar"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        from ..scene.plot_grid import FIT_KEY, GRID_KEY
+
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.cliff_terrain
+        col = layout.column(align=True)
+        for name in (
+            "plot_columns",
+            "plot_rows",
+            "plot_width",
+            "plot_length",
+            "plot_alley_across",
+            "plot_alley_along",
+        ):
+            col.prop(settings, name)
+        col = layout.column()
+        col.prop(settings, "plot_numbering")
+        col.prop(settings, "plot_start")
+        col.prop(settings, "show_plot_labels")
+        # Each button greys itself out (its poll) with the reason as its tooltip.
+        layout.operator("cliff_terrain.add_plot_grid", icon="MESH_GRID")
+        row = layout.row(align=True)
+        row.operator("cliff_terrain.fit_plot_grid", icon="SNAP_ON")
+        row.operator("cliff_terrain.export_plots", icon="EXPORT")
+        grid = context.active_object
+        if grid is not None and GRID_KEY in grid:
+            box = layout.box()
+            box.label(
+                text=f"{settings.plot_columns * settings.plot_rows} plots over {grid[GRID_KEY]}",
+                icon="MESH_GRID",
+            )
+            for line in fit_lines(grid.get(FIT_KEY)):
+                box.label(text=line)
+
+
+def fit_lines(report):
+    """The last fit's figures as panel lines (none before a fit)."""
+    if not report:
+        return []
+    return [
+        f"Angle {float(report['angle_deg']):.2f}°, pitch {float(report['column_pitch_m']):.3g} x "
+        f"{float(report['row_pitch_m']):.3g} m",
+        f"Plants in plots {float(report['plant_share_in_plots']):.0%}, confidence {float(report['confidence']):.2f}",
+    ]
+
+
+CLASSES = (CLIFF_TERRAIN_PT_sidebar, CLIFF_TERRAIN_PT_plots)
 
 
 # Registered in order, unregistered in reverse (Blender's own helper for exactly this).

@@ -1,0 +1,201 @@
+"""The plot grid object: a mesh of plot quads over a relief, moved, rotated and scaled with Blender's own
+tools, and its map frame (Blender world <-> the relief's map coordinates).
+
+The mesh holds the grid in its own frame: u (across the columns) along local x, v (along them) along
+local y, from the grid's (0, 0) corner, in Blender units. The object's matrix is the placement. Each
+face carries its plot's ``column`` and ``row`` (0-based in the grid's frame) as integer attributes.
+"""
+
+import bpy
+import numpy as np
+from mathutils import Vector
+
+GRID_KEY = "cliff_terrain_plot_grid"  # custom property: the name of the relief the grid belongs to
+FIT_KEY = "cliff_terrain_fit"  # custom property: the last fit's report
+GRID_RGBA = (1.0, 0.85, 0.1, 1.0)
+
+
+def active_grid(context):
+    """The active object when it is a plot grid, else None."""
+    obj = getattr(context, "active_object", None)
+    return obj if obj is not None and GRID_KEY in obj else None
+
+
+def grid_relief(grid):
+    """The relief object a grid was added over (None when it is gone)."""
+    return bpy.data.objects.get(grid.get(GRID_KEY, ""))
+
+
+def layout_of(settings):
+    """The core layout of the scene's grid settings."""
+    from ..cliff_terrain.plot_grid import grid_layout
+
+    return grid_layout(
+        settings.plot_columns,
+        settings.plot_rows,
+        plot_size=(settings.plot_width, settings.plot_length),
+        alleys=(settings.plot_alley_across, settings.plot_alley_along),
+    )
+
+
+class MapFrame:
+    """Blender world (x, y) <-> map (x, y) of a relief built from a georeferenced orthophoto."""
+
+    def __init__(self, relief):
+        info = relief.get("cliff_terrain")
+        if info is None:
+            raise ValueError(f"{relief.name!r} is not a Cliff Terrain relief")
+        self.scale = float(info.get("blender_units_per_unit", 1.0))
+        if info.get("units") != "m":
+            from ..cliff_terrain.errors import CliffTerrainError
+
+            raise CliffTerrainError(
+                f"{relief.name!r} has no ground size: plots need a relief built from a georeferenced orthophoto"
+            )
+        if "map_offset" in info:
+            self.offset = np.array(info["map_offset"], dtype=np.float64)
+            self.crs = int(info["crs"])
+        else:
+            from ..cliff_terrain.georaster import read_georeference
+
+            transform, self.crs = read_georeference(info["source"])
+            # The mesh's local (0, 0) is the photo's bottom-left corner.
+            self.offset = transform[:2, :2] @ [0.0, float(info["image_height"])] + transform[:2, 2]
+        self.matrix = np.array(relief.matrix_world, dtype=np.float64)
+        self.inverse = np.linalg.inv(self.matrix)
+        self.source = info["source"]
+
+    def to_map(self, world_xy):
+        world = np.asarray(world_xy, dtype=np.float64).reshape(-1, 2)
+        homogeneous = np.column_stack([world, np.zeros(len(world)), np.ones(len(world))])
+        local = homogeneous @ self.inverse.T
+        return local[:, :2] / self.scale + self.offset
+
+    def to_world(self, map_xy):
+        local = (np.asarray(map_xy, dtype=np.float64).reshape(-1, 2) - self.offset) * self.scale
+        homogeneous = np.column_stack([local, np.zeros(len(local)), np.ones(len(local))])
+        return (homogeneous @ self.matrix.T)[:, :2]
+
+
+def grid_mesh_arrays(layout, scale):
+    """Vertices (4 per plot, z 0) and the plots' (column, row), in the grid's frame, in (row, column) order."""
+    columns, rows = np.meshgrid(np.arange(layout.columns), np.arange(layout.rows))
+    columns, rows = columns.ravel(), rows.ravel()
+    u0 = layout.column_offsets[columns]
+    v0 = layout.row_offsets[rows]
+    u = np.stack([u0, u0 + layout.width, u0 + layout.width, u0], axis=1)
+    v = np.stack([v0, v0, v0 + layout.length, v0 + layout.length], axis=1)
+    vertices = np.zeros((u.size, 3), dtype=np.float32)
+    vertices[:, 0] = u.ravel() * scale
+    vertices[:, 1] = v.ravel() * scale
+    return vertices, columns.astype(np.int32), rows.astype(np.int32)
+
+
+def update_grid_mesh(grid, settings):
+    """Replace the grid's mesh with the settings' layout (one bulk write per array)."""
+    frame_scale = float(grid.get("cliff_terrain_scale", 1.0))
+    layout = layout_of(settings)
+    vertices, columns, rows = grid_mesh_arrays(layout, frame_scale)
+    mesh = grid.data
+    mesh.clear_geometry()
+    n = len(columns)
+    mesh.vertices.add(4 * n)
+    mesh.vertices.foreach_set("co", vertices.ravel())
+    mesh.loops.add(4 * n)
+    mesh.loops.foreach_set("vertex_index", np.arange(4 * n, dtype=np.int32))
+    mesh.polygons.add(n)
+    mesh.polygons.foreach_set("loop_start", np.arange(0, 4 * n, 4, dtype=np.int32))
+    mesh.polygons.foreach_set("loop_total", np.full(n, 4, dtype=np.int32))
+    for name, values in (("column", columns), ("row", rows)):
+        attribute = mesh.attributes.get(name) or mesh.attributes.new(name, "INT", "FACE")
+        attribute.data.foreach_set("value", values)
+    mesh.update(calc_edges=True)
+    mesh.validate()
+    return layout
+
+
+def new_grid(context, relief, settings, *, created):
+    """A grid object over `relief`, centred on it, at 5 cm above its highest point (wireframe display)."""
+    frame = MapFrame(relief)
+    mesh = bpy.data.meshes.new(f"{relief.name} plots")
+    created.append(mesh)
+    grid = bpy.data.objects.new(f"{relief.name} plots", mesh)
+    created.append(grid)
+    grid[GRID_KEY] = relief.name
+    grid["cliff_terrain_scale"] = frame.scale
+    layout = update_grid_mesh(grid, settings)
+    across, along = layout.extent
+    # Centred on the relief's footprint, above its top (its bounding box's 8 corners).
+    bounds = np.array([relief.matrix_world @ Vector(c) for c in relief.bound_box])
+    centre = bounds[:, :2].mean(axis=0)
+    top = float(bounds[:, 2].max())
+    grid.location = (
+        centre[0] - 0.5 * across * frame.scale,
+        centre[1] - 0.5 * along * frame.scale,
+        top + 0.05 * frame.scale,
+    )
+    grid.display_type = "WIRE"
+    grid.show_in_front = True
+    grid.color = GRID_RGBA
+    (context.collection or context.scene.collection).objects.link(grid)
+    return grid
+
+
+def grid_map_corners(grid, layout):
+    """Map (x, y) of the grid's corners (u, v) = (0, 0), (U, 0), (U, V), (0, V) as placed by the user."""
+    relief = grid_relief(grid)
+    if relief is None:
+        from ..cliff_terrain.errors import CliffTerrainError
+
+        raise CliffTerrainError(f"the relief {grid.get(GRID_KEY)!r} of the plot grid {grid.name!r} is gone")
+    frame = MapFrame(relief)
+    across, along = layout.extent
+    scale = float(grid.get("cliff_terrain_scale", 1.0))
+    local = np.array(
+        [
+            [0, 0, 0, 1],
+            [across * scale, 0, 0, 1],
+            [across * scale, along * scale, 0, 1],
+            [0, along * scale, 0, 1],
+        ]
+    )
+    world = local @ np.array(grid.matrix_world, dtype=np.float64).T
+    return frame, frame.to_map(world[:, :2])
+
+
+def place_grid(grid, frame, placement):
+    """Move and rotate the grid so that its (0, 0) corner and u direction are the placement's."""
+    corners = frame.to_world(placement.corners)
+    u = corners[1] - corners[0]
+    z = grid.location.z
+    grid.rotation_mode = "XYZ"
+    grid.rotation_euler = (0.0, 0.0, float(np.arctan2(u[1], u[0])))
+    grid.scale = (1.0, 1.0, 1.0)
+    grid.location = (float(corners[0][0]), float(corners[0][1]), z)
+
+
+def grid_plots(grid, settings):
+    """The grid as numbered plots in the relief's CRS (:class:`cliff_terrain.plots.PlotSet`), and the frame."""
+    from ..cliff_terrain.plot_grid import Placement, plots_from
+
+    layout = layout_of(settings)
+    frame, corners = grid_map_corners(grid, layout)
+    plots = plots_from(
+        layout,
+        Placement(corners),
+        numbering=settings.plot_numbering,
+        start=settings.plot_start,
+        crs=frame.crs,
+    )
+    return plots, frame
+
+
+def label_positions(grid, settings):
+    """(text, world (x, y, z)) of every plot's number at its centre, for the labels overlay."""
+    plots, frame = grid_plots(grid, settings)
+    centres = np.array([rings[0][:4].mean(axis=0) for rings in plots.polygons])
+    world = frame.to_world(centres)
+    z = float(grid.matrix_world.translation.z)
+    return [
+        (str(a["plot"]), (float(x), float(y), z)) for a, (x, y) in zip(plots.attributes, world, strict=True)
+    ]

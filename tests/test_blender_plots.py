@@ -1,0 +1,89 @@
+"""Blender: a plot grid over a relief of the shared OpenDroneMap orthophoto: added, edited live, fitted to the
+field and exported in the orthophoto's CRS (the same plots the core and the command line make)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+pytestmark = pytest.mark.blender
+
+ODM = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2" / "odm_orthophoto.tif"
+# Four blocks of nine plots, read off the photo by hand: the grid's (0, 0) corner (bottom-left), pixels.
+BOTTOM_LEFT_PX = (91, 377)
+
+
+@pytest.fixture
+def relief(scene):
+    import bpy
+
+    if not ODM.is_file():
+        pytest.skip(f"shared OpenDroneMap pair {ODM} not found (../shared is absent)")
+    settings = scene.cliff_terrain
+    settings.filepath = str(ODM)
+    settings.max_size = 250
+    settings.two_sided = False
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    return bpy.context.active_object
+
+
+def test_add_edit_fit_and_export_a_plot_grid(relief, tmp_path):
+    import bpy
+
+    from cliff_terrain.canopy import plant_mask
+    from cliff_terrain.georaster import read_orthophoto
+    from cliff_terrain.plots import rasterize_plots, read_plots
+    from cliff_terrain_addon.scene.plot_grid import MapFrame, grid_plots
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 4, 9
+    settings.plot_width, settings.plot_length = 14.2, 4.8
+    settings.plot_alley_across, settings.plot_alley_along = 3.8, 1.4
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    grid = bpy.context.active_object
+    assert grid.name.endswith("plots") and len(grid.data.polygons) == 36
+    columns = np.zeros(36, np.int32)
+    grid.data.attributes["column"].data.foreach_get("value", columns)
+    assert sorted(set(columns.tolist())) == [0, 1, 2, 3]
+
+    # Live: the sidebar's rows rebuild the grid at once.
+    settings.plot_rows = 5
+    assert len(grid.data.polygons) == 20
+    settings.plot_rows = 9
+    assert len(grid.data.polygons) == 36
+
+    # Put it roughly where the plots are (as a user drags it with G), 1 m off, then Fit to Field.
+    ortho = read_orthophoto(ODM)
+    t = ortho.transform
+    col, row = BOTTOM_LEFT_PX
+    corner = np.array([t[0, 2] + t[0, 0] * col, t[1, 2] + t[1, 1] * row]) + [1.0, -0.8]
+    frame = MapFrame(relief)
+    x, y = frame.to_world(corner)[0]
+    grid.location = (x, y, grid.location.z)
+    assert bpy.ops.cliff_terrain.fit_plot_grid() == {"FINISHED"}
+    report = grid["cliff_terrain_fit"]
+    assert 0.0 <= report["confidence"] <= 1.0 and abs(report["angle_deg"] + 2.0) < 1.5
+
+    out = tmp_path / "plots.geojson"
+    assert bpy.ops.cliff_terrain.export_plots(filepath=str(out)) == {"FINISHED"}
+    plots = read_plots(out)
+    assert plots.crs == ortho.crs == 32616 and len(plots) == 36
+    assert sorted(a["plot"] for a in plots.attributes) == list(range(1, 37))
+    # The exported plots are the grid as the panel numbers it, and each sits on its block of crop.
+    same, _ = grid_plots(grid, settings)
+    np.testing.assert_allclose(
+        [rings[0] for rings in plots.polygons], [rings[0] for rings in same.polygons], atol=1e-6
+    )
+    plants = plant_mask(ortho.data, valid=ortho.valid)
+    labels = rasterize_plots(plots, transform=t, shape=ortho.shape)
+    covers = np.array([plants[labels == k].mean() for k in range(1, 37)])
+    assert covers.min() >= 0.85, covers.round(2)
+
+
+def test_plot_operators_grey_out_with_the_reason(scene):
+    import bpy
+
+    assert not bpy.ops.cliff_terrain.add_plot_grid.poll()
+    assert not bpy.ops.cliff_terrain.fit_plot_grid.poll()
+    assert not bpy.ops.cliff_terrain.export_plots.poll()
