@@ -30,11 +30,11 @@ def relief(scene):
 
 def test_add_edit_fit_and_export_a_plot_grid(relief, tmp_path):
     import bpy
+    from cliff_terrain_addon.scene.plot_grid import MapFrame, grid_plots
 
     from cliff_terrain.canopy import plant_mask
     from cliff_terrain.georaster import read_orthophoto
     from cliff_terrain.plots import rasterize_plots, read_plots
-    from cliff_terrain_addon.scene.plot_grid import MapFrame, grid_plots
 
     settings = bpy.context.scene.cliff_terrain
     settings.plot_columns, settings.plot_rows = 4, 9
