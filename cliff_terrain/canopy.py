@@ -316,6 +316,32 @@ def relief_tables(relief, *, plots=None, source=""):
     return files
 
 
+def relief_plot_rows(relief, plots, *, source):
+    """One row per plot of a relief built from a georeferenced orthophoto: cover, and with a surface
+    model the canopy heights and ground support (:func:`cliff_terrain.plots.plot_table`'s rows).
+
+    Without a surface model the height columns are NaN. `source` is the orthophoto's path (its
+    georeference places the relief's grid).
+    """
+    from .georaster import read_georeference
+    from .plots import check_plot_crs, plot_table, rasterize_plots
+
+    if relief.canopy is not None:
+        canopy = relief.canopy
+        transform, crs, heights = canopy.transform, canopy.crs, canopy.chm
+        support = np.ones(heights.shape, np.float32) if canopy.support is None else canopy.support
+    else:
+        transform0, crs = read_georeference(source)
+        rows, cols = relief.mask.shape
+        meta = relief.metadata
+        transform = transform0 @ np.diag([meta.width / cols, meta.height / rows, 1.0])
+        heights, support = None, None
+    check_plot_crs(plots, crs, raster=str(source))
+    labels = rasterize_plots(plots, transform=transform, shape=relief.mask.shape)
+    area = float(abs(np.linalg.det(np.asarray(transform)[:2, :2])))
+    return plot_table(plots, labels, mask=relief.mask, heights=heights, pixel_area_m2=area, support=support)
+
+
 def plot_table_files(plots, canopy, *, heights, mask, source):
     """``plots.csv`` and ``plots.geojson`` ({file name: text}) of `plots` on `canopy`'s grid.
 

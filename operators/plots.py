@@ -125,6 +125,49 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class CLIFF_TERRAIN_OT_plot_table(bpy.types.Operator):
+    """Measure every plot of the active grid on its relief: plant cover, and with a surface model the
+    canopy height p50/p90 (shown in the Plots panel)"""
+
+    bl_idname = "cliff_terrain.plot_table"
+    bl_label = "Measure Plots"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        from ..scene.plot_grid import active_grid
+
+        if active_grid(context) is None:
+            cls.poll_message_set("Select a plot grid (Add Plot Grid)")
+            return False
+        return True
+
+    def execute(self, context):
+        from ..cliff_terrain.canopy import relief_plot_rows
+        from ..cliff_terrain.pipeline import build_relief
+        from ..scene.plot_grid import TABLE_KEY, grid_plots, grid_relief
+        from .properties import ReliefParameters
+
+        grid = context.active_object
+        try:
+            plots, frame = grid_plots(grid, context.scene.cliff_terrain)
+            record = grid_relief(grid)["cliff_terrain"]
+            # The relief as it was built (its recorded settings), without a mesh: its mask and heights.
+            kwargs = ReliefParameters.record_kwargs(record.get("params", {}).to_dict())
+            kwargs.pop("mesh", None)
+            relief = build_relief(frame.source, mesh=None, **kwargs)
+            rows = relief_plot_rows(relief, plots, source=frame.source)
+        except Exception as exc:
+            return _report_failure(self, exc)
+        keys = ("column", "row", "cover", "height_p50_m", "height_p90_m")
+        # The table's `plot` is the index in the set; the plot's own number is its attribute.
+        grid[TABLE_KEY] = [{"plot": row["plot_attr"], **{k: row[k] for k in keys}} for row in rows]
+        measured = [row for row in rows if row["height_p90_m"] == row["height_p90_m"]]  # not NaN
+        heights = f", {len(measured)} with heights" if measured else " (no surface model: cover only)"
+        self.report({"INFO"}, f"{len(rows)} plots measured{heights}")
+        return {"FINISHED"}
+
+
 class CLIFF_TERRAIN_OT_export_plots(FileOperator, bpy.types.Operator):
     """Write the active plot grid's plots (numbered, in the relief's CRS) as GeoJSON, or as a Shapefile
     when the name ends in .shp"""
@@ -202,7 +245,12 @@ def draw_labels():
                 blf.draw(0, text)
 
 
-CLASSES = (CLIFF_TERRAIN_OT_add_plot_grid, CLIFF_TERRAIN_OT_fit_plot_grid, CLIFF_TERRAIN_OT_export_plots)
+CLASSES = (
+    CLIFF_TERRAIN_OT_add_plot_grid,
+    CLIFF_TERRAIN_OT_fit_plot_grid,
+    CLIFF_TERRAIN_OT_plot_table,
+    CLIFF_TERRAIN_OT_export_plots,
+)
 
 
 def register():

@@ -128,6 +128,19 @@ class ReliefParameters:
         default=settings.DEFAULT_HEIGHT_MODE,
     )
 
+    @staticmethod
+    def record_kwargs(params):
+        """``build_relief`` keyword arguments from a relief's recorded ``params`` (ID properties hold
+        no None: 0 and empty paths stand for it, as in the settings)."""
+        kwargs = {name: params[name] for name in PARAMETER_NAMES if name in params}
+        for name in ("gsd", "max_height", "max_error"):
+            if name in kwargs and not kwargs[name]:
+                kwargs[name] = None
+        for name in ("dsm", "dtm"):
+            if name in kwargs and not isinstance(kwargs[name], str) or not kwargs.get(name):
+                kwargs[name] = None
+        return kwargs
+
     def core_kwargs(self):
         """Keyword arguments for ``cliff_terrain.pipeline.build_relief`` (GSD 0 means unknown)."""
         kwargs = {name: getattr(self, name) for name in PARAMETER_NAMES}

@@ -204,7 +204,7 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        from ..scene.plot_grid import FIT_KEY, GRID_KEY
+        from ..scene.plot_grid import FIT_KEY, GRID_KEY, TABLE_KEY
 
         layout = self.layout
         layout.use_property_split = True
@@ -228,7 +228,8 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
         layout.operator("cliff_terrain.add_plot_grid", icon="MESH_GRID")
         row = layout.row(align=True)
         row.operator("cliff_terrain.fit_plot_grid", icon="SNAP_ON")
-        row.operator("cliff_terrain.export_plots", icon="EXPORT")
+        row.operator("cliff_terrain.plot_table", icon="SPREADSHEET")
+        layout.operator("cliff_terrain.export_plots", icon="EXPORT")
         grid = context.active_object
         if grid is not None and GRID_KEY in grid:
             box = layout.box()
@@ -238,6 +239,23 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
             )
             for line in fit_lines(grid.get(FIT_KEY)):
                 box.label(text=line)
+            table = grid.get(TABLE_KEY)
+            if table:
+                cells = box.grid_flow(columns=3, even_columns=True, align=True)
+                for line in plot_table_lines([dict(row) for row in table]):
+                    for cell in line:
+                        cells.label(text=cell)
+
+
+def plot_table_lines(rows, limit=12):
+    """The panel's plot table: a header, then plot, cover and canopy height p90 (cm) per plot, by number."""
+    lines = [("Plot", "Cover", "p90")]
+    for row in sorted(rows, key=lambda r: r["plot"])[:limit]:
+        p90 = row.get("height_p90_m", float("nan"))
+        lines.append((str(row["plot"]), f"{row['cover']:.0%}", "-" if p90 != p90 else f"{p90 * 100:.0f} cm"))
+    if len(rows) > limit:
+        lines.append((f"+{len(rows) - limit}", "more", ""))
+    return lines
 
 
 def fit_lines(report):

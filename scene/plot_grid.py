@@ -12,6 +12,7 @@ from mathutils import Vector
 
 GRID_KEY = "cliff_terrain_plot_grid"  # custom property: the name of the relief the grid belongs to
 FIT_KEY = "cliff_terrain_fit"  # custom property: the last fit's report
+TABLE_KEY = "cliff_terrain_plot_table"  # custom property: the last Measure Plots' rows
 GRID_RGBA = (1.0, 0.85, 0.1, 1.0)
 
 
@@ -111,6 +112,8 @@ def update_grid_mesh(grid, settings):
         attribute.data.foreach_set("value", values)
     mesh.update(calc_edges=True)
     mesh.validate()
+    if TABLE_KEY in grid:  # measured on the plots as they were
+        del grid[TABLE_KEY]
     return layout
 
 

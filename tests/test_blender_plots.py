@@ -22,6 +22,8 @@ def relief(scene):
         pytest.skip(f"shared OpenDroneMap pair {ODM} not found (../shared is absent)")
     settings = scene.cliff_terrain
     settings.filepath = str(ODM)
+    settings.dsm = str(ODM.with_name("dsm.tif"))
+    settings.heights = "measured"
     settings.max_size = 250
     settings.two_sided = False
     assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
@@ -87,3 +89,42 @@ def test_plot_operators_grey_out_with_the_reason(scene):
     assert not bpy.ops.cliff_terrain.add_plot_grid.poll()
     assert not bpy.ops.cliff_terrain.fit_plot_grid.poll()
     assert not bpy.ops.cliff_terrain.export_plots.poll()
+
+
+def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
+    import bpy
+    from cliff_terrain_addon.panels.sidebar import plot_table_lines
+    from cliff_terrain_addon.scene.plot_grid import TABLE_KEY, grid_plots
+
+    from cliff_terrain.pipeline import build_relief
+    from cliff_terrain.plots import plot_table, rasterize_plots
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 3, 4
+    settings.plot_width, settings.plot_length = 14.2, 4.8
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    grid = bpy.context.active_object
+    assert bpy.ops.cliff_terrain.plot_table() == {"FINISHED"}
+    table = [dict(row) for row in grid[TABLE_KEY]]
+    assert sorted(row["plot"] for row in table) == list(range(1, 13))
+    # The same figures as the core's plot table on the relief built with the same settings.
+    reference = build_relief(
+        str(ODM), dsm=str(ODM.with_name("dsm.tif")), heights="measured", max_size=250, mesh=None
+    )
+    plots, _ = grid_plots(grid, settings)
+    canopy = reference.canopy
+    labels = rasterize_plots(plots, transform=canopy.transform, shape=reference.mask.shape)
+    rows = plot_table(
+        plots, labels, mask=reference.mask, heights=canopy.chm, pixel_area_m2=canopy.pixel_area_m2
+    )
+    by_plot = {row["plot"]: row for row in table}
+    for row in rows:
+        number = row["plot_attr"]  # the plot's own number (`plot` is its index in the set)
+        assert by_plot[number]["cover"] == pytest.approx(row["cover"])
+        assert by_plot[number]["height_p90_m"] == pytest.approx(row["height_p90_m"], nan_ok=True)
+    assert any(row["height_p90_m"] > 0.1 for row in table)  # measured heights, not NaN or zero
+    lines = plot_table_lines(table)
+    assert lines[0] == ("Plot", "Cover", "p90") and lines[1][0] == "1" and len(lines) == 13
+    # A layout edit makes the table stale: it goes.
+    settings.plot_rows = 5
+    assert TABLE_KEY not in grid
