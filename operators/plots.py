@@ -192,7 +192,7 @@ class CLIFF_TERRAIN_OT_export_plots(FileOperator, bpy.types.Operator):
     def execute(self, context):
         from pathlib import Path
 
-        from ..cliff_terrain.plot_grid import write_plots
+        from ..cliff_terrain.plot_files import write_plots
         from ..scene.plot_grid import grid_plots
 
         path = Path(bpy.path.abspath(self.filepath))

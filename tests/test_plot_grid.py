@@ -13,15 +13,8 @@ import pytest
 from conftest import REPO, SHARED_UAV
 
 from cliff_terrain.errors import CliffTerrainError, PlotFileError
-from cliff_terrain.plot_grid import (
-    Placement,
-    grid_layout,
-    placement_from_corners,
-    plot_grid,
-    plots_from,
-    read_field_book,
-    write_plots,
-)
+from cliff_terrain.plot_files import read_field_book, write_plots
+from cliff_terrain.plot_grid import Placement, grid_layout, placement_from_corners, plot_grid, plots_from
 from cliff_terrain.plots import polygon_area, rasterize_plots, read_plots
 
 ODM = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2" / "odm_orthophoto.tif"

@@ -96,19 +96,10 @@ def _alleys(text):
 def run(args):
     import json
 
-    import numpy as np
-
     from ..errors import CliffTerrainError
     from ..georaster import read_orthophoto
-    from ..plot_grid import (
-        check_plots_fit,
-        grid_layout,
-        parse_pair,
-        placement_from_corners,
-        plots_from,
-        read_field_book,
-        write_plots,
-    )
+    from ..plot_files import check_plots_fit, read_field_book, write_plots
+    from ..plot_grid import parse_pair, place_grid, plots_from
 
     out = args.out
     columns, rows = _counts(args.grid)
@@ -118,8 +109,6 @@ def run(args):
     buffer = parse_pair(args.buffer, "--buffer") if "x" in args.buffer.lower() else (float(args.buffer),) * 2
     corners = [parse_pair(c, "--corners") for c in args.corners] if args.corners else None
     origin = parse_pair(args.origin, "--origin") if args.origin else None
-    if corners is not None and origin is not None:
-        raise CliffTerrainError("give `--corners` or `--origin`, not both")
     if corners is None and origin is None and not args.fit:
         raise CliffTerrainError("place the grid: give `--corners`, `--origin` (and `--angle`), or `--fit`")
     outputs = [out] + (
@@ -133,25 +122,16 @@ def run(args):
             raise CliffTerrainError(f"{str(existing[0])!r} exists; pass --overwrite to replace it")
     book = read_field_book(args.field_book) if args.field_book else None  # a bad book fails before the work
     ortho = read_orthophoto(args.ortho)
-    layout = grid_layout(columns, rows, plot_size=size, pitch=pitch, alleys=alleys)
-    placement = None
-    if corners is not None:
-        from ..plot_grid import plot_grid
-
-        rough = plot_grid(columns, rows, plot_size=size, corners=corners, pitch=pitch, alleys=alleys)
-        del rough  # validates the corners against the layout
-        placement = placement_from_corners(corners, layout.extent)
-        c = placement.corners
-        span = (
-            0.5 * (np.hypot(*(c[1] - c[0])) + np.hypot(*(c[2] - c[3]))),
-            0.5 * (np.hypot(*(c[3] - c[0])) + np.hypot(*(c[2] - c[1]))),
+    if corners is None and origin is None:  # placed by the fit alone: a layout at the map's origin
+        layout, placement = place_grid(
+            columns, rows, plot_size=size, origin=(0.0, 0.0), pitch=pitch, alleys=alleys
         )
-        if pitch is None and alleys is None:
-            layout = grid_layout(columns, rows, plot_size=size, extent=span)
-    elif origin is not None:
-        from ..plot_grid import Placement
-
-        placement = Placement.rigid(origin, 0.0 if args.angle is None else args.angle, layout.extent)
+        placement = None
+    else:
+        layout, placement = place_grid(
+            columns, rows, plot_size=size, corners=corners, origin=origin,
+            angle=0.0 if args.angle is None else args.angle, pitch=pitch, alleys=alleys,
+        )  # fmt: skip
     report = None
     if args.fit:
         from ..canopy import plant_mask
@@ -162,7 +142,7 @@ def run(args):
             plants,
             ortho.transform,
             layout,
-            placement=placement if corners is not None else None,
+            placement=placement if corners is not None else None,  # an --origin is pinned instead
             angle=args.angle,
             pitch=pitch,
             origin=origin,
