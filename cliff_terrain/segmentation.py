@@ -12,11 +12,12 @@ Two modes:
     Plants rise, soil stays flat. A vegetation index decides what is plant: the excess-green index
     ExG = 2g - r - b on chromatic coordinates for colour photos, or (NIR - B) / (NIR + B) for
     false-colour NIR frames (detected when no pixel is green and green is the weakest channel of
-    most pixels). The threshold is the photo's own when its index histogram is clearly two-class
-    (see :func:`index_threshold`): Otsu's threshold then lies in an almost empty valley, and
-    is used as it is (never below the band's floor, where bare soil and grey objects lie). Otherwise
-    Otsu's threshold is kept within a prior band, so that an image of bare soil yields (almost)
-    nothing and a closed canopy is not split into a bright and a dark class. Touching plants are split by a
+    most pixels). Otsu's threshold on the index is kept within a prior band, so that an image of
+    bare soil yields (almost) nothing and a closed canopy is not split into a bright and a dark
+    class, unless the photo shows the band is wrong (see :func:`index_threshold`): its histogram
+    is clearly two-class, Otsu's threshold lies in an almost empty valley above the band, and the
+    band's threshold cuts into a class (dark, wet soil). Then the photo's own threshold is used.
+    Touching plants are split by a
     watershed whose markers are the distance map's peaks and whose landscape adds the quaternion
     filter's colour-edge strength, so boundaries follow colour edges between plants. Holes are
     filled only where they are plausibly inside a plant (see :func:`plant_holes`): soil enclosed
@@ -309,15 +310,6 @@ class ThresholdRule:
     source: str
     otsu: float
     valley: float
-
-    def record(self):
-        """The rule as the relief's parameters and ``metrics.json`` record it."""
-        return {
-            "threshold": round(self.threshold, 4),
-            "threshold_source": self.source,
-            "otsu_threshold": round(self.otsu, 4),
-            "valley": None if not np.isfinite(self.valley) else round(self.valley, 3),
-        }
 
 
 def index_threshold(values, *, index="green"):
