@@ -316,6 +316,11 @@ def relief_tables(relief, *, plots=None, source=""):
     return files
 
 
+def plot_support(canopy):
+    """The ground's support for plot tables: the estimate's, or 1 everywhere with a terrain model."""
+    return np.ones(canopy.chm.shape, np.float32) if canopy.support is None else canopy.support
+
+
 def relief_plot_rows(relief, plots, *, source):
     """One row per plot of a relief built from a georeferenced orthophoto: cover, and with a surface
     model the canopy heights and ground support (:func:`cliff_terrain.plots.plot_table`'s rows).
@@ -329,7 +334,7 @@ def relief_plot_rows(relief, plots, *, source):
     if relief.canopy is not None:
         canopy = relief.canopy
         transform, crs, heights = canopy.transform, canopy.crs, canopy.chm
-        support = np.ones(heights.shape, np.float32) if canopy.support is None else canopy.support
+        support = plot_support(canopy)
     else:
         transform0, crs = read_georeference(source)
         rows, cols = relief.mask.shape
@@ -354,10 +359,13 @@ def plot_table_files(plots, canopy, *, heights, mask, source):
     labels = rasterize_plots(plots, transform=canopy.transform, shape=heights.shape)
     if not labels.any():
         raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
-    # A terrain model carries the ground everywhere: full support.
-    support = np.ones(heights.shape, np.float32) if canopy.support is None else canopy.support
     rows = plot_table(
-        plots, labels, mask=mask, heights=heights, pixel_area_m2=canopy.pixel_area_m2, support=support
+        plots,
+        labels,
+        mask=mask,
+        heights=heights,
+        pixel_area_m2=canopy.pixel_area_m2,
+        support=plot_support(canopy),
     )
     return {
         "plots.csv": table_csv(rows, table_columns(plots, support=True)),

@@ -29,6 +29,19 @@ def _relief_of(context):
     return obj if obj is not None and "cliff_terrain" in obj else None
 
 
+class _OnAGrid:
+    """Runs on the active plot grid: greyed out, with the reason, when none is active."""
+
+    @classmethod
+    def poll(cls, context):
+        from ..scene.plot_grid import active_grid
+
+        if active_grid(context) is None:
+            cls.poll_message_set("Select a plot grid (Add Plot Grid)")
+            return False
+        return True
+
+
 class CLIFF_TERRAIN_OT_add_plot_grid(bpy.types.Operator):
     """Put a plot grid (the sidebar's columns, rows, plot size and alleys) over the active relief; move,
     rotate and scale it with G, R and S"""
@@ -72,22 +85,13 @@ class CLIFF_TERRAIN_OT_add_plot_grid(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CLIFF_TERRAIN_OT_fit_plot_grid(bpy.types.Operator):
+class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
     """Snap the active plot grid to the crop rows and alleys of its relief's orthophoto (direction,
     pitch and position), starting from where it is"""
 
     bl_idname = "cliff_terrain.fit_plot_grid"
     bl_label = "Fit to Field"
     bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        from ..scene.plot_grid import active_grid
-
-        if active_grid(context) is None:
-            cls.poll_message_set("Select a plot grid (Add Plot Grid)")
-            return False
-        return True
 
     def execute(self, context):
         from ..cliff_terrain.canopy import plant_mask
@@ -125,22 +129,13 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CLIFF_TERRAIN_OT_plot_table(bpy.types.Operator):
+class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
     """Measure every plot of the active grid on its relief: plant cover, and with a surface model the
     canopy height p50/p90 (shown in the Plots panel)"""
 
     bl_idname = "cliff_terrain.plot_table"
     bl_label = "Measure Plots"
     bl_options = {"REGISTER"}
-
-    @classmethod
-    def poll(cls, context):
-        from ..scene.plot_grid import active_grid
-
-        if active_grid(context) is None:
-            cls.poll_message_set("Select a plot grid (Add Plot Grid)")
-            return False
-        return True
 
     def execute(self, context):
         from ..cliff_terrain.canopy import relief_plot_rows
@@ -168,7 +163,7 @@ class CLIFF_TERRAIN_OT_plot_table(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CLIFF_TERRAIN_OT_export_plots(FileOperator, bpy.types.Operator):
+class CLIFF_TERRAIN_OT_export_plots(_OnAGrid, FileOperator, bpy.types.Operator):
     """Write the active plot grid's plots (numbered, in the relief's CRS) as GeoJSON, or as a Shapefile
     when the name ends in .shp"""
 
@@ -179,15 +174,6 @@ class CLIFF_TERRAIN_OT_export_plots(FileOperator, bpy.types.Operator):
 
     filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH")
     filter_glob: bpy.props.StringProperty(default="*.geojson;*.json;*.shp", options={"HIDDEN"})
-
-    @classmethod
-    def poll(cls, context):
-        from ..scene.plot_grid import active_grid
-
-        if active_grid(context) is None:
-            cls.poll_message_set("Select a plot grid (Add Plot Grid)")
-            return False
-        return True
 
     def execute(self, context):
         from pathlib import Path
