@@ -226,6 +226,12 @@ def read_georeference(path):
     return _georeference(tags, name)
 
 
+def raster_size(path):
+    """(rows, cols) of a GeoTIFF from its header alone (no pixel decoded)."""
+    _, _, tags = _read_tiff(path, pixels=False)
+    return tags["size"]
+
+
 def _read_tiff(path, *, pixels=True):
     import tifffile
 
@@ -240,6 +246,7 @@ def _read_tiff(path, *, pixels=True):
                 if tag.code in (33550, 33922, 34264, 34735, 34736, 34737, 42113):
                     tags[tag.code] = tag.value
             tags["planar"] = page.planarconfig == 2 and page.samplesperpixel > 1
+            tags["size"] = (int(page.imagelength), int(page.imagewidth))
             array = page.asarray() if pixels else None
     except (tifffile.TiffFileError, OSError, EOFError) as exc:
         raise RasterReadError(f"cannot read {name!r} as a TIFF: {_first_line(exc)}") from None

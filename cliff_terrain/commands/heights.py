@@ -55,18 +55,14 @@ def grid_size(ortho, *, resolution=None, max_size=None):
 
     from .._validate import check_float, check_int
     from ..errors import CliffTerrainError
-    from ..georaster import read_georeference
+    from ..georaster import raster_size, read_georeference
 
     if resolution is not None and max_size is not None:
         raise CliffTerrainError(
             f"give `--resolution` or `--max-size`, not both (got {resolution} and {max_size})"
         )
     transform, _ = read_georeference(ortho)
-    from ..image_io import open_image
-
-    with open_image(ortho) as image:
-        rows, cols = image.shape
-    longest = max(rows, cols)
+    longest = max(raster_size(ortho))
     if max_size is not None:
         max_size = check_int("--max-size", max_size, minimum=settings.MIN_SIZE)
         return min(longest, max_size, settings.MAX_SIZE)
