@@ -20,6 +20,7 @@ COMMANDS = {
     "season": "season",
     "heights": "heights",
     "plots": "plots",
+    "traits": "traits",
 }
 
 

@@ -1,0 +1,89 @@
+"""``cliff-terrain traits SEASON_DIR [--out DIR]``: breeders' traits per plot from a computed season.
+
+Reads ``SEASON_DIR/season.csv`` (and ``season.json`` for the plots file), fits each plot's growth curves
+(:mod:`cliff_terrain.season.traits`) and writes, into ``--out`` (default ``SEASON_DIR/traits``):
+``traits.csv`` (one row per plot, the plot's attributes kept), ``traits.geojson`` when the season has
+plot polygons, ``growth.png`` (measured points and fitted curves) and ``traits_map.png`` (one trait
+over the plots, with a colour bar). All or nothing; existing files are kept without ``--overwrite``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+HELP = "growth curves and traits per plot (max height, growth rate, closure, senescence) from a season"
+
+
+def configure(parser):
+    parser.add_argument("season", type=Path, help="the folder `cliff-terrain season --out` wrote")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default: SEASON/traits)")
+    parser.add_argument(
+        "--model", choices=("auto", "logistic", "gompertz", "double", "spline"), default="auto",
+        help="the height curve's model (auto: the lowest AICc, recorded per plot)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--closure", type=float, default=0.9, help="cover at which the canopy is closed (0-1)"
+    )
+    parser.add_argument("--color-by", default=None, help="a plot attribute or trait to colour growth.png by")
+    parser.add_argument("--trait", default="max_height_m", help="the trait traits_map.png shows")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+
+
+def run(args):
+    import csv
+    import json
+
+    from ..errors import CliffTerrainError
+    from ..season.traits import TRAIT_COLUMNS, season_traits
+    from ..tables import table_csv, write_files
+
+    table = args.season / "season.csv"
+    if not table.is_file():
+        raise CliffTerrainError(f"{str(table)!r} does not exist: run `cliff-terrain season` first")
+    out = args.out or args.season / "traits"
+    outputs = ["traits.csv", "growth.png", "traits_map.png"]
+    manifest = args.season / "season.json"
+    plots_path = json.loads(manifest.read_text()).get("plots") if manifest.is_file() else None
+    if plots_path:
+        outputs.insert(1, "traits.geojson")
+    else:
+        outputs.remove("traits_map.png")
+    if not args.overwrite:
+        existing = [name for name in outputs if (out / name).exists()]
+        if existing:
+            raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
+    with open(table, newline="", encoding="utf-8") as stream:
+        rows = list(csv.DictReader(stream))
+    traits = season_traits(rows, model=args.model, closure=args.closure)
+    columns = list(traits[0]) if traits else ["plot", *TRAIT_COLUMNS]
+    files = {out / "traits.csv": table_csv(traits, columns)}
+    plots = None
+    if plots_path:
+        from ..plots import read_plots
+        from ..tables import polygon_geometries, table_geojson
+
+        plots = read_plots(plots_path)
+        by_index = {str(t["plot"]): t for t in traits}
+        geometries = polygon_geometries(plots)
+        features = [(by_index[str(i)], g) for i, g in enumerate(geometries) if str(i) in by_index]
+        files[out / "traits.geojson"] = table_geojson(
+            [f for f, _ in features], [g for _, g in features], crs=plots.crs
+        )
+
+    from ..season.trait_charts import growth_curves_chart, traits_map
+
+    files[out / "growth.png"] = lambda tmp: growth_curves_chart(rows, traits, tmp, color_by=args.color_by)
+    if plots is not None:
+        files[out / "traits_map.png"] = lambda tmp: traits_map(plots, traits, tmp, trait=args.trait)
+    if args.color_by is not None and traits and args.color_by not in traits[0]:
+        raise CliffTerrainError(f"`--color-by` must be a plot attribute or trait, got {args.color_by!r}")
+    if plots is not None and args.trait not in columns:
+        raise CliffTerrainError(f"`--trait` must be a column of traits.csv, got {args.trait!r}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_files(files)
+    except OSError as exc:
+        raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
+    flagged = sum(1 for t in traits if t["flag"])
+    print(f"{len(traits)} plots ({flagged} flagged); wrote {', '.join(outputs)} into {out}")
+    return 0
