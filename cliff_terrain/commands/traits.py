@@ -34,7 +34,7 @@ def run(args):
     import json
 
     from ..errors import CliffTerrainError
-    from ..season.traits import TRAIT_COLUMNS, season_traits
+    from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, season_traits
     from ..tables import table_csv, write_files
 
     table = args.season / "season.csv"
@@ -43,7 +43,8 @@ def run(args):
     out = args.out or args.season / "traits"
     outputs = ["traits.csv", "growth.png", "traits_map.png"]
     manifest = args.season / "season.json"
-    plots_path = json.loads(manifest.read_text()).get("plots") if manifest.is_file() else None
+    season = json.loads(manifest.read_text()) if manifest.is_file() else {}
+    plots_path = season.get("plots")
     if plots_path:
         outputs.insert(1, "traits.geojson")
     else:
@@ -54,6 +55,19 @@ def run(args):
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     with open(table, newline="", encoding="utf-8") as stream:
         rows = list(csv.DictReader(stream))
+    # The names a chart can use, checked before the fits: the plots' attributes and the traits.
+    known = {name for name in (rows[0] if rows else {}) if name not in SEASON_COLUMNS} | {
+        "plot",
+        *TRAIT_COLUMNS,
+    }
+    if args.color_by is not None and args.color_by not in known:
+        raise CliffTerrainError(
+            f"`--color-by` must be a plot attribute or trait ({', '.join(sorted(known))}), got {args.color_by!r}"
+        )
+    if plots_path and args.trait not in known:
+        raise CliffTerrainError(
+            f"`--trait` must be a column of traits.csv ({', '.join(sorted(known))}), got {args.trait!r}"
+        )
     traits = season_traits(rows, model=args.model, closure=args.closure)
     columns = list(traits[0]) if traits else ["plot", *TRAIT_COLUMNS]
     files = {out / "traits.csv": table_csv(traits, columns)}
@@ -67,7 +81,7 @@ def run(args):
         geometries = polygon_geometries(plots)
         features = [(by_index[str(i)], g) for i, g in enumerate(geometries) if str(i) in by_index]
         files[out / "traits.geojson"] = table_geojson(
-            [f for f, _ in features], [g for _, g in features], crs=plots.crs
+            [f for f, _ in features], [g for _, g in features], crs=plots.crs or season.get("crs")
         )
 
     from ..season.trait_charts import growth_curves_chart, traits_map
@@ -75,10 +89,6 @@ def run(args):
     files[out / "growth.png"] = lambda tmp: growth_curves_chart(rows, traits, tmp, color_by=args.color_by)
     if plots is not None:
         files[out / "traits_map.png"] = lambda tmp: traits_map(plots, traits, tmp, trait=args.trait)
-    if args.color_by is not None and traits and args.color_by not in traits[0]:
-        raise CliffTerrainError(f"`--color-by` must be a plot attribute or trait, got {args.color_by!r}")
-    if plots is not None and args.trait not in columns:
-        raise CliffTerrainError(f"`--trait` must be a column of traits.csv, got {args.trait!r}")
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_files(files)
