@@ -35,6 +35,7 @@ on the tune half only; the README reports the holdout half.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 import tempfile
@@ -186,8 +187,6 @@ def field_rows(data_dir):
                     raise CliffTerrainError(f"cliff-terrain heights failed on {folder.name} {date}")
                 chm = read_surface(Path(out) / "chm.tif")
                 summary = json.loads((Path(out) / "summary.json").read_text())
-                import csv
-
                 with open(Path(out) / "plots.csv", newline="") as stream:
                     table = list(csv.DictReader(stream))
             ours = np.array([float(row["height_p90_m"]) for row in table])

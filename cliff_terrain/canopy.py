@@ -61,6 +61,25 @@ def grid_for(raster, shape):
     return raster.transform @ np.diag([cols0 / cols, rows0 / rows, 1.0])
 
 
+def photo_grid(path, metadata, shape):
+    """(transform, EPSG code) of the processing grid `shape` (rows, cols) of georeferenced photo `path`."""
+    from .georaster import read_georeference
+
+    transform, crs = read_georeference(path)
+    rows, cols = shape
+    return transform @ np.diag([metadata.width / cols, metadata.height / rows, 1.0]), crs
+
+
+def photo_valid(metadata, shape):
+    """The photo's pixels with data (an orthophoto's alpha) on the processing grid `shape`; None: all."""
+    if getattr(metadata, "valid_mask", None) is None:
+        return None
+    import cv2
+
+    rows, cols = shape
+    return cv2.resize(metadata.valid_mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
+
+
 def load_surfaces(dsm, dtm=None):
     """Read a DSM (and DTM) path into :class:`GeoRaster` (rasters pass through), checking their CRSs."""
     dsm = dsm if isinstance(dsm, GeoRaster) else read_surface(dsm)
@@ -226,22 +245,12 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAUL
     ``"inflated"`` ones the domes as they are (the canopy is then only measured, for the figures);
     all times `exaggeration`.
     """
-    from .georaster import read_georeference
     from .segmentation import label_max
 
     name = str(path)
-    transform0, crs = read_georeference(path)
-    rows, cols = stages.working.shape[:2]
-    meta = stages.metadata
-    transform = transform0 @ np.diag([meta.width / cols, meta.height / rows, 1.0])
+    transform, crs = photo_grid(path, stages.metadata, stages.working.shape[:2])
     plants = stages.segmentation.mask
-    valid = None
-    if meta.valid_mask is not None:  # an orthophoto's no-data area is neither soil nor plant
-        import cv2
-
-        valid = (
-            cv2.resize(meta.valid_mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
-        )
+    valid = photo_valid(stages.metadata, plants.shape)  # an orthophoto's no-data is neither soil nor plant
     from .segmentation import bare_soil
 
     soil = None if dtm is not None else bare_soil(stages.working, valid=valid)
@@ -328,7 +337,6 @@ def relief_plot_rows(relief, plots, *, source):
     Without a surface model the height columns are NaN. `source` is the orthophoto's path (its
     georeference places the relief's grid).
     """
-    from .georaster import read_georeference
     from .plots import check_plot_crs, plot_table, rasterize_plots
 
     if relief.canopy is not None:
@@ -336,10 +344,7 @@ def relief_plot_rows(relief, plots, *, source):
         transform, crs, heights = canopy.transform, canopy.crs, canopy.chm
         support = plot_support(canopy)
     else:
-        transform0, crs = read_georeference(source)
-        rows, cols = relief.mask.shape
-        meta = relief.metadata
-        transform = transform0 @ np.diag([meta.width / cols, meta.height / rows, 1.0])
+        transform, crs = photo_grid(source, relief.metadata, relief.mask.shape)
         heights, support = None, None
     check_plot_crs(plots, crs, raster=str(source))
     labels = rasterize_plots(plots, transform=transform, shape=relief.mask.shape)

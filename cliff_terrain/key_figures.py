@@ -27,21 +27,14 @@ from __future__ import annotations
 
 import numpy as np
 
-# The keys every record of these figures shares (metrics.json, summary.json), before the unit.
-HEIGHT_KEYS = ("canopy_height_p50", "canopy_height_p90", "plant_height_median", "plant_height_p90")
-
 
 def relief_valid(relief):
     """Pixels of the relief's grid with data: the photo's (an orthophoto's alpha) and the DSM's."""
-    valid = np.ones(relief.mask.shape, dtype=bool)
-    meta = relief.metadata
-    if getattr(meta, "valid_mask", None) is not None:
-        import cv2
+    from .canopy import photo_valid
 
-        rows, cols = relief.mask.shape
-        valid = (
-            cv2.resize(meta.valid_mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
-        )
+    valid = photo_valid(relief.metadata, relief.mask.shape)
+    if valid is None:
+        valid = np.ones(relief.mask.shape, dtype=bool)
     if relief.canopy is not None:
         valid &= np.isfinite(relief.canopy.chm)
     return valid

@@ -191,22 +191,17 @@ def _around(centre, half, step):
 
 def _crop_direction(points, bin_size):
     """The u direction (degrees) across which the plant pixels' projection is most contrasted:
-    across the crop rows."""
-    best, best_angle = -1.0, 0.0
-    for theta in np.arange(0.0, 180.0, 1.0):
-        u_axis, _ = axes(theta)
-        u = points @ u_axis
-        counts = np.bincount(((u - u.min()) / bin_size).astype(np.int64))
-        contrast = counts.std() / max(counts.mean(), 1e-9)
-        if contrast > best:
-            best, best_angle = contrast, theta
-    fine = np.arange(best_angle - 1.0, best_angle + 1.01, 0.1)
-    scores = []
-    for theta in fine:
-        u = points @ axes(theta)[0]
-        counts = np.bincount(((u - u.min()) / bin_size).astype(np.int64))
-        scores.append(counts.std() / max(counts.mean(), 1e-9))
-    return float(fine[int(np.argmax(scores))])
+    across the crop rows (every degree, then every tenth around the best)."""
+    coarse = max(np.arange(0.0, 180.0, 1.0), key=lambda theta: _contrast(points, theta, bin_size))
+    fine = np.arange(coarse - 1.0, coarse + 1.01, 0.1)
+    return float(max(fine, key=lambda theta: _contrast(points, theta, bin_size)))
+
+
+def _contrast(points, theta, bin_size):
+    """Spread over mean of the plant pixels' projection onto direction `theta`, in bins."""
+    u = points @ axes(theta)[0]
+    counts = np.bincount(((u - u.min()) / bin_size).astype(np.int64))
+    return counts.std() / max(counts.mean(), 1e-9)
 
 
 def _map_points(t, rr, cc):

@@ -308,7 +308,6 @@ class ThresholdRule:
     threshold: float
     index: str
     source: str
-    otsu: float
     valley: float
 
 
@@ -336,8 +335,8 @@ def index_threshold(values, *, index="green"):
     Returns
     -------
     ThresholdRule
-        ``threshold``, ``index``, ``source`` (``"photo"`` or ``"band"``), ``otsu`` (Otsu's
-        threshold) and ``valley`` (the density ratio; NaN when there is no spread).
+        ``threshold``, ``index``, ``source`` (``"photo"`` or ``"band"``) and ``valley`` (the
+        density ratio; NaN when there is no spread).
 
     Examples
     --------
@@ -367,8 +366,8 @@ def index_threshold(values, *, index="green"):
     valley, at_band = _valley(flat, otsu, (otsu, banded))
     # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
     if otsu > high and valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
-        return ThresholdRule(otsu, index, "photo", otsu, valley)
-    return ThresholdRule(banded, index, "band", otsu, valley)
+        return ThresholdRule(otsu, index, "photo", valley)
+    return ThresholdRule(banded, index, "band", valley)
 
 
 def _valley(values, split, thresholds):

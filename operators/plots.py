@@ -98,7 +98,7 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
         from ..cliff_terrain.georaster import read_orthophoto
         from ..cliff_terrain.plot_fit import fit_grid
         from ..cliff_terrain.plot_grid import Placement
-        from ..scene.plot_grid import FIT_KEY, grid_map_corners, layout_of, place_grid
+        from ..scene.plot_grid import FIT_KEY, grid_map_corners, layout_of, move_grid
 
         grid = context.active_object
         settings = context.scene.cliff_terrain
@@ -116,7 +116,7 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
             fit = fit_grid(plants, ortho.transform, layout, placement=Placement(corners), valid=ortho.valid)
         except Exception as exc:
             return _report_failure(self, exc)
-        place_grid(grid, frame, fit.placement)
+        move_grid(grid, frame, fit.placement)
         # The fitted pitches become the alleys (which rebuilds the mesh through the settings' update).
         settings.plot_alley_across = max(0.0, fit.report["column_pitch_m"] - settings.plot_width)
         settings.plot_alley_along = max(0.0, fit.report["row_pitch_m"] - settings.plot_length)

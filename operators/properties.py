@@ -137,7 +137,7 @@ class ReliefParameters:
             if name in kwargs and not kwargs[name]:
                 kwargs[name] = None
         for name in ("dsm", "dtm"):
-            if name in kwargs and not isinstance(kwargs[name], str) or not kwargs.get(name):
+            if not isinstance(kwargs.get(name), str) or not kwargs[name]:
                 kwargs[name] = None
         return kwargs
 

@@ -166,7 +166,7 @@ def grid_map_corners(grid, layout):
     return frame, frame.to_map(world[:, :2])
 
 
-def place_grid(grid, frame, placement):
+def move_grid(grid, frame, placement):
     """Move and rotate the grid so that its (0, 0) corner and u direction are the placement's."""
     corners = frame.to_world(placement.corners)
     u = corners[1] - corners[0]
