@@ -76,9 +76,12 @@ class Cache:
         """Write an entry: the arrays first, then the record, each through a temporary file."""
         self.folder.mkdir(parents=True, exist_ok=True)
         arrays_path, record_path = self.paths(key)
-        tmp = arrays_path.with_name(f".{key}.{os.getpid()}.npz")
-        np.savez_compressed(tmp, **arrays)
+        # A temporary name never ends in .npz or .json, so a run killed mid-write leaves no file
+        # that looks like an entry (pathlib's glob matches dot-files too).
+        tmp = arrays_path.with_name(f"{arrays_path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
         os.replace(tmp, arrays_path)
-        tmp = record_path.with_name(f".{key}.{os.getpid()}.json")
+        tmp = record_path.with_name(f"{record_path.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps(record, sort_keys=True))
         os.replace(tmp, record_path)
