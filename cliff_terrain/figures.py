@@ -24,16 +24,29 @@ import numpy as np
 from ._validate import check_float
 from .errors import CliffTerrainError
 
-# Colour map of the height-coloured mesh view (jet): (t, r, g, b), sRGB in [0, 1]. The Blender side
-# colours the mesh with the same table, so the colour bar is the mesh's own legend.
+# Colour map of every height colouring (viridis: perceptually uniform, readable in grey and by
+# colour-blind readers, unlike jet): (t, r, g, b), sRGB in [0, 1], matplotlib's viridis at 17 stops
+# (linear between them, within 0.01 of it). The Blender side colours the mesh with the same table
+# (the mesh view, Colour by Height and its overlay bar), so every colour bar is the mesh's own legend.
 HEIGHT_COLOURS = np.array(
     [
-        (0.0, 0.0, 0.0, 0.56),
-        (0.11, 0.0, 0.0, 1.0),
-        (0.36, 0.0, 1.0, 1.0),
-        (0.61, 1.0, 1.0, 0.0),
-        (0.86, 1.0, 0.0, 0.0),
-        (1.0, 0.5, 0.0, 0.0),
+        (0.0, 0.2670, 0.0049, 0.3294),
+        (0.0625, 0.2823, 0.0950, 0.4173),
+        (0.125, 0.2788, 0.1755, 0.4834),
+        (0.1875, 0.2590, 0.2515, 0.5247),
+        (0.25, 0.2297, 0.3224, 0.5457),
+        (0.3125, 0.1994, 0.3876, 0.5546),
+        (0.375, 0.1727, 0.4488, 0.5579),
+        (0.4375, 0.1490, 0.5081, 0.5573),
+        (0.5, 0.1276, 0.5669, 0.5506),
+        (0.5625, 0.1206, 0.6258, 0.5335),
+        (0.625, 0.1579, 0.6838, 0.5017),
+        (0.6875, 0.2461, 0.7389, 0.4520),
+        (0.75, 0.3692, 0.7889, 0.3829),
+        (0.8125, 0.5160, 0.8312, 0.2943),
+        (0.875, 0.6785, 0.8637, 0.1895),
+        (0.9375, 0.8456, 0.8873, 0.0997),
+        (1.0, 0.9932, 0.9062, 0.1439),
     ]
 )
 # The side view's relief rises to this share of the frame's width, at most (a 1000-pixel wide field
@@ -48,12 +61,12 @@ MIN_FONT = 12
 
 
 def height_colours(t):
-    """sRGB colours (n, 3) in [0, 1] of heights `t` scaled to [0, 1] (the jet colour map).
+    """sRGB colours (n, 3) in [0, 1] of heights `t` scaled to [0, 1] (the viridis colour map).
 
     Examples
     --------
     >>> height_colours([0.0, 1.0]).round(2).tolist()
-    [[0.0, 0.0, 0.56], [0.5, 0.0, 0.0]]
+    [[0.27, 0.0, 0.33], [0.99, 0.91, 0.14]]
     """
     t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
     return np.stack([np.interp(t, HEIGHT_COLOURS[:, 0], HEIGHT_COLOURS[:, k]) for k in (1, 2, 3)], axis=-1)

@@ -114,3 +114,11 @@ DEFAULT_GROUND_BLOCK_M = 5.0
 def ids(choices):
     """The identifiers of a tuple of ``(identifier, label, description)`` choices."""
     return tuple(choice[0] for choice in choices)
+
+
+# The plot table's traits a relief can be coloured by in Blender: (key, label, unit of the colour bar).
+PLOT_TRAITS = (
+    ("height_p90_m", "Canopy Height p90", "m"),
+    ("height_p50_m", "Canopy Height p50", "m"),
+    ("cover", "Cover", "%"),
+)

@@ -1,12 +1,13 @@
-"""Blender operators of Cliff Terrain: the scene settings, Build Relief, Render Views and Evaluate.
+"""Blender operators of Cliff Terrain: the scene settings, Build Relief, Render Views, Evaluate, the
+plot grid and inspecting (Probe Height, the colour bar).
 
 What they put into the scene (mesh, materials, cameras, light, render settings) is in ``scene/``.
 """
 
-from . import build, mosaic, plots, properties, render, render_job, season
+from . import build, inspect, mosaic, plots, properties, render, render_job, season
 
 # The settings first: the build operator and the panel read them.
-_MODULES = (properties, build, render, render_job, season, mosaic, plots)
+_MODULES = (properties, build, render, render_job, season, mosaic, plots, inspect)
 
 
 def register():

@@ -90,6 +90,11 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
             remove_datablocks(created)
             raise
         show_relief(context, obj)
+        settings = context.scene.cliff_terrain
+        if settings.color_by != "PHOTO":  # a new relief shows what the others show
+            from ..scene.colour_by import colour_relief
+
+            colour_relief(obj, settings.color_by, settings=settings, trait=settings.color_trait)
         info = obj["cliff_terrain"]
         self.report(
             {"INFO"},

@@ -162,6 +162,42 @@ def _grid_changed(settings, context):
         update_grid_mesh(grid, settings)
 
 
+_COLOUR_MODES = (
+    ("PHOTO", "Photo", "The photo, as taken", "IMAGE_RGB", 0),
+    ("HEIGHT", "Height", "The relief's height, from 0 to its highest point (viridis)", "IPO_EASE_IN_OUT", 1),
+)
+_PLOT_TRAIT = (
+    "PLOT_TRAIT",
+    "Plot Trait",
+    "A trait of the measured plots (Plots > Measure Plots)",
+    "MESH_GRID",
+    2,
+)
+# Blender keeps no reference to dynamic enum items: they must outlive the call.
+_ITEMS = {}
+
+
+def _colour_items(settings, context):
+    """Photo and Height; Plot Trait too once some relief has a measured plot grid."""
+    from ..scene.colour_by import measured_grid, reliefs
+
+    scene = getattr(context, "scene", None)
+    measured = scene is not None and any(measured_grid(obj) is not None for obj in reliefs(scene))
+    _ITEMS["colour"] = (*_COLOUR_MODES, _PLOT_TRAIT) if measured else _COLOUR_MODES
+    return _ITEMS["colour"]
+
+
+def _colour_changed(settings, context):
+    """Colour every relief of the scene as asked, and show it in the window's Solid views."""
+    from ..scene.colour_by import colour_relief, reliefs, show_colours_in_solid
+
+    shown = {
+        colour_relief(obj, settings.color_by, settings=settings, trait=settings.color_trait)
+        for obj in reliefs(context.scene)
+    }
+    show_colours_in_solid(getattr(context, "screen", None), bool(shown - {"PHOTO"}))
+
+
 class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
     """Cliff Terrain settings of a scene: build parameters, render folder and the last evaluation."""
 
@@ -232,6 +268,22 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
             ("bottom-right", "Bottom Right", ""),
         ),
         default="top-left",
+    )
+    # ---- Inspecting: what the reliefs show ----
+    color_by: EnumProperty(
+        name="Colour By",
+        description="What the reliefs show: the photo, their height, or a trait of the measured plots",
+        items=_colour_items,
+        update=_colour_changed,
+    )
+    color_trait: EnumProperty(
+        name="Trait",
+        description="The plot trait that Colour By Plot Trait shows",
+        items=[
+            (key, label, f"{label} of each plot, from Measure Plots")
+            for key, label, _ in settings.PLOT_TRAITS
+        ],
+        update=_colour_changed,
     )
     show_plot_labels: BoolProperty(
         name="Plot Labels", description="Show each plot's number over the relief (when the plots are large enough on screen)",

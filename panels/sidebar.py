@@ -1,13 +1,16 @@
-"""3D Viewport > Sidebar > Cliff Terrain: photo, parameters, Build, and (later) Render and Evaluate."""
+"""3D Viewport > Sidebar > Cliff Terrain: Build Relief, the key figures, Colour By and Probe Height always
+visible; Photo & Models, Heights, Mesh, Plots, Figures and Season in collapsible sub-panels."""
 
 import os
 
 import bpy
 
 from ..operators.render_job import rendered_views
+from ..scene.probe import PROBE_KEY, probe_lines
 
 BUILD_OPERATOR = "cliff_terrain.build_relief"
 SEASON_OPERATOR = "cliff_terrain.season_animation"
+PROBE_OPERATOR = "cliff_terrain.probe_height"
 # The render operators (their own poll greys them out without a relief object).
 OPEN_VIEW_OPERATOR = "cliff_terrain.open_view"
 RENDER_OPERATORS = (
@@ -99,6 +102,9 @@ def relief_info(obj):
 
 
 class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
+    """Always visible: Build Relief, the active relief's key figures, Colour By and Probe Height.
+    The settings are in the sub-panels below, each collapsible."""
+
     bl_idname = "CLIFF_TERRAIN_PT_sidebar"
     bl_label = "Cliff Terrain"
     bl_space_type = "VIEW_3D"
@@ -111,33 +117,6 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         layout.use_property_decorate = False
         settings = context.scene.cliff_terrain
 
-        col = layout.column()
-        col.prop(settings, "filepath")
-        col.prop(settings, "dsm")
-        col.prop(settings, "dtm")
-        sub = col.row()
-        sub.active = bool(settings.dsm)  # Calibrated and Measured need a surface model
-        sub.prop(settings, "heights")
-        col.separator()
-        col.prop(settings, "segmentation")
-        col.prop(settings, "profile")
-        col.prop(settings, "max_size")
-        col.prop(settings, "exaggeration")
-        # 0: estimated from the photo (the radius of a typical isolated plant).
-        col.prop(
-            settings,
-            "max_height",
-            text="Canopy Height (auto)" if settings.max_height == 0.0 else "Canopy Height",
-        )
-        # 0 means "from the photo": say so, rather than let "0.0000" read as a ground size.
-        col.prop(settings, "gsd", text="GSD Override" if settings.gsd == 0.0 else "GSD (m/px)")
-        gsd_note(col, settings)
-        col.prop(settings, "two_sided")
-        col.prop(settings, "mesh")
-        sub = col.row()
-        sub.active = settings.mesh == "adaptive"  # the grid has no error to bound
-        sub.prop(settings, "max_error")
-
         row = layout.row()
         row.scale_y = 1.4
         # Greyed out until the photo exists; the operator then takes its parameters from here.
@@ -146,10 +125,11 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         # A tiled GeoTIFF orthomosaic of any size: one adaptive-mesh object per tile.
         layout.operator("cliff_terrain.import_mosaic", icon="IMPORT")
 
-        info = relief_info(context.active_object)
+        obj = context.active_object
+        info = relief_info(obj)
         if info is not None:
             box = layout.box()
-            box.label(text=f"{context.active_object.name}", icon="OBJECT_DATA")
+            box.label(text=f"{obj.name}", icon="OBJECT_DATA")
             box.label(
                 text=f"Grid {info.get('grid_cols')} x {info.get('grid_rows')}, {info.get('regions')} regions"
             )
@@ -163,8 +143,99 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
                     f"max error {info['max_error']:.3g} {info.get('units')}"
                 )
 
-        # ---- Render views and Evaluate ----
-        layout.separator()
+        # ---- Inspecting ----
+        col = layout.column()
+        col.prop(settings, "color_by")
+        if settings.color_by == "PLOT_TRAIT":
+            col.prop(settings, "color_trait")
+        layout.operator(PROBE_OPERATOR, icon="EYEDROPPER")
+        probe = obj.get(PROBE_KEY) if info is not None else None
+        if probe:
+            box = layout.box()
+            for k, line in enumerate(probe_lines(probe)):
+                box.label(text=line, icon="EYEDROPPER" if k == 0 else "BLANK1")
+
+
+class _SubPanel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Cliff Terrain"
+    bl_parent_id = "CLIFF_TERRAIN_PT_sidebar"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        self.draw_settings(layout, context.scene.cliff_terrain)
+
+
+class CLIFF_TERRAIN_PT_photo(_SubPanel, bpy.types.Panel):
+    """The photo, its surface and ground models, and how the plants are found."""
+
+    bl_idname = "CLIFF_TERRAIN_PT_photo"
+    bl_label = "Photo & Models"
+
+    def draw_settings(self, layout, settings):
+        col = layout.column()
+        col.prop(settings, "filepath")
+        col.prop(settings, "dsm")
+        col.prop(settings, "dtm")
+        col.separator()
+        col.prop(settings, "segmentation")
+
+
+class CLIFF_TERRAIN_PT_heights(_SubPanel, bpy.types.Panel):
+    """Where the heights come from and their scale."""
+
+    bl_idname = "CLIFF_TERRAIN_PT_heights"
+    bl_label = "Heights"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_settings(self, layout, settings):
+        col = layout.column()
+        sub = col.row()
+        sub.active = bool(settings.dsm)  # Calibrated and Measured need a surface model
+        sub.prop(settings, "heights")
+        if not settings.dsm:
+            col.label(text="Calibrated and Measured need a surface model", icon="INFO")
+        col.prop(settings, "profile")
+        # 0: estimated from the photo (the radius of a typical isolated plant).
+        col.prop(
+            settings,
+            "max_height",
+            text="Canopy Height (auto)" if settings.max_height == 0.0 else "Canopy Height",
+        )
+        col.prop(settings, "exaggeration")
+        # 0 means "from the photo": say so, rather than let "0.0000" read as a ground size.
+        col.prop(settings, "gsd", text="GSD Override" if settings.gsd == 0.0 else "GSD (m/px)")
+        gsd_note(col, settings)
+
+
+class CLIFF_TERRAIN_PT_mesh(_SubPanel, bpy.types.Panel):
+    """The mesh: grid size, grid or adaptive triangles, closed solid."""
+
+    bl_idname = "CLIFF_TERRAIN_PT_mesh"
+    bl_label = "Mesh"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_settings(self, layout, settings):
+        col = layout.column()
+        col.prop(settings, "max_size")
+        col.prop(settings, "mesh")
+        sub = col.row()
+        sub.active = settings.mesh == "adaptive"  # the grid has no error to bound
+        sub.prop(settings, "max_error")
+        col.prop(settings, "two_sided")
+
+
+class CLIFF_TERRAIN_PT_figures(_SubPanel, bpy.types.Panel):
+    """Render Views and Evaluate as background jobs, and the views they wrote."""
+
+    bl_idname = "CLIFF_TERRAIN_PT_figures"
+    bl_label = "Figures"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_settings(self, layout, settings):
         col = layout.column()
         col.prop(settings, "output_dir")
         for idname, icon in RENDER_OPERATORS:
@@ -187,8 +258,15 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
                 op = grid.operator(OPEN_VIEW_OPERATOR, text=os.path.splitext(name)[0], icon="IMAGE")
                 op.filepath = os.path.join(bpy.path.abspath(settings.last_views), name)
 
-        # ---- A season of flights (the folder `cliff-terrain season` wrote) ----
-        layout.separator()
+
+class CLIFF_TERRAIN_PT_season(_SubPanel, bpy.types.Panel):
+    """A season of flights: the folder ``cliff-terrain season`` wrote, as an animation."""
+
+    bl_idname = "CLIFF_TERRAIN_PT_season"
+    bl_label = "Season"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_settings(self, layout, settings):
         layout.operator(SEASON_OPERATOR, icon="RENDER_ANIMATION")
 
 
@@ -269,7 +347,16 @@ def fit_lines(report):
     ]
 
 
-CLASSES = (CLIFF_TERRAIN_PT_sidebar, CLIFF_TERRAIN_PT_plots)
+# The sub-panels in the order they show.
+CLASSES = (
+    CLIFF_TERRAIN_PT_sidebar,
+    CLIFF_TERRAIN_PT_photo,
+    CLIFF_TERRAIN_PT_heights,
+    CLIFF_TERRAIN_PT_mesh,
+    CLIFF_TERRAIN_PT_plots,
+    CLIFF_TERRAIN_PT_figures,
+    CLIFF_TERRAIN_PT_season,
+)
 
 
 # Registered in order, unregistered in reverse (Blender's own helper for exactly this).

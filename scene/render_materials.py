@@ -5,7 +5,7 @@
 * **The flat top view** emits the photo as it is (nearest-texel lookups; with the 1-pixel box
   filter of ``render_settings`` the mean of the samples is the photo averaged over each output
   pixel).
-* The mesh view colours each vertex by its height (a jet colour map, as MATLAB's mesh plots).
+* The mesh view colours each vertex by its height (viridis, the core's one height colour map).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-# The colour map (jet) is the core's, so the colour bar drawn on mesh.png is this view's own legend.
+# The colour map (viridis) is the core's, so the colour bar drawn on mesh.png is this view's own legend.
 from ..cliff_terrain.figures import height_colours
 from .material import empty_node_tree
 from .mesh_data import positions

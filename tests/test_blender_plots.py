@@ -125,6 +125,30 @@ def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
     assert any(row["height_p90_m"] > 0.1 for row in table)  # measured heights, not NaN or zero
     lines = plot_table_lines(table)
     assert lines[0] == ("Plot", "Cover", "p90") and lines[1][0] == "1" and len(lines) == 13
+
+    # Colour By Plot Trait: offered now that a plot table exists; each plot's vertices take the viridis
+    # colour of its p90 between the lowest and the highest plot's, vertices outside the plots grey.
+    from cliff_terrain.figures import height_colours
+
+    settings.color_trait = "height_p90_m"
+    settings.color_by = "PLOT_TRAIT"
+    mesh = relief.data
+    n = len(mesh.vertices)
+    colours = np.empty(4 * n, np.float32)
+    mesh.color_attributes.active_color.data.foreach_get("color_srgb", colours)
+    xyz = np.empty(3 * n, np.float32)
+    mesh.attributes["position"].data.foreach_get("vector", xyz)
+    xy = xyz.reshape(-1, 3)[:, :2] / canopy.pixel_size
+    rows_, cols_ = reference.mask.shape
+    col = np.clip(np.floor(xy[:, 0]).astype(int), 0, cols_ - 1)
+    row = np.clip(rows_ - 1 - np.floor(xy[:, 1]).astype(int), 0, rows_ - 1)
+    p90 = np.array([np.nan] + [row_["height_p90_m"] for row_ in rows])
+    values = p90[labels[row, col]]
+    t = (values - np.nanmin(p90)) / (np.nanmax(p90) - np.nanmin(p90))
+    expected = np.where(np.isnan(t)[:, None], 0.35, height_colours(np.nan_to_num(t)))
+    np.testing.assert_allclose(colours.reshape(-1, 4)[:, :3], expected, atol=1.5 / 255)
+    assert relief["cliff_terrain_legend"]["title"] == "Canopy Height p90"
+    settings.color_by = "PHOTO"
     # A layout edit makes the table stale: it goes.
     settings.plot_rows = 5
     assert TABLE_KEY not in grid

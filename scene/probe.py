@@ -1,0 +1,172 @@
+"""Point at a relief and read its height: the relief's own rasters under a point of the scene.
+
+A relief object keeps no height raster (its .blend stays the mesh's size). The first probe of a
+relief rebuilds it from its recorded photo and settings without a mesh - as Measure Plots does, and
+bit for bit the same relief (its ``mask_digest`` is checked) - and keeps the last one in memory, so
+the next clicks answer at once. A point is read from the pixel under it: the value the relief's
+height raster (``height.tif``) holds there, whatever mesh shows it.
+"""
+
+import math
+
+from mathutils import Vector
+
+PROBE_KEY = "cliff_terrain_probe"  # custom property of the relief: the last probe's values
+# The last relief rebuilt for probing: (object name, mask digest) -> Relief. One at a time: a relief
+# of a 4000-pixel grid holds about 1 GB of stages.
+_RELIEFS = {}
+
+
+def relief_of(obj):
+    """The core :class:`~cliff_terrain.pipeline.Relief` of a relief object, rebuilt once and cached."""
+    from ..cliff_terrain.errors import CliffTerrainError
+    from ..operators.build import mask_digest
+    from ..operators.properties import ReliefParameters
+
+    info = obj["cliff_terrain"]
+    key = (obj.name, info.get("mask_digest"))
+    if key in _RELIEFS:
+        return _RELIEFS[key]
+    from ..cliff_terrain.pipeline import build_relief
+
+    kwargs = ReliefParameters.record_kwargs(info.get("params", {}).to_dict())
+    kwargs.pop("mesh", None)
+    relief = build_relief(info["source"], mesh=None, **kwargs)
+    if info.get("mask_digest") and mask_digest(relief.mask) != info["mask_digest"]:
+        raise CliffTerrainError(
+            f"{info['source']!r} no longer gives the relief {obj.name!r} was built from (the photo "
+            "or Cliff Terrain changed): build it again to probe it"
+        )
+    _RELIEFS.clear()
+    _RELIEFS[key] = relief
+    return relief
+
+
+def forget(obj_name=None):
+    """Drop the cached relief (of one object, or all)."""
+    for key in list(_RELIEFS):
+        if obj_name is None or key[0] == obj_name:
+            del _RELIEFS[key]
+
+
+def hit_from_above(obj, world_xy):
+    """Local hit point on `obj` of a vertical ray down through world (x, y), or None."""
+    bounds = [obj.matrix_world @ Vector(corner) for corner in obj.bound_box]
+    top = max(c.z for c in bounds) + 1.0
+    bottom = min(c.z for c in bounds) - 1.0
+    return hit_along(obj, Vector((world_xy[0], world_xy[1], top)), Vector((0.0, 0.0, bottom - top)))
+
+
+def hit_along(obj, origin, direction):
+    """Local hit point on `obj` of a world-space ray (the first face it meets), or None."""
+    inverse = obj.matrix_world.inverted()
+    local_origin = inverse @ origin
+    local_direction = (inverse.to_3x3() @ direction).normalized()
+    hit, location, _normal, _face = obj.ray_cast(local_origin, local_direction)
+    return location if hit else None
+
+
+def pixel_of(info, local):
+    """(row, col) of the relief's processing grid under a local point, or None outside the grid.
+
+    The mesh's x grows with the column from 0, y with the rows upwards (the top row has the largest
+    y); one processing pixel is ``pixel_size`` core units, times ``blender_units_per_unit``.
+    """
+    size = float(info["pixel_size"]) * float(info.get("blender_units_per_unit", 1.0))
+    rows, cols = int(info["grid_rows"]), int(info["grid_cols"])
+    # A point on the grid's last edge (up to a millionth of a pixel out) belongs to the last pixel.
+    tolerance = 1e-6 * size
+    if not (
+        -tolerance <= local.x <= cols * size + tolerance and -tolerance <= local.y <= rows * size + tolerance
+    ):
+        return None
+    col = min(max(math.floor(local.x / size), 0), cols - 1)
+    row = min(max(rows - 1 - math.floor(local.y / size), 0), rows - 1)
+    return row, col
+
+
+def probe(obj, local):
+    """The relief's values at a local point of relief object `obj` (a dict; see ``PROBE_KEY``).
+
+    Keys: ``height`` (the relief's height raster there, as the mesh shows it), ``ground`` (the
+    ground's elevation with a surface model, else 0: the relief's base), ``unit`` (``"m"`` or
+    ``"px"``), ``region`` (the plant's number, 0 on soil), the region's ``region_p50``,
+    ``region_p90`` and ``region_area`` (in ``area_unit``), the ``row`` and ``col`` of the pixel, and
+    with a surface model the measured ``canopy_height``.
+    """
+    import numpy as np
+
+    from ..cliff_terrain.errors import CliffTerrainError
+    from ..cliff_terrain.plots import region_figures
+
+    info = obj["cliff_terrain"]
+    pixel = pixel_of(info, local)
+    if pixel is None:
+        raise CliffTerrainError(f"the point is outside the relief {obj.name!r}")
+    relief = relief_of(obj)
+    row, col = pixel
+    unit = relief.units
+    values = {
+        "height": float(relief.heights[row, col]),
+        "ground": 0.0,
+        "unit": unit,
+        "row": row,
+        "col": col,
+        "exaggeration": float(relief.params.get("exaggeration") or 1.0),
+    }
+    canopy = relief.canopy
+    if canopy is not None:
+        # NaN where the surface model has no data.
+        values["ground"] = float(canopy.ground[row, col])
+        values["canopy_height"] = float(canopy.chm[row, col])
+    region = int(relief.labels[row, col])
+    values["region"] = region
+    if region:
+        pixel_area = float(relief.pixel_size) ** 2
+        (figure,) = region_figures(
+            (relief.labels == region).astype(np.int32),
+            1,
+            mask=relief.mask,
+            heights=relief.heights,
+            pixel_area_m2=pixel_area,
+        )
+        values.update(
+            region_p50=figure["height_p50_m"],
+            region_p90=figure["height_p90_m"],
+            region_area=figure["area_m2"],
+        )
+    values["area_unit"] = "m²" if unit == "m" else "px²"
+    return values
+
+
+def length_text(value, unit):
+    """A height with its unit: cm under 1 m, m above; pixels as px."""
+    if unit != "m":
+        return f"{value:.3g} px"
+    return f"{value * 100:.1f} cm" if abs(value) < 1.0 else f"{value:.3f} m"
+
+
+def probe_lines(values):
+    """The probe's values as short lines (the status bar joins them, the panel shows them)."""
+    unit = values["unit"]
+    lines = [f"Height {length_text(values['height'], unit)}"]
+    if values.get("exaggeration", 1.0) != 1.0:
+        lines[0] += f" (x{values['exaggeration']:g} exaggerated)"
+    if "canopy_height" in values:
+        ground, canopy = values["ground"], values["canopy_height"]
+        if ground != ground or canopy != canopy:  # NaN: no surface model there
+            lines.append("Ground: the surface model has no data here")
+        else:
+            lines.append(f"Ground {ground:.2f} m, canopy {length_text(canopy, 'm')}")
+    else:
+        lines.append(f"Ground {length_text(values['ground'], unit)} (the relief's base)")
+    if values.get("region"):
+        area = values["region_area"]
+        area_text = f"{area:.3g} m²" if unit == "m" else f"{area:.0f} px²"
+        lines.append(
+            f"Plant {values['region']}: p50 {length_text(values['region_p50'], unit)}, "
+            f"p90 {length_text(values['region_p90'], unit)}, area {area_text}"
+        )
+    else:
+        lines.append("Soil (no plant)")
+    return lines
