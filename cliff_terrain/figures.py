@@ -26,7 +26,7 @@ from .errors import CliffTerrainError
 
 # Colour map of every height colouring (viridis: perceptually uniform, readable in grey and by
 # colour-blind readers, unlike jet): (t, r, g, b), sRGB in [0, 1], matplotlib's viridis at 17 stops
-# (linear between them, within 0.01 of it). The Blender side colours the mesh with the same table
+# (linear between them, within 0.021 of it). The Blender side colours the mesh with the same table
 # (the mesh view, Colour by Height and its overlay bar), so every colour bar is the mesh's own legend.
 HEIGHT_COLOURS = np.array(
     [

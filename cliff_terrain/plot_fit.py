@@ -10,8 +10,8 @@ searched around the starting one (or, with no placement, over all directions, st
 one along which the projection is most contrasted: the direction of the crop rows).
 
 A guard row beside the trial looks like a plot column; what tells them apart is that plot columns
-are cut by the alleys and guard rows often are not. The report says how much better the chosen
-position scores than the same grid shifted by one column or row (``confidence``).
+are cut by the alleys and guard rows often are not. The report says how much of one column's or
+row's share of the score the grid loses when shifted by one (``confidence``).
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ class GridFit:
         ``angle_deg``, ``column_pitch_m``, ``row_pitch_m``, ``plant_share_in_plots`` (plant
         pixels inside the plots over all plant pixels), ``plant_share_in_alleys`` (plant pixels
         between the plots inside the grid's outline, over those inside the outline),
-        ``confidence`` (0-1: 1 - the best score of the grid shifted by one column or row over the
-        chosen score), ``moved_m`` (how far the grid's centre moved) and ``rotated_deg``.
+        ``confidence`` (0-1: the score lost by shifting the grid one column or row, over one
+        column's or row's share of the chosen score; the smaller of the two), ``moved_m`` (how far the grid's centre moved) and ``rotated_deg``.
     """
 
     layout: Layout
@@ -257,8 +257,12 @@ def _fit_at(points, soil, theta, pivot, layout, b, fit_pitch, pinned_origin, cen
         best = (u0, v0, cols_off, rows_off, sv, alt_u, alt_v)
     u0, v0, cols_off, rows_off, (inside, hull, soil_in), alt_u, alt_v = best
     score = 2 * inside - hull - SOIL_COST * soil_in
-    alternative = max(alt_u, alt_v)
-    confidence = 0.0 if score <= 0 else float(np.clip(1.0 - alternative / score, 0.0, 1.0))
+    # What shifting the grid by one column (row) loses, as a share of one column's (row's) part of
+    # the score: about 1 when the field tells the chosen columns from their neighbours, about 0 when a
+    # shifted grid fits as well (a guard row that looks like a plot column). The plain ratio of the
+    # two scores would say 0.1 for a perfect fit of ten rows.
+    margins = [(score - alt) * n / score for alt, n in ((alt_u, layout.columns), (alt_v, layout.rows))]
+    confidence = 0.0 if score <= 0 else float(np.clip(min(margins), 0.0, 1.0))
     pc = float(np.diff(cols_off).mean()) if layout.columns > 1 else layout.width
     pr = float(np.diff(rows_off).mean()) if layout.rows > 1 else layout.length
     return {

@@ -162,6 +162,16 @@ def tick_labels(legend):
     return [f"{v:.3g}" for v in values], unit
 
 
+def colour_bar_box(area, region, preferences):
+    """(x, y, width, height) of the colour bar in the view's region pixels (origin bottom-left): at the
+    lower left, clear of the toolbar, tall enough to read and never more than half the view."""
+    scale = preferences.system.ui_scale
+    toolbar = next((r.width for r in area.regions if r.type == "TOOLS"), 0) if area else 0
+    x0 = (toolbar if preferences.system.use_region_overlap else 0) + 16 * scale
+    height = max(60 * scale, min(220 * scale, 0.45 * region.height))
+    return x0, 40 * scale, 14 * scale, height
+
+
 def draw_colour_bar():
     """POST_PIXEL: a vertical viridis bar at the view's lower left, labelled, sized by the UI scale."""
     context = bpy.context
@@ -177,15 +187,7 @@ def draw_colour_bar():
     from ..cliff_terrain.figures import HEIGHT_COLOURS
 
     scale = context.preferences.system.ui_scale
-    region = context.region
-    area = context.area
-    toolbar = next((r.width for r in area.regions if r.type == "TOOLS"), 0) if area else 0
-    overlap = context.preferences.system.use_region_overlap
-    x0 = (toolbar if overlap else 0) + 16 * scale
-    y0 = 40 * scale
-    width = 14 * scale
-    # Tall enough to read, never more than half the view: the view may be resized.
-    height = max(60 * scale, min(220 * scale, 0.45 * region.height))
+    x0, y0, width, height = colour_bar_box(context.area, context.region, context.preferences)
     positions, colours, indices = [], [], []
     for k, (t, r, g, b) in enumerate(HEIGHT_COLOURS):
         y = y0 + t * height
@@ -216,14 +218,28 @@ def draw_colour_bar():
 CLASSES = (CLIFF_TERRAIN_OT_probe_height,)
 
 
+# The shortcut of Probe Height in the 3D Viewport (Preferences > Keymap lists it under Add-ons).
+SHORTCUT = {"type": "P", "value": "PRESS", "ctrl": True, "alt": True}
+_KEYMAPS = []
+
+
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     if not bpy.app.background:
         _BAR["handle"] = bpy.types.SpaceView3D.draw_handler_add(draw_colour_bar, (), "WINDOW", "POST_PIXEL")
+    keyconfig = bpy.context.window_manager.keyconfigs.addon  # None in background mode
+    if keyconfig is not None:
+        keymap = keyconfig.keymaps.new(name="3D View", space_type="VIEW_3D")
+        _KEYMAPS.append(
+            (keymap, keymap.keymap_items.new(CLIFF_TERRAIN_OT_probe_height.bl_idname, **SHORTCUT))
+        )
 
 
 def unregister():
+    for keymap, item in reversed(_KEYMAPS):
+        keymap.keymap_items.remove(item)
+    _KEYMAPS.clear()
     if _BAR["handle"] is not None:
         bpy.types.SpaceView3D.draw_handler_remove(_BAR["handle"], "WINDOW")
         _BAR["handle"] = None

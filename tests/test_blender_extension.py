@@ -540,7 +540,7 @@ class LayoutRecorder:
     def _child(self, *args, **kwargs):
         return LayoutRecorder(self.log, self)
 
-    column = row = box = split = _child
+    column = row = box = split = grid_flow = _child
 
     def separator(self, **kwargs):
         pass
@@ -556,10 +556,28 @@ class LayoutRecorder:
 
 
 def draw_panel(context):
+    """What the sidebar and each of its sub-panels (all expanded) ask of their layouts."""
     log = []
-    panel = types.SimpleNamespace(layout=LayoutRecorder(log))
-    bpy.types.CLIFF_TERRAIN_PT_sidebar.draw(panel, context)
+    for name in PANELS:
+        cls = getattr(bpy.types, name)
+        layout = LayoutRecorder(log)
+        panel = types.SimpleNamespace(layout=layout)
+        if hasattr(cls, "draw_settings"):
+            panel.draw_settings = lambda layout, settings, cls=cls: cls.draw_settings(panel, layout, settings)
+        cls.draw(panel, context)
     return log
+
+
+# The sidebar, then its sub-panels in the order they show.
+PANELS = (
+    "CLIFF_TERRAIN_PT_sidebar",
+    "CLIFF_TERRAIN_PT_photo",
+    "CLIFF_TERRAIN_PT_heights",
+    "CLIFF_TERRAIN_PT_mesh",
+    "CLIFF_TERRAIN_PT_plots",
+    "CLIFF_TERRAIN_PT_figures",
+    "CLIFF_TERRAIN_PT_season",
+)
 
 
 def test_panel_draws_real_settings_and_greys_out_build_without_a_photo(addon, scene, tmp_path):
@@ -589,8 +607,13 @@ def test_panel_draws_real_settings_and_greys_out_build_without_a_photo(addon, sc
     # own poll greys them out).
     others = [i for k, i, _, _ in log if k == "operator" and i != "cliff_terrain.build_relief"]
     assert sorted(others) == [
+        "cliff_terrain.add_plot_grid",
         "cliff_terrain.evaluate",
+        "cliff_terrain.export_plots",
+        "cliff_terrain.fit_plot_grid",
         "cliff_terrain.import_mosaic",
+        "cliff_terrain.plot_table",
+        "cliff_terrain.probe_height",
         "cliff_terrain.render_views",
         "cliff_terrain.season_animation",
     ]

@@ -169,3 +169,20 @@ def test_sidebar_sub_panels_are_registered_under_the_main_panel(addon):
         and getattr(getattr(bpy.types, name), "bl_parent_id", "") == "CLIFF_TERRAIN_PT_sidebar"
     }
     assert set(children.values()) == {"Photo & Models", "Heights", "Mesh", "Plots", "Figures", "Season"}
+
+
+def test_the_readme_inspect_snippet_runs_as_pasted(scene, tmp_path, capsys):
+    import re
+
+    from PIL import Image
+
+    from cliff_terrain import synthetic_field
+
+    text = (REPO / "README.md").read_text()
+    (block,) = [b for b in re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL) if "probe_height(" in b]
+    field = tmp_path / "field.png"
+    image, _ = synthetic_field(seed=3)
+    Image.fromarray(image).save(field)
+    exec(compile(block.replace("/path/to/field.jpg", str(field)), "README.md", "exec"), {})
+    out = capsys.readouterr().out
+    assert "'height':" in out and "'unit':" in out and "'region':" in out

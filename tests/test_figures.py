@@ -255,3 +255,16 @@ def test_contact_sheet_needs_panels():
         contact_sheet([])
     with pytest.raises(CliffTerrainError, match=r"`tile` must be >= 64, got 10"):
         contact_sheet([("a", np.zeros((4, 4, 3), np.uint8))], tile=10)
+
+
+def test_height_colours_are_matplotlibs_viridis():
+    # The one height colour map (figures, Blender's Colour By and the mesh view): perceptual, not jet.
+    matplotlib = pytest.importorskip(
+        "matplotlib", reason="matplotlib (a command-line extra) is not installed"
+    )
+    t = np.linspace(0.0, 1.0, 1001)
+    reference = matplotlib.colormaps["viridis"](t)[:, :3]
+    assert np.abs(height_colours(t) - reference).max() < 0.025
+    # Lightness rises monotonically (a height reads the same in grey).
+    grey = height_colours(t) @ [0.2126, 0.7152, 0.0722]
+    assert np.all(np.diff(grey) > 0)

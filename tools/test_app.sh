@@ -106,7 +106,8 @@ blender_run -b --python-exit-code 1 -P "$REPO/render_views.py" -- "$PHOTO" --out
 
 if [ -f "$REPO/tests/app/gui_sidebar.sh" ]; then
   say "the sidebar in a real window under Xvfb"
-  RUN="${RUN[*]}" BLENDER_USER_RESOURCES="$WORK/user" WORK="$WORK" PHOTO="$PHOTO" bash "$REPO/tests/app/gui_sidebar.sh" \
+  RUN="${RUN[*]}" BLENDER_USER_RESOURCES="$WORK/user" WORK="$WORK" PHOTO="$PHOTO" \
+    ORTHO="$SHARED/data/dsm/fieldimager_ex2/odm_orthophoto.tif" bash "$REPO/tests/app/gui_sidebar.sh" \
     || fail "the sidebar test in a real window"
 fi
 say "all passed on Blender $BLENDER_VERSION (Python $PYVER)"

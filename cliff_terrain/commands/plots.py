@@ -146,6 +146,7 @@ def run(args):
             angle=args.angle,
             pitch=pitch,
             origin=origin,
+            valid=ortho.valid,  # the no-data border is neither crop nor soil
         )
         layout, placement, report = fit.layout, fit.placement, fit.report
     plots = plots_from(

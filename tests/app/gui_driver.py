@@ -24,7 +24,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 TOOLS = ("xdotool", "xwd", "convert")
-TIMEOUT_S = 300
+TIMEOUT_S = 480
+# Screenshots that go beside --shot (docs/images/) for the README.
+README_SHOTS = ("probe.png", "color_by_height.png", "plots.png")
 
 
 def fail(message):
@@ -58,6 +60,9 @@ def main():
     parser.add_argument("--width", type=int, default=1600)
     parser.add_argument("--height", type=int, default=1000)
     parser.add_argument("--max-size", type=int, default=400)
+    parser.add_argument(
+        "--ortho", help="a georeferenced orthophoto with dsm.tif beside it (the plot grid part)"
+    )
     parser.add_argument("--keep", action="store_true", help="keep the scratch folder and Blender's log")
     args = parser.parse_args()
 
@@ -83,6 +88,8 @@ def main():
     ]  # fmt: skip
     if args.source:
         command += ["--source", str(Path(args.source).resolve())]
+    if args.ortho:
+        command += ["--ortho", str(Path(args.ortho).resolve())]
     log_path = work / "blender.log"
     print("starting:", " ".join(command), flush=True)
     with open(log_path, "w") as log:
@@ -147,6 +154,8 @@ def drive(blender, work, shot):
             if path.name == "sidebar.png":
                 shot.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(path, shot)
+            elif path.name in README_SHOTS:  # beside sidebar.png, for the README
+                shutil.copyfile(path, shot.parent / path.name)
             Path(state["done"]).write_text("ok")
         elif phase == "click":
             x, y = state["point"]

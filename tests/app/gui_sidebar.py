@@ -36,7 +36,7 @@ import bpy
 CATEGORY = "Cliff Terrain"
 # A UI unit (a row of widgets) in pixels at resolution scale 1; the Build row is 1.4 of it.
 UNIT = 20
-TIMEOUT_S = 240
+TIMEOUT_S = 420
 
 
 def parse_args():
@@ -46,6 +46,9 @@ def parse_args():
     parser.add_argument("--photo", required=True)
     parser.add_argument("--source", help="register the add-on from this source folder (no installed zip)")
     parser.add_argument("--max-size", type=int, default=400)
+    parser.add_argument(
+        "--ortho", help="a georeferenced orthophoto with dsm.tif beside it: the plot grid part"
+    )
     return parser.parse_args(argv)
 
 
@@ -341,6 +344,220 @@ class Test:
         self.checks["view_opens_in_an_image_editor"] = result == {"FINISHED"} and any(
             os.path.samefile(bpy.path.abspath(image.filepath), path) for image in shown
         )
+        self.phase = "probe_start"
+        return 0.5
+
+    # ---- Probe Height: click a plant, read its height ----------------------------------------
+
+    def phase_probe_start(self):
+        # The Image Editor window that Open View made would take the click: close it.
+        for window in list(bpy.context.window_manager.windows)[1:]:
+            with bpy.context.temp_override(window=window):
+                bpy.ops.wm.window_close()
+        self.redraw()
+        self.delay_then("probe_click")
+        return 1.0
+
+    def phase_probe_click(self):
+        probe = importlib.import_module(f"{addon_package()}.scene.probe")
+        obj = self.relief
+        bpy.context.view_layer.objects.active = obj
+        obj.pop(probe.PROBE_KEY, None)
+        relief = probe.relief_of(obj)
+        # The plant pixel farthest from its region's edge: a dome's top, where a screen pixel's
+        # difference in the click changes the height least.
+        import numpy as np
+
+        row, col = np.unravel_index(np.argmax(np.where(relief.mask, relief.distance, -1)), relief.mask.shape)
+        self.target = (int(row), int(col))
+        self.core = relief
+        info = obj["cliff_terrain"]
+        scale = info["blender_units_per_unit"]
+        size = info["pixel_size"] * scale
+        rows = relief.heights.shape[0]
+        from bpy_extras.view3d_utils import location_3d_to_region_2d
+        from mathutils import Vector
+
+        local = Vector(
+            ((col + 0.5) * size, (rows - 1 - row + 0.5) * size, float(relief.heights[row, col]) * scale)
+        )
+        window, area, region, _ = self.view3d()
+        point = location_3d_to_region_2d(region, area.spaces.active.region_3d, obj.matrix_world @ local)
+        if point is None:
+            self.finish("the plant to probe is not in the 3D view")
+            return None
+        result = self.invoke("cliff_terrain.probe_height")
+        self.checks["probe_is_a_modal_tool"] = result == {"RUNNING_MODAL"}
+        self.ask("click", point=self.to_screen(window, region.x + point.x, region.y + point.y))
+        self.clicked = time.monotonic()
+        self.phase = "probe_wait"
+        return 0.5
+
+    def phase_probe_wait(self):
+        obj = self.relief
+        values = obj.get("cliff_terrain_probe")
+        if values is None:
+            if time.monotonic() - self.clicked > 60:
+                self.finish("clicking the relief with Probe Height read nothing in 60 s")
+                return None
+            return 0.3
+        values = values.to_dict()
+        relief, (row, col) = self.core, self.target
+        top = float(relief.heights.max())
+        self.notes.append(
+            f"probe: clicked pixel ({row}, {col}), read ({values['row']}, {values['col']}): height "
+            f"{values['height']:.4g} {values['unit']} (raster there {relief.heights[row, col]:.4g}), "
+            f"plant {values['region']} p90 {values.get('region_p90', float('nan')):.4g}"
+        )
+        self.checks["probe_reads_the_clicked_plant"] = (
+            abs(values["row"] - row) <= 2
+            and abs(values["col"] - col) <= 2
+            and values["region"] == int(relief.labels[row, col])
+            and abs(values["height"] - float(relief.heights[row, col])) <= 0.01 * top
+        )
+        self.checks["probe_values_are_the_raster_at_its_pixel"] = (
+            abs(values["height"] - float(relief.heights[values["row"], values["col"]])) <= 1e-6 * top
+        )
+        _, area, _, _ = self.view3d()
+        self.redraw()
+        self.delay_then("probe_shoot")
+        return 1.0
+
+    def phase_probe_shoot(self):
+        self.shoot("probe")
+        return 0.3
+
+    def phase_shot_probe(self):
+        window, area, region, _ = self.view3d()
+        self.ask(
+            "key", key="Escape", point=self.to_screen(window, region.x + region.width / 2, region.y + 40)
+        )
+        self.phase = "colour_start"
+        return 1.0
+
+    # ---- Colour By Height, and its colour bar -------------------------------------------------
+
+    def phase_colour_start(self):
+        self.checks["esc_ends_the_probe"] = (
+            not any(
+                op.bl_idname == "CLIFF_TERRAIN_OT_probe_height" for op in bpy.context.window.modal_operators
+            )
+            if hasattr(bpy.context.window, "modal_operators")
+            else True
+        )
+        bpy.context.scene.cliff_terrain.color_by = "HEIGHT"
+        self.redraw()
+        self.delay_then("colour_shoot")
+        return 1.5
+
+    def phase_colour_shoot(self):
+        self.shoot("color_by_height")
+        return 0.3
+
+    def phase_shot_color_by_height(self):
+        import numpy as np
+
+        window, area, region, _ = self.view3d()
+        before = view_pixels(os.path.join(ARGS.work, "sidebar.png"), window, region)
+        after = view_pixels(os.path.join(ARGS.work, "color_by_height.png"), window, region)
+        changed = float((np.abs(after - before).max(axis=-1) > 0.1).mean())
+        # The colour bar: viridis' dark violet at its foot, its yellow at its head.
+        inspect = importlib.import_module(f"{addon_package()}.operators.inspect")
+        x0, y0, width, height = inspect.colour_bar_box(area, region, bpy.context.preferences)
+        top = region.height  # view_pixels' rows run from the region's top
+        foot = after[int(top - y0 - 0.1 * height), int(x0 + width / 2)] * 255
+        head = after[int(top - y0 - 0.9 * height), int(x0 + width / 2)] * 255
+        self.notes.append(
+            f"Colour By Height: {changed:.0%} of the 3D view changed; colour bar foot {foot.round()}, head {head.round()}"
+        )
+        self.checks["colour_by_height_changes_the_view"] = changed >= 0.05
+        self.checks["colour_bar_is_drawn"] = foot[2] > foot[1] + 30 and head[1] > head[2] + 60
+        bpy.context.scene.cliff_terrain.color_by = "PHOTO"
+        self.phase = "plots_start" if ARGS.ortho else "end"
+        if not ARGS.ortho:
+            self.notes.append("no --ortho: the plot grid part was not run")
+        return 0.5
+
+    # ---- A plot grid over an orthophoto: added, fitted, measured, labelled --------------------
+
+    def phase_plots_start(self):
+        settings = bpy.context.scene.cliff_terrain
+        settings.filepath = ARGS.ortho
+        settings.dsm = os.path.join(os.path.dirname(ARGS.ortho), "dsm.tif")
+        settings.heights = "measured"
+        settings.max_size = 250
+        settings.two_sided = False
+        before = set(bpy.data.objects.keys())
+        window, area, region, _ = self.view3d()
+        with bpy.context.temp_override(window=window, area=area, region=region):
+            bpy.ops.cliff_terrain.build_relief("EXEC_DEFAULT")
+        new = [obj for obj in bpy.data.objects if obj.name not in before and "cliff_terrain" in obj]
+        if not new:
+            self.finish("Build Relief made no relief of the orthophoto")
+            return None
+        ortho_relief = new[0]
+        self.relief.hide_set(True)  # the photo's relief out of the way
+        settings.plot_columns, settings.plot_rows = 4, 9
+        settings.plot_width, settings.plot_length = 14.2, 4.8
+        settings.plot_alley_across, settings.plot_alley_along = 3.8, 1.4
+        with bpy.context.temp_override(window=window, area=area, region=region):
+            bpy.ops.cliff_terrain.add_plot_grid("EXEC_DEFAULT")
+            grid = bpy.context.view_layer.objects.active
+            # Dragged roughly onto the plots (G), 1 m off: the plots' bottom-left corner read off the photo.
+            plot_grid = importlib.import_module(f"{addon_package()}.scene.plot_grid")
+            georaster = importlib.import_module(f"{addon_package()}.cliff_terrain.georaster")
+            transform, _ = georaster.read_georeference(ARGS.ortho)
+            corner = (
+                transform[0, 2] + transform[0, 0] * 91 + 1.0,
+                transform[1, 2] + transform[1, 1] * 377 - 0.8,
+            )
+            x, y = plot_grid.MapFrame(ortho_relief).to_world([corner])[0]
+            grid.location = (x, y, grid.location.z)
+            fitted = bpy.ops.cliff_terrain.fit_plot_grid("EXEC_DEFAULT")
+            measured = bpy.ops.cliff_terrain.plot_table("EXEC_DEFAULT")
+            bpy.ops.view3d.view_all()
+        report = grid.get(plot_grid.FIT_KEY, {})
+        table = grid.get(plot_grid.TABLE_KEY) or []
+        self.notes.append(
+            f"plot grid: fit {fitted}, angle {report.get('angle_deg', float('nan')):.2f} deg, "
+            f"{report.get('plant_share_in_plots', 0):.0%} of plants in plots; {len(table)} plots measured"
+        )
+        self.checks["plot_grid_fitted_and_measured"] = (
+            fitted == {"FINISHED"} and measured == {"FINISHED"} and len(table) == 36
+        )
+        settings.color_by = "PLOT_TRAIT"
+        settings.show_plot_labels = False
+        self.redraw()
+        self.delay_then("plots_shoot_plain")
+        return 1.5
+
+    def phase_plots_shoot_plain(self):
+        self.shoot("plots_plain")
+        return 0.3
+
+    def phase_shot_plots_plain(self):
+        bpy.context.scene.cliff_terrain.show_plot_labels = True
+        self.redraw()
+        self.delay_then("plots_shoot")
+        return 1.5
+
+    def phase_plots_shoot(self):
+        self.shoot("plots")
+        return 0.3
+
+    def phase_shot_plots(self):
+        import numpy as np
+
+        window, _, region, _ = self.view3d()
+        plain = view_pixels(os.path.join(ARGS.work, "plots_plain.png"), window, region)
+        labelled = view_pixels(os.path.join(ARGS.work, "plots.png"), window, region)
+        changed = float((np.abs(labelled - plain).max(axis=-1) > 0.1).mean())
+        self.notes.append(f"plot labels: {changed:.2%} of the 3D view changed")
+        self.checks["plot_labels_are_drawn"] = changed > 0.001
+        self.phase = "end"
+        return 0.2
+
+    def phase_end(self):
         self.finish()
         return None
 
@@ -455,6 +672,13 @@ def find_button(enabled_path, disabled_path, window, ui):
         return None
     x = int(ui.x + ui.width * 0.45)
     return x, top + first + height // 2, height
+
+
+def view_pixels(path, window, region):
+    """The 3D view's pixels of a screenshot, (rows, cols, 3) in [0, 1], its top row first."""
+    pixels = load_pixels(path)
+    top = window.height - (region.y + region.height)
+    return pixels[top : top + region.height, region.x : region.x + region.width]
 
 
 def colourful_share(path, window, region):

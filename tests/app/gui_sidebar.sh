@@ -11,6 +11,7 @@
 #            PATH=..."; the repository and $WORK are mounted at the same paths there); empty: here
 #   BLENDER_USER_RESOURCES   the throw-away user folder with the extension installed
 #   WORK     scratch folder (screenshots and Blender's log go to $WORK/gui)
+#   ORTHO    a georeferenced orthophoto with dsm.tif beside it: the plot grid part runs on it
 #
 # Needs where Blender is: xvfb-run (xvfb, xauth), xdotool, xwd (x11-apps), convert (imagemagick),
 # python3, blender.
@@ -35,6 +36,9 @@ done
 options=()
 if [[ -n "${WORK:-}" ]]; then
     options+=(--work "$WORK/gui" --keep)
+fi
+if [[ -n "${ORTHO:-}" && -f "${ORTHO}" ]]; then
+    options+=(--ortho "$ORTHO")
 fi
 width="${GUI_WIDTH:-1600}"
 height="${GUI_HEIGHT:-1000}"
