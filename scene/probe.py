@@ -163,9 +163,10 @@ def probe_lines(values):
     if values.get("region"):
         area = values["region_area"]
         area_text = f"{area:.3g} m²" if unit == "m" else f"{area:.0f} px²"
+        # Two short lines: the sidebar is narrow.
+        lines.append(f"Plant {values['region']}, area {area_text}")
         lines.append(
-            f"Plant {values['region']}: p50 {length_text(values['region_p50'], unit)}, "
-            f"p90 {length_text(values['region_p90'], unit)}, area {area_text}"
+            f"Plant p50 {length_text(values['region_p50'], unit)}, p90 {length_text(values['region_p90'], unit)}"
         )
     else:
         lines.append("Soil (no plant)")

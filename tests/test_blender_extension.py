@@ -9,6 +9,7 @@ The installed-zip path is covered by test_blender_build.py.
 """
 
 import dataclasses
+import functools
 import importlib
 import importlib.util
 import tomllib
@@ -563,7 +564,7 @@ def draw_panel(context):
         layout = LayoutRecorder(log)
         panel = types.SimpleNamespace(layout=layout)
         if hasattr(cls, "draw_settings"):
-            panel.draw_settings = lambda layout, settings, cls=cls: cls.draw_settings(panel, layout, settings)
+            panel.draw_settings = functools.partial(cls.draw_settings, panel)
         cls.draw(panel, context)
     return log
 

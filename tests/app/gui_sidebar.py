@@ -84,7 +84,8 @@ class Test:
 
     def finish(self, error=None):
         passed = error is None and all(self.checks.values())
-        verdict = {"passed": passed, "checks": self.checks, "notes": self.notes, "error": error}
+        checks = {name: bool(value) for name, value in self.checks.items()}  # numpy bools too
+        verdict = {"passed": passed, "checks": checks, "notes": self.notes, "error": error}
         with open(RESULT, "w") as stream:
             json.dump(verdict, stream, indent=2)
         self.ask("done", passed=passed)
