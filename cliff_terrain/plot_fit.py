@@ -75,7 +75,9 @@ def fit_grid(
     angle : float, optional
         Pins the direction of u (degrees from the map's x axis).
     pitch : (float, float), optional
-        Pins the column and row pitch (else fitted within 5 % of the layout's, or found).
+        Pins the column and row pitch. Else it is fitted within 5 % of the layout's; with no
+        placement and touching plots on an axis (no spacing given), found between the plot's size
+        and twice it.
     origin : (float, float), optional
         Pins the map point of the grid's (u, v) = (0, 0) corner.
     search_deg : float, optional
@@ -108,6 +110,16 @@ def fit_grid(
     pixel = math.sqrt(abs(np.linalg.det(t[:2, :2])))
     uniform = _uniform(layout.column_offsets) and _uniform(layout.row_offsets)
     fit_pitch = pitch is None and uniform
+    # The pitch scales searched per axis: within 5 % of the layout's; from the plot's size to twice it
+    # when the grid is placed from the mask alone and the layout gives no spacing on that axis (plots
+    # touching: the user did not say how far apart they are); none when pinned or uneven.
+    scale_ranges = (None, None)
+    if fit_pitch:
+        find = placement is None and origin is None
+        scale_ranges = tuple(
+            FIND_PITCH if find and _touching(offsets, size) else NEAR_PITCH
+            for offsets, size in ((layout.column_offsets, layout.width), (layout.row_offsets, layout.length))
+        )
     if pitch is not None:
         layout = _with_pitch(layout, pitch)
     bin_size = max(min(layout.width, layout.length) / 8.0, 0.5 * pixel)
@@ -137,7 +149,7 @@ def fit_grid(
             pivot,
             layout,
             bin_size,
-            fit_pitch,
+            scale_ranges,
             origin is not None,
             centre,
         )
@@ -164,6 +176,16 @@ def fit_grid(
 # What a soil pixel inside a plot costs against a plant pixel inside it: plots that grow over bare
 # soil beyond the field's edge lose, while the soil between the crop rows inside a plot is tolerated.
 SOIL_COST = 0.5
+
+
+# Pitch scales searched: near the layout's spacing, or from touching plots to twice the plot's size.
+NEAR_PITCH = (0.95, 1.05)
+FIND_PITCH = (1.0, 2.0)
+
+
+def _touching(offsets, size):
+    """True when the plots of one axis touch (their pitch is their size: no spacing was given)."""
+    return offsets.size > 1 and abs(float(np.diff(offsets).mean()) - size) <= 1e-6 * max(size, 1.0)
 
 
 def _uniform(offsets):
@@ -208,7 +230,7 @@ def _map_points(t, rr, cc):
     return np.column_stack([t[0, 0] * cc + t[0, 1] * rr + t[0, 2], t[1, 0] * cc + t[1, 1] * rr + t[1, 2]])
 
 
-def _fit_at(points, soil, theta, pivot, layout, b, fit_pitch, pinned_origin, centre):
+def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, centre):
     """Best shift (and pitch) at direction `theta`, in the frame centred on `pivot`."""
     u_axis, v_axis = axes(theta)
     rel = points - pivot
@@ -246,13 +268,13 @@ def _fit_at(points, soil, theta, pivot, layout, b, fit_pitch, pinned_origin, cen
         soil_u = _profile(hist_soil, v_lo, b, v0 + rows_off, layout.length, axis=1)
         hull_u = _profile(hist, v_lo, b, np.array([v0]), rows_off[-1] + layout.length, axis=1)
         u0, cols_off, su, alt_u = _best_1d(
-            (prof_u, hull_u, soil_u), u_lo, b, u_range, cols_off, layout.width, fit_pitch
+            (prof_u, hull_u, soil_u), u_lo, b, u_range, cols_off, layout.width, scale_ranges[0]
         )
         prof_v = _profile(hist, u_lo, b, u0 + cols_off, layout.width, axis=0)
         soil_v = _profile(hist_soil, u_lo, b, u0 + cols_off, layout.width, axis=0)
         hull_v = _profile(hist, u_lo, b, np.array([u0]), cols_off[-1] + layout.width, axis=0)
         v0, rows_off, sv, alt_v = _best_1d(
-            (prof_v, hull_v, soil_v), v_lo, b, v_range, rows_off, layout.length, fit_pitch
+            (prof_v, hull_v, soil_v), v_lo, b, v_range, rows_off, layout.length, scale_ranges[1]
         )
         best = (u0, v0, cols_off, rows_off, sv, alt_u, alt_v)
     u0, v0, cols_off, rows_off, (inside, hull, soil_in), alt_u, alt_v = best
@@ -290,7 +312,7 @@ def _profile(hist, lo, b, starts, size, *, axis):
     return (cum[e, :] - cum[a, :]).sum(axis=0)
 
 
-def _best_1d(profiles, lo, b, shift_range, offsets, size, fit_pitch):
+def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range):
     """Shift (and uniform pitch) of windows `offsets` (+ `size`) along the profiles (plants in the
     other axis's windows, plants in the grid's outline, soil in the windows) maximising
     2 * inside - hull - SOIL_COST * soil inside; returns (shift, offsets, (inside, hull, soil inside),
@@ -307,8 +329,12 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, fit_pitch):
     count = offsets.size
     base = float(np.diff(offsets).mean()) if count > 1 else size
     scales = np.array([1.0])
-    if fit_pitch and count > 1:
-        scales = np.linspace(0.95, 1.05, 41)
+    if scale_range is not None and count > 1:
+        # Every 0.25 % of the pitch near the layout's; every 1 % (then 0.1 % around the best) when found.
+        low, high = scale_range
+        scales = np.linspace(
+            low, high, int(round((high - low) / (0.0025 if high - low <= 0.1 else 0.01))) + 1
+        )
         # Plots never overlap: the pitch stays at least the plot's size.
         scales = (
             scales[scales * base >= size - 1e-9] if (scales * base >= size - 1e-9).any() else np.array([1.0])
@@ -325,16 +351,23 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, fit_pitch):
         he = np.clip(np.round((shift + offs[-1] + size - lo) / b).astype(np.int64), 0, n)
         return inside, cum_h[he] - cum_h[ha], soil_in
 
-    best, best_key = -np.inf, None
-    for scale in scales:
-        inside, hull, soil_in = evaluate(shifts, scale)
-        score = 2 * inside - hull - SOIL_COST * soil_in
-        k = int(np.argmax(score))
-        if score[k] > best:
-            best, best_key = (
-                score[k],
-                (float(shifts[k]), scale, float(inside[k]), float(hull[k]), float(soil_in[k])),
-            )
+    def search(scales):
+        best, best_key = -np.inf, None
+        for scale in scales:
+            inside, hull, soil_in = evaluate(shifts, scale)
+            score = 2 * inside - hull - SOIL_COST * soil_in
+            k = int(np.argmax(score))
+            if score[k] > best:
+                best, best_key = (
+                    score[k],
+                    (float(shifts[k]), float(scale), float(inside[k]), float(hull[k]), float(soil_in[k])),
+                )
+        return best_key
+
+    best_key = search(scales)
+    if scales.size > 1 and scales[1] - scales[0] > 0.005:  # a found pitch: refine around the best
+        fine = best_key[1] + np.arange(-0.01, 0.0101, 0.001)
+        best_key = search(fine[fine * base >= size - 1e-9])
     shift, scale, inside, hull, soil_in = best_key
     # The same windows one pitch either way: a guard row taken for a plot column.
     pitch = base * scale
