@@ -152,3 +152,28 @@ def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
     # A layout edit makes the table stale: it goes.
     settings.plot_rows = 5
     assert TABLE_KEY not in grid
+
+
+def test_undo_takes_back_add_and_fit(relief):
+    import bpy
+
+    # Headless, Blender pushes no undo step after an operator: pushed here as the UI pushes them.
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 4, 9
+    settings.plot_width, settings.plot_length = 14.2, 4.8
+    settings.plot_alley_across, settings.plot_alley_along = 3.8, 1.4
+    bpy.ops.ed.undo_push(message="before")
+    before = sorted(bpy.data.objects.keys())
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    name = bpy.context.active_object.name
+    bpy.ops.ed.undo_push(message="Add Plot Grid")
+    placed = tuple(bpy.data.objects[name].matrix_world.translation)
+    assert bpy.ops.cliff_terrain.fit_plot_grid() == {"FINISHED"}
+    bpy.ops.ed.undo_push(message="Fit to Field")
+    assert tuple(bpy.data.objects[name].matrix_world.translation) != placed
+    bpy.ops.ed.undo()  # the fit
+    grid = bpy.data.objects[name]
+    assert tuple(grid.matrix_world.translation) == pytest.approx(placed)
+    assert "cliff_terrain_fit" not in grid
+    bpy.ops.ed.undo()  # the grid
+    assert sorted(bpy.data.objects.keys()) == before
