@@ -271,14 +271,14 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
     )
     # ---- Inspecting: what the reliefs show ----
     color_by: EnumProperty(
-        name="Colour By",
+        name="Color By",  # Blender's UI speaks American English
         description="What the reliefs show: the photo, their height, or a trait of the measured plots",
         items=_colour_items,
         update=_colour_changed,
     )
     color_trait: EnumProperty(
         name="Trait",
-        description="The plot trait that Colour By Plot Trait shows",
+        description="The plot trait that Color By Plot Trait shows",
         items=[
             (key, label, f"{label} of each plot, from Measure Plots")
             for key, label, _ in settings.PLOT_TRAITS

@@ -175,7 +175,16 @@ def drive(blender, work, shot):
             deadline = min(deadline, time.monotonic() + 30)
     if not result_path.exists():
         return None
-    return json.loads(result_path.read_text())
+    text = result_path.read_text()
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        return {
+            "passed": False,
+            "checks": {},
+            "notes": [text],
+            "error": f"Blender's verdict is not JSON: {exc}",
+        }
 
 
 if __name__ == "__main__":
