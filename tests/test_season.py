@@ -277,11 +277,16 @@ def test_failed_image_gets_its_error_on_its_rows(serial, soybean, tmp_path):
     assert done.returncode == 1
     assert "1 of 3 images failed" in done.stderr and names[1] in done.stderr
     rows = read_table(tmp_path / "out" / "season.csv")
-    reference = read_table(serial / "season.csv")
     bad = [r for r in rows if r["image"] == names[1]]
     assert len(bad) == 40 and all(r["error"] and r["cover"] == "" and r["height_p90"] == "" for r in bad)
+    # The others are computed, and aligned between themselves as a season of the two good dates is.
+    good_only = _subset(soybean, tmp_path / "good", [names[0], names[2]])
+    done = season(
+        good_only, "--plots", soybean / "plots.geojson", "--out", tmp_path / "good_out", "--workers", "0"
+    )
+    assert done.returncode == 0, done.stderr
     good = [r for r in rows if r["image"] != names[1]]
-    assert good == [r for r in reference if r["image"] in (names[0], names[2])]
+    assert good == read_table(tmp_path / "good_out" / "season.csv")
     # The failure is not cached: once the file is whole again only it is computed.
     shutil.copyfile(soybean / names[1], broken)
     done = season(photos, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", "--workers", "0")
@@ -513,3 +518,57 @@ def test_given_client_is_used_and_left_open(serial, soybean, tmp_path):
     assert sum(task["key"].startswith("season-") for task in stream) == len(jobs)
     with pytest.raises(CliffTerrainError, match=r"`client` must be a distributed.Client, got 'tcp://x'"):
         run_season(jobs, plots, out=tmp_path, client="tcp://x")
+
+
+def _moved_copy(source, target, rows, cols):
+    """The GeoTIFF `source` with its pixels moved down `rows` and right `cols` (no data where they
+    leave), its georeference kept: a date whose orthophoto is off by that much."""
+    import tifffile
+
+    with tifffile.TiffFile(source) as tif:
+        page = tif.pages[0]
+        data = page.asarray()
+        geo = [
+            (tag.code, tag.dtype, tag.count, tag.value, True)
+            for tag in page.tags.values()
+            if tag.code in (33550, 33922, 34264, 34735, 34736, 34737, 42112, 42113)
+        ]
+    moved = np.zeros_like(data)
+    moved[rows:, cols:] = data[:-rows, :-cols]
+    tifffile.imwrite(target, moved, photometric="rgb", extrasamples=["unassalpha"], extratags=geo)
+
+
+def test_a_date_moved_by_a_known_shift_is_found_and_read_in_place(serial, soybean, tmp_path):
+    names = sorted(p.name for p in soybean.glob("*.tif"))
+    moved_name = names[2]  # 29 August: the canopy half closed
+    photos = _subset(soybean, tmp_path / "photos", names)
+    _moved_copy(soybean / moved_name, photos / moved_name, 12, 30)
+    plots = soybean / "plots.geojson"
+    done = season(photos, "--plots", plots, "--out", tmp_path / "aligned", "--workers", "0")
+    assert done.returncode == 0, done.stderr
+    raw = season(photos, "--plots", plots, "--out", tmp_path / "raw", "--workers", "0", "--no-align")
+    assert raw.returncode == 0, raw.stderr
+
+    def date_record(folder):
+        dates = json.loads((folder / "season.json").read_text())["dates"]
+        return next(d for d in dates if Path(d["image"]).name == moved_name)
+
+    unmoved, found = date_record(serial), date_record(tmp_path / "aligned")
+    # The dates of this season drift by up to a few pixels on their own: the moved date's shift is
+    # its unmoved shift plus the move.
+    np.testing.assert_allclose(np.subtract(found["shift_px"], unmoved["shift_px"]), [12.0, 30.0], atol=0.5)
+    assert found["shift_m"] == pytest.approx(np.hypot(12 * 0.0266, 30 * 0.0266), rel=0.1)
+    assert "shift_flag" in found  # 0.86 m: more than a quarter of the 1.59 m plots
+    assert "shift_px" not in date_record(tmp_path / "raw")  # --no-align: the georeference as it is
+
+    def cover(folder):
+        return np.array(
+            [float(r["cover"]) for r in read_table(folder / "season.csv") if r["image"] == moved_name]
+        )
+
+    reference, aligned, unaligned = cover(serial), cover(tmp_path / "aligned"), cover(tmp_path / "raw")
+    plants = reference >= 0.1  # relative errors of plots with some canopy
+    aligned_error = np.mean(np.abs(aligned - reference)[plants] / reference[plants])
+    unaligned_error = np.mean(np.abs(unaligned - reference)[plants] / reference[plants])
+    assert aligned_error <= 0.02, aligned_error
+    assert unaligned_error > 0.10, unaligned_error

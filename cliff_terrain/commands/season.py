@@ -66,6 +66,12 @@ def configure(parser):
         help="inflated (from the photo; the default without --dsm), measured (the DSM's canopy height; "
         "the default with --dsm) or calibrated (the photo's domes scaled to the measured heights)",
     )
+    parser.add_argument(
+        "--no-align",
+        action="store_true",
+        help="take each date's georeference as it is (by default each date's shift against the season's "
+        "consensus is measured and corrected: season.json's shift_px and shift_m)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -94,12 +100,16 @@ def run(args):
         memory_limit=args.memory_limit,
         progress=not args.no_progress,
         color_by=args.color_by,
+        align=not args.no_align,
     )
     print(
         f"{len(jobs)} dates x {len(plot_set.polygons)} plots: {season.computed} images computed, "
         f"{season.cached} from the cache, in {season.seconds:.1f} s; wrote {season.table}, "
         f"{season.out / 'growth.png'}, {season.out / 'season.json'}"
     )
+    for record in season.dates:
+        if record.get("shift_flag"):
+            print(f"warning: {record['date']}: {record['shift_flag']}", file=sys.stderr)
     if season.failures:
         print(f"{len(season.failures)} of {len(jobs)} images failed:", file=sys.stderr)
         for image, error in season.failures:

@@ -72,6 +72,10 @@ class Job:
     plots: str
     params: dict
     dsm: str | None = None
+    shift: list | None = (
+        None  # map (x, y) metres of its content from the season's consensus (None: not aligned)
+    )
+    align_score: float | None = None
     cache: str = ""  # the cache folder (set by run_season)
     plots_hash: str = ""
     version: str = ""
@@ -91,6 +95,7 @@ class Season:
     out: Path
     seconds: float
     worker_peaks: dict = dataclasses.field(default_factory=dict)  # worker -> peak RSS bytes
+    dates: list = dataclasses.field(default_factory=list)  # season.json's date records
 
     @property
     def table(self):
@@ -187,7 +192,6 @@ def plan_season(
     heights : {"inflated", "calibrated", "measured"}, optional
         As for :func:`cliff_terrain.build_relief`: "measured" (the default with `dsm`) and
         "calibrated" need `dsm`; "inflated" is the only mode without one.
-
     Returns
     -------
     jobs : list of Job
@@ -306,7 +310,6 @@ def _process(job):
 
     from ..georaster import read_georeference
     from ..pipeline import build_relief
-    from ..plots import plot_table, rasterize_plots
 
     params = job["params"]
     photo_transform, crs = read_georeference(job["path"])
@@ -325,16 +328,7 @@ def _process(job):
     # The processing grid resamples the photo's pixels: its pixels are larger by these factors.
     meta = relief.metadata
     transform = photo_transform @ np.diag([meta.width / shape[1], meta.height / shape[0], 1.0])
-    plot_set = _plots(job["plots"])
-    labels = rasterize_plots(plot_set, transform=transform, shape=shape)
-    table = plot_table(
-        plot_set,
-        labels,
-        mask=relief.mask,
-        heights=relief.heights,
-        pixel_area_m2=float(abs(np.linalg.det(transform[:2, :2]))),
-        height_units=relief.units,
-    )
+    table = _table(_plots(job["plots"]), transform, relief.mask, relief.heights, relief.units)
     return {
         "table": [_plain(row) for row in table],
         "height_mode": params["heights"],
@@ -343,6 +337,57 @@ def _process(job):
         "arrays": {
             "heights": np.ascontiguousarray(relief.heights, dtype=np.float32),
             "mask": np.packbits(relief.mask, axis=None),
+        },
+    }
+
+
+def _table(plot_set, transform, mask, heights, units):
+    """The plots' rows of one date: its grid (`transform`: pixel -> map), plant mask and heights."""
+    import numpy as np
+
+    from ..plots import plot_table, rasterize_plots
+
+    labels = rasterize_plots(plot_set, transform=transform, shape=mask.shape)
+    rows = plot_table(
+        plot_set,
+        labels,
+        mask=mask,
+        heights=heights,
+        pixel_area_m2=float(abs(np.linalg.det(np.asarray(transform)[:2, :2]))),
+        height_units=units,
+    )
+    return [_plain(row) for row in rows]
+
+
+def aligned_result(job, result, plot_set):
+    """A date's result read where its pixels show the plots: its content lies ``job.shift`` (map
+    metres) from where the season's consensus puts it, so its grid's pixel q shows map(q) - shift.
+
+    The table is taken again from the cached grid (the relief does not depend on the shift, so a
+    season that gains a date recomputes no relief, only these tables).
+    """
+    import numpy as np
+
+    from ..georaster import read_georeference
+
+    dx, dy = job.shift
+    grid = result["grid"]
+    transform = np.vstack([np.asarray(grid["transform"], dtype=np.float64), [0.0, 0.0, 1.0]])
+    aligned = np.array([[1.0, 0.0, -dx], [0.0, 1.0, -dy], [0.0, 0.0, 1.0]]) @ transform
+    arrays = Cache(job.cache).load_arrays(result["key"])
+    mask = (
+        np.unpackbits(arrays["mask"], count=int(np.prod(grid["shape"]))).reshape(grid["shape"]).astype(bool)
+    )
+    photo_transform, _ = read_georeference(job.path)
+    cols, rows = np.linalg.solve(photo_transform[:2, :2], [dx, dy])
+    return {
+        **result,
+        "table": _table(plot_set, aligned, mask, arrays["heights"], result["height_units"]),
+        "grid": {**grid, "transform": aligned[:2].tolist()},
+        "align": {
+            "shift_px": [round(float(rows), 3), round(float(cols), 3)],
+            "shift_m": round(float(np.hypot(dx, dy)), 4),
+            "align_score": round(float(job.align_score), 3),
         },
     }
 
@@ -388,6 +433,7 @@ def run_season(
     progress=True,
     chart=True,
     color_by=None,
+    align=True,
 ):
     """Compute the jobs the cache lacks and write ``season.csv``, ``season.json`` and ``growth.png``.
 
@@ -413,6 +459,11 @@ def run_season(
         Draw ``growth.png`` (needs matplotlib).
     color_by : str, optional
         Plot attribute that colours the chart's lines.
+    align : bool, optional
+        Measure each date's shift against the season's consensus georeference and read its plots
+        where its pixels show them (:func:`cliff_terrain.season.align.season_shifts`); recorded in
+        ``season.json`` as ``shift_px`` ([rows, cols] of the date's photo pixels), ``shift_m`` and
+        ``align_score``.
 
     Returns
     -------
@@ -439,6 +490,11 @@ def run_season(
     plots_hash = file_hash(jobs[0].plots) if jobs else ""
     for job in jobs:
         job.cache, job.plots_hash, job.version = str(cache_dir), plots_hash, __version__
+    if align and len(jobs) > 1:
+        from .align import season_shifts
+
+        for job, found in zip(jobs, season_shifts([job.path for job in jobs]), strict=True):
+            job.shift, job.align_score = [float(v) for v in found["shift"]], found["score"]
     bar = _Bar(len(jobs), enabled=progress)
     results = {}
     peaks = {}
@@ -467,10 +523,13 @@ def run_season(
     rows, failures, dates = [], [], []
     for index, job in enumerate(jobs):
         result = results.get(index) or {"ok": False, "error": "no result (the task was lost)", "key": None}
+        if result["ok"] and job.shift is not None:
+            result = aligned_result(job, result, plot_set)
         if not result["ok"]:
             failures.append((job.path, result["error"]))
         rows.extend(_rows(job, result, plot_set))
         dates.append(_date_record(job, result, out))
+    _flag_shifts(dates, plot_set)
     columns = _columns(plot_set)
     _write_csv(out / "season.csv", rows, columns)
     manifest = {
@@ -495,6 +554,7 @@ def run_season(
         out=out,
         seconds=time.perf_counter() - started,
         worker_peaks=peaks,
+        dates=dates,
     )
 
 
@@ -637,6 +697,26 @@ def _columns(plot_set):
     return (*LEAD_COLUMNS, *(_attribute_column(n) for n in plot_set.fields), *VALUE_COLUMNS)
 
 
+def _flag_shifts(dates, plot_set):
+    """Flag dates shifted by more than a quarter of the smallest plot width: their plots may have been
+    read beside themselves had the shift not been corrected, and a shift that large is worth a look
+    (a wrong georeference, or a field that changed too much to compare)."""
+    from .align import MIN_SCORE, smallest_plot_width
+
+    limit = 0.25 * smallest_plot_width(plot_set)
+    for record in dates:
+        if record.get("align_score") is not None and record["align_score"] < MIN_SCORE:
+            record["shift_flag"] = (
+                f"not aligned: too little in common with the other dates (correlation "
+                f"{record['align_score']:.2f} < {MIN_SCORE})"
+            )
+        elif record.get("shift_m") is not None and record["shift_m"] > limit:
+            record["shift_flag"] = (
+                f"shifted {record['shift_m']:.3f} m from the reference date, more than a quarter of the "
+                f"smallest plot width ({limit:.3f} m)"
+            )
+
+
 def _date_record(job, result, out):
     record = {
         "date": job.date,
@@ -647,6 +727,8 @@ def _date_record(job, result, out):
         "error": None if result["ok"] else result["error"],
     }
     if result["ok"]:
+        if result.get("align"):  # in the date's photo pixels [rows, cols], and its length in metres
+            record.update(result["align"])  # shift_px, shift_m and the correlation (align_score)
         record.update(
             {
                 "arrays": f"cache/{result['key']}.npz",
