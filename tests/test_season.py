@@ -572,3 +572,131 @@ def test_a_date_moved_by_a_known_shift_is_found_and_read_in_place(serial, soybea
     unaligned_error = np.mean(np.abs(unaligned - reference)[plants] / reference[plants])
     assert aligned_error <= 0.02, aligned_error
     assert unaligned_error > 0.10, unaligned_error
+
+
+def _certificates(folder):
+    """A CA and one certificate it signed (for 127.0.0.1), made with the openssl command line."""
+    openssl = shutil.which("openssl")
+    assert openssl, "the TLS test makes its certificates with the openssl command (apt-get install openssl)"
+    folder.mkdir()
+
+    def run(*args):
+        subprocess.run([openssl, *args], cwd=folder, check=True, capture_output=True)
+
+    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem", "-days", "1",
+        "-subj", "/CN=cliff-terrain test CA")  # fmt: skip
+    run(
+        "req",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "key.pem",
+        "-out",
+        "req.csr",
+        "-subj",
+        "/CN=127.0.0.1",
+    )
+    (folder / "ext.cnf").write_text("subjectAltName=IP:127.0.0.1\n")
+    run("x509", "-req", "-in", "req.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial", "-out",
+        "cert.pem", "-days", "1", "-extfile", "ext.cnf")  # fmt: skip
+    return {name: folder / f"{name}.pem" for name in ("ca", "cert", "key")}
+
+
+@pytest.mark.slow
+def test_tls_scheduler_on_loopback_with_certificates_made_here(serial, soybean, tmp_path):
+    pytest.importorskip("distributed", reason="the `season` extra (dask[distributed]) is not installed")
+    pem = _certificates(tmp_path / "tls")
+    tls = ["--tls-ca-file", pem["ca"], "--tls-cert", pem["cert"], "--tls-key", pem["key"]]
+    port = _free_port()
+    address = f"tls://127.0.0.1:{port}"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    bin_dir = Path(sys.executable).parent
+    quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    procs = [
+        subprocess.Popen(
+            [
+                bin_dir / "dask",
+                "scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+                "--protocol",
+                "tls",
+                "--no-dashboard",
+                *map(str, tls),
+            ],
+            **quiet,
+        )  # fmt: skip
+    ]
+    try:
+        procs.append(
+            subprocess.Popen(
+                [
+                    bin_dir / "dask",
+                    "worker",
+                    address,
+                    "--nworkers",
+                    "1",
+                    "--nthreads",
+                    "1",
+                    "--no-dashboard",
+                    *map(str, tls),
+                ],
+                cwd=tmp_path,
+                **quiet,
+            )  # fmt: skip
+        )
+        from distributed import Client
+        from distributed.security import Security
+
+        security = Security(
+            tls_ca_file=str(pem["ca"]), tls_client_cert=str(pem["cert"]), tls_client_key=str(pem["key"])
+        )
+        with Client(address, security=security, timeout=60) as client:
+            client.wait_for_workers(1, timeout=60)
+        plots = soybean / "plots.geojson"
+        done = season(soybean, "--plots", plots, "--out", tmp_path / "out", "--scheduler", address, *tls)
+        assert done.returncode == 0, done.stderr
+        assert (tmp_path / "out" / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+        # Without the key, the TLS scheduler cannot be joined: one line, nothing written.
+        plain = season(soybean, "--plots", plots, "--out", tmp_path / "plain", "--scheduler", address)
+        assert plain.returncode == 2 and "needs --tls-ca-file, --tls-cert, --tls-key" in plain.stderr
+        assert not (tmp_path / "plain" / "season.csv").exists()
+    finally:
+        for proc in reversed(procs):
+            proc.send_signal(signal.SIGINT)
+        for proc in reversed(procs):
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--scheduler", "tcp://192.0.2.7:8786"], "refusing the plain-TCP scheduler `tcp://192.0.2.7:8786`"),
+        (["--scheduler", "tls://127.0.0.1:8786"], "needs --tls-ca-file, --tls-cert, --tls-key"),
+        (["--scheduler", "tcp://127.0.0.1:1", "--tls-cert", "x.pem"], "use a tls:// address"),
+        (["--tls-key", "x.pem"], "are for a tls:// --scheduler"),
+    ],
+)
+def test_schedulers_that_need_a_key_are_refused_before_any_work(soybean, tmp_path, args, words):
+    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", *args)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], done.stderr
+    assert not (tmp_path / "out" / "season.csv").exists()
+
+
+def test_insecure_joins_a_plain_tcp_scheduler_elsewhere(soybean, tmp_path):
+    pytest.importorskip("distributed", reason="the `season` extra (dask[distributed]) is not installed")
+    # 192.0.2.0/24 is TEST-NET-1: nothing answers, so --insecure gets as far as trying to connect.
+    done = season(
+        soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out",
+        "--scheduler", "tcp://192.0.2.7:8786", "--insecure", "--timeout", "1",
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert "cannot reach the Dask scheduler `tcp://192.0.2.7:8786` within 1 s" in done.stderr

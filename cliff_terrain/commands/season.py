@@ -39,7 +39,24 @@ def configure(parser):
         default=None,
         help="local Dask worker processes (default: one per core); 0 runs serially in this process",
     )
-    parser.add_argument("--scheduler", default=None, metavar="ADDRESS", help="an existing Dask scheduler")
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="an existing Dask scheduler: tls://host:port with the --tls-* files, or tcp://host:port "
+        "on this machine (elsewhere only with --insecure)",
+    )
+    parser.add_argument(
+        "--tls-ca-file", default=None, metavar="PEM", help="CA that signed the cluster's certificates"
+    )
+    parser.add_argument("--tls-cert", default=None, metavar="PEM", help="this client's certificate")
+    parser.add_argument("--tls-key", default=None, metavar="PEM", help="this client's private key")
+    parser.add_argument(
+        "--insecure",
+        action="store_true",
+        help="join a plain-TCP scheduler on another machine (Dask unpickles what it receives: only on "
+        "a network you trust)",
+    )
     parser.add_argument(
         "--timeout", type=float, default=10.0, help="seconds to wait for --scheduler (default 10)"
     )
@@ -76,8 +93,22 @@ def configure(parser):
 
 
 def run(args):
+    from ..errors import CliffTerrainError
     from ..season.dates import parse_given_dates
     from ..season.runner import plan_season, run_season
+    from ..season.security import scheduler_security
+
+    security = None
+    if args.scheduler:  # checked before any work
+        security = scheduler_security(
+            args.scheduler,
+            ca_file=args.tls_ca_file,
+            cert=args.tls_cert,
+            key=args.tls_key,
+            insecure=args.insecure,
+        )
+    elif args.tls_ca_file or args.tls_cert or args.tls_key:
+        raise CliffTerrainError("--tls-ca-file, --tls-cert and --tls-key are for a tls:// --scheduler")
 
     jobs, plot_set = plan_season(
         args.inputs,
@@ -96,6 +127,7 @@ def run(args):
         out=args.out,
         workers=args.workers,
         scheduler=args.scheduler,
+        security=security,
         timeout=args.timeout,
         memory_limit=args.memory_limit,
         progress=not args.no_progress,

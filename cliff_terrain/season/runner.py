@@ -427,6 +427,7 @@ def run_season(
     out,
     workers=None,
     scheduler=None,
+    security=None,
     client=None,
     timeout=10.0,
     memory_limit="auto",
@@ -447,6 +448,9 @@ def run_season(
         Local worker processes: None for one per core, 0 to run serially in this process.
     scheduler : str, optional
         Address of an existing ``dask.distributed`` scheduler (wins over `workers`).
+    security : distributed.security.Security, optional
+        TLS credentials for a ``tls://`` `scheduler`
+        (:func:`cliff_terrain.season.security.scheduler_security`).
     client : distributed.Client, optional
         A connected client (a notebook's, say) to run on, left open; wins over `scheduler`.
     timeout : float, optional
@@ -514,6 +518,7 @@ def run_season(
             finished,
             workers=workers,
             scheduler=scheduler,
+            security=security,
             timeout=timeout,
             memory_limit=memory_limit,
             client=client,
@@ -558,7 +563,7 @@ def run_season(
     )
 
 
-def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, client=None):
+def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, client=None, security=None):
     """Submit one task per image and hand each result to `finished(index, result)` as it arrives.
 
     A given `client` is used as it is and left open (its owner closes it).
@@ -576,7 +581,7 @@ def _run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, c
             return
         if scheduler is not None:
             try:
-                client = Client(scheduler, timeout=timeout, set_as_default=False)
+                client = Client(scheduler, timeout=timeout, set_as_default=False, security=security)
             except (OSError, TimeoutError) as exc:
                 raise CliffTerrainError(
                     f"cannot reach the Dask scheduler `{scheduler}` within {timeout:g} s ({type(exc).__name__})"
