@@ -159,8 +159,8 @@ def grid_shift(reference, moving, *, moving_valid=None, max_shift=None):
     >>> a = rng.random((64, 80))
     >>> b = np.roll(a, (3, -5), axis=(0, 1))
     >>> shift, score = grid_shift(a, b)
-    >>> np.round(shift, 1).tolist(), round(score, 2)
-    ([3.0, -5.0], 1.0)
+    >>> np.round(shift, 1).tolist(), score > 0.9
+    ([3.0, -5.0], True)
     """
     from scipy import ndimage
 
