@@ -14,7 +14,6 @@ objects are never modified. Sizes: metres when the ground sampling distance is k
 as ``blender_units_per_unit`` in the object's ``cliff_terrain`` custom property).
 """
 
-import traceback
 from pathlib import Path
 
 import bpy
@@ -23,6 +22,7 @@ from ..scene.datablocks import remove_datablocks, textured_object
 from ..scene.material import load_photo
 from ..scene.mesh_data import allocate_mesh, checked_topology, fill_topology, mesh_from_arrays, set_positions
 from .properties import PARAMETER_NAMES, ReliefParameters
+from .reports import report_failure
 
 # Without a known ground sampling distance the relief is scaled so its longest side is this many
 # Blender units ("normalised units"); with one, 1 Blender unit = 1 metre.
@@ -298,15 +298,8 @@ def key_figures(relief):
 def cancel_build(operator, exc, created):
     """Remove every datablock in `created`, report `exc` as the module's error policy says and
     return CANCELLED: a :class:`CliffTerrainError` with its message, anything else as a bug."""
-    from ..cliff_terrain import CliffTerrainError
-
     remove_datablocks(created)
-    if isinstance(exc, CliffTerrainError):
-        operator.report({"ERROR"}, str(exc))
-    else:
-        traceback.print_exc()
-        operator.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
-    return {"CANCELLED"}
+    return report_failure(operator, exc)
 
 
 class _Progress:

@@ -4,28 +4,16 @@ The values come from :mod:`scene.probe` (the relief's own rasters); the colours 
 :mod:`scene.colour_by` (the scene's ``color_by``).
 """
 
-import traceback
-
 import bpy
 
 from ..scene.probe import PROBE_KEY
+from .reports import report_failure
 
 HINT = "Click the relief to read its height · Esc or right-click: done"
 
 
 def _relief(obj):
     return obj is not None and obj.type == "MESH" and "cliff_terrain" in obj
-
-
-def _failed(operator, exc):
-    from ..cliff_terrain.errors import CliffTerrainError
-
-    if isinstance(exc, CliffTerrainError):
-        operator.report({"ERROR"}, str(exc))
-    else:  # a bug: the traceback to the console, the name to the user
-        traceback.print_exc()
-        operator.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
-    return {"CANCELLED"}
 
 
 class CLIFF_TERRAIN_OT_probe_height(bpy.types.Operator):
@@ -70,7 +58,7 @@ class CLIFF_TERRAIN_OT_probe_height(bpy.types.Operator):
         try:
             values = probe(obj, local)
         except Exception as exc:
-            return _failed(self, exc)
+            return report_failure(self, exc)
         obj[PROBE_KEY] = values
         self.lines = probe_lines(values)
         self.report({"INFO"}, f"{obj.name}: " + "; ".join(self.lines))

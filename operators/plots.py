@@ -6,22 +6,10 @@ does the work: :mod:`cliff_terrain.plot_grid` numbers and writes the plots, :mod
 snaps the grid to the crop of the relief's orthophoto.
 """
 
-import traceback
-
 import bpy
 
 from .file_operator import FileOperator
-
-
-def _report_failure(operator, exc):
-    from ..cliff_terrain.errors import CliffTerrainError
-
-    if isinstance(exc, CliffTerrainError):
-        operator.report({"ERROR"}, str(exc))
-    else:  # a bug: the traceback to the console, the name to the user
-        traceback.print_exc()
-        operator.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
-    return {"CANCELLED"}
+from .reports import report_failure
 
 
 def _relief_of(context):
@@ -72,7 +60,7 @@ class CLIFF_TERRAIN_OT_add_plot_grid(bpy.types.Operator):
             grid = new_grid(context, context.active_object, context.scene.cliff_terrain, created=created)
         except Exception as exc:
             remove_datablocks(created)
-            return _report_failure(self, exc)
+            return report_failure(self, exc)
         for other in context.view_layer.objects.selected:
             other.select_set(False)
         grid.select_set(True)
@@ -115,7 +103,7 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
             plants = plant_mask(ortho.data, valid=ortho.valid)
             fit = fit_grid(plants, ortho.transform, layout, placement=Placement(corners), valid=ortho.valid)
         except Exception as exc:
-            return _report_failure(self, exc)
+            return report_failure(self, exc)
         move_grid(grid, frame, fit.placement)
         # The fitted pitches become the alleys (which rebuilds the mesh through the settings' update).
         settings.plot_alley_across = max(0.0, fit.report["column_pitch_m"] - settings.plot_width)
@@ -153,7 +141,7 @@ class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
             relief = build_relief(frame.source, mesh=None, **kwargs)
             rows = relief_plot_rows(relief, plots, source=frame.source)
         except Exception as exc:
-            return _report_failure(self, exc)
+            return report_failure(self, exc)
         keys = ("column", "row", "cover", "height_p50_m", "height_p90_m")
         # The table's `plot` is the index in the set; the plot's own number is its attribute.
         grid[TABLE_KEY] = [{"plot": row["plot_attr"], **{k: row[k] for k in keys}} for row in rows]
@@ -189,7 +177,7 @@ class CLIFF_TERRAIN_OT_export_plots(_OnAGrid, FileOperator, bpy.types.Operator):
             self.report({"ERROR"}, f"cannot write {str(path)!r}: {exc}")
             return {"CANCELLED"}
         except Exception as exc:
-            return _report_failure(self, exc)
+            return report_failure(self, exc)
         self.report({"INFO"}, f"{len(plots)} plots in EPSG:{frame.crs} written to {written[0]}")
         return {"FINISHED"}
 

@@ -147,6 +147,17 @@ def _free_port():
         return s.getsockname()[1]
 
 
+def _stop(procs):
+    """Interrupt the Dask processes (the last started first) and wait for them."""
+    for proc in reversed(procs):
+        proc.send_signal(signal.SIGINT)
+    for proc in reversed(procs):
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
 @pytest.fixture
 def scheduler(tmp_path):
     """A dask.distributed scheduler and one worker process on loopback, as separate processes."""
@@ -179,13 +190,7 @@ def scheduler(tmp_path):
             client.wait_for_workers(1, timeout=60)
         yield address
     finally:
-        for proc in reversed(procs):
-            proc.send_signal(signal.SIGINT)
-        for proc in reversed(procs):
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        _stop(procs)
 
 
 @pytest.mark.slow
@@ -665,13 +670,7 @@ def test_tls_scheduler_on_loopback_with_certificates_made_here(serial, soybean, 
         assert plain.returncode == 2 and "needs --tls-ca-file, --tls-cert, --tls-key" in plain.stderr
         assert not (tmp_path / "plain" / "season.csv").exists()
     finally:
-        for proc in reversed(procs):
-            proc.send_signal(signal.SIGINT)
-        for proc in reversed(procs):
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        _stop(procs)
 
 
 @pytest.mark.parametrize(
