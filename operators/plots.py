@@ -127,18 +127,14 @@ class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
 
     def execute(self, context):
         from ..cliff_terrain.canopy import relief_plot_rows
-        from ..cliff_terrain.pipeline import build_relief
         from ..scene.plot_grid import TABLE_KEY, grid_plots, grid_relief
-        from .properties import ReliefParameters
+        from ..scene.probe import relief_of
 
         grid = context.active_object
         try:
             plots, frame = grid_plots(grid, context.scene.cliff_terrain)
-            record = grid_relief(grid)["cliff_terrain"]
-            # The relief as it was built (its recorded settings), without a mesh: its mask and heights.
-            kwargs = ReliefParameters.record_kwargs(record.get("params", {}).to_dict())
-            kwargs.pop("mesh", None)
-            relief = build_relief(frame.source, mesh=None, **kwargs)
+            # The relief as it was built (its recorded settings), without a mesh: Probe Height's copy.
+            relief = relief_of(grid_relief(grid))
             rows = relief_plot_rows(relief, plots, source=frame.source)
         except Exception as exc:
             return report_failure(self, exc)

@@ -179,10 +179,13 @@ _ITEMS = {}
 
 def _colour_items(settings, context):
     """Photo and Height; Plot Trait too once some relief has a measured plot grid."""
-    from ..scene.colour_by import measured_grid, reliefs
+    from ..scene.colour_by import measured_grids, reliefs
 
     scene = getattr(context, "scene", None)
-    measured = scene is not None and any(measured_grid(obj) is not None for obj in reliefs(scene))
+    # Drawn at every redraw of the sidebar: one pass over the objects.
+    measured = scene is not None and not measured_grids().keys().isdisjoint(
+        obj.name for obj in reliefs(scene)
+    )
     _ITEMS["colour"] = (*_COLOUR_MODES, _PLOT_TRAIT) if measured else _COLOUR_MODES
     return _ITEMS["colour"]
 

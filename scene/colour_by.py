@@ -26,14 +26,16 @@ def reliefs(scene):
     return [obj for obj in scene.objects if obj.type == "MESH" and "cliff_terrain" in obj]
 
 
-def measured_grid(relief):
-    """A plot grid over `relief` with a plot table (Measure Plots), or None."""
+def measured_grids():
+    """{relief name: a plot grid over it with a plot table (Measure Plots)}, in one pass over the objects."""
     from .plot_grid import GRID_KEY, TABLE_KEY
 
-    for obj in bpy.data.objects:
-        if obj.get(GRID_KEY) == relief.name and obj.get(TABLE_KEY):
-            return obj
-    return None
+    return {obj[GRID_KEY]: obj for obj in bpy.data.objects if GRID_KEY in obj and obj.get(TABLE_KEY)}
+
+
+def measured_grid(relief):
+    """A plot grid over `relief` with a plot table (Measure Plots), or None."""
+    return measured_grids().get(relief.name)
 
 
 def ensure_colour_nodes(material):
@@ -78,6 +80,7 @@ def trait_legend(relief, grid, settings, trait):
     """(t per vertex in [0, 1], NaN outside the plots; legend) of colouring `relief` by a plot trait."""
     from ..cliff_terrain.plots import rasterize_plots
     from .plot_grid import TABLE_KEY, grid_plots
+    from .probe import grid_cells
 
     info = relief["cliff_terrain"]
     plots, frame = grid_plots(grid, settings)
@@ -92,9 +95,7 @@ def trait_legend(relief, grid, settings, trait):
         row = by_number.get(attributes["plot"])
         if row is not None and row.get(trait) is not None:
             values[k] = float(row[trait])
-    xy = positions(relief.data)[:, :2] / (float(info.get("blender_units_per_unit", 1.0)) * size)
-    col = np.clip(np.floor(xy[:, 0]).astype(np.int64), 0, cols - 1)
-    row = np.clip(rows - 1 - np.floor(xy[:, 1]).astype(np.int64), 0, rows - 1)
+    row, col = grid_cells(info, positions(relief.data)[:, :2])
     per_vertex = values[labels[row, col]]
     finite = values[np.isfinite(values)]
     low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
@@ -106,18 +107,21 @@ def trait_legend(relief, grid, settings, trait):
     return t, {"mode": "PLOT_TRAIT", "title": label, "low": low, "high": high, "unit": unit}
 
 
-def set_vertex_colours(mesh, t):
-    """Write viridis colours of `t` (NaN: grey) as the mesh's active point colour attribute."""
+def set_vertex_colours(mesh, t, *, name=COLOUR_ATTRIBUTE):
+    """Write viridis colours of `t` (in [0, 1]; NaN: grey) as the mesh's active point colour attribute
+    `name`, and return it (active for display, so Solid's Attribute colour shows it)."""
     from ..cliff_terrain.figures import height_colours
 
+    t = np.asarray(t, dtype=np.float64)
     rgba = np.ones((len(t), 4), dtype=np.float32)
     rgba[:, :3] = height_colours(np.nan_to_num(t))
     rgba[np.isnan(t), :3] = OUTSIDE_PLOTS
-    attribute = mesh.color_attributes.get(COLOUR_ATTRIBUTE)
+    attribute = mesh.color_attributes.get(name)
     if attribute is None:
-        attribute = mesh.color_attributes.new(COLOUR_ATTRIBUTE, "BYTE_COLOR", "POINT")
+        attribute = mesh.color_attributes.new(name, "BYTE_COLOR", "POINT")
     attribute.data.foreach_set("color_srgb", rgba.ravel())
     mesh.color_attributes.active_color = attribute
+    return attribute
 
 
 def colour_relief(relief, mode, *, settings=None, trait="height_p90_m"):

@@ -1,13 +1,11 @@
 """Point at a relief and read its height: the relief's own rasters under a point of the scene.
 
 A relief object keeps no height raster (its .blend stays the mesh's size). The first probe of a
-relief rebuilds it from its recorded photo and settings without a mesh - as Measure Plots does, and
-bit for bit the same relief (its ``mask_digest`` is checked) - and keeps the last one in memory, so
+relief (or Measure Plots) rebuilds it from its recorded photo and settings without a mesh, and
+bit for bit the same relief (its ``mask_digest`` is checked), and keeps the last one in memory, so
 the next clicks answer at once. A point is read from the pixel under it: the value the relief's
 height raster (``height.tif``) holds there, whatever mesh shows it.
 """
-
-import math
 
 from mathutils import Vector
 
@@ -42,13 +40,6 @@ def relief_of(obj):
     return relief
 
 
-def forget(obj_name=None):
-    """Drop the cached relief (of one object, or all)."""
-    for key in list(_RELIEFS):
-        if obj_name is None or key[0] == obj_name:
-            del _RELIEFS[key]
-
-
 def hit_from_above(obj, world_xy):
     """Local hit point on `obj` of a vertical ray down through world (x, y), or None."""
     bounds = [obj.matrix_world @ Vector(corner) for corner in obj.bound_box]
@@ -80,8 +71,22 @@ def pixel_of(info, local):
         -tolerance <= local.x <= cols * size + tolerance and -tolerance <= local.y <= rows * size + tolerance
     ):
         return None
-    col = min(max(math.floor(local.x / size), 0), cols - 1)
-    row = min(max(rows - 1 - math.floor(local.y / size), 0), rows - 1)
+    (row,), (col,) = grid_cells(info, [(local.x, local.y)])
+    return int(row), int(col)
+
+
+def grid_cells(info, local_xy):
+    """(rows, cols) arrays of the processing-grid pixels under local (x, y) points, clipped to the grid
+    (the mesh's frame: see :func:`pixel_of`)."""
+    import numpy as np
+
+    size = float(info["pixel_size"]) * float(info.get("blender_units_per_unit", 1.0))
+    rows, cols = int(info["grid_rows"]), int(info["grid_cols"])
+    # In the points' own precision (a mesh's float32 positions, a probe's float64 point): a vertex on
+    # a pixel edge falls on the side its float32 quotient gives, as Color By has always read it.
+    xy = np.asarray(local_xy).reshape(-1, 2) / size
+    col = np.clip(np.floor(xy[:, 0]).astype(np.int64), 0, cols - 1)
+    row = np.clip(rows - 1 - np.floor(xy[:, 1]).astype(np.int64), 0, rows - 1)
     return row, col
 
 

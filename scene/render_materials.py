@@ -13,8 +13,6 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-# The colour map (viridis) is the core's, so the colour bar drawn on mesh.png is this view's own legend.
-from ..cliff_terrain.figures import height_colours
 from .material import empty_node_tree
 from .mesh_data import positions
 
@@ -88,16 +86,10 @@ def add_height_colours(mesh):
 
     Returns the attribute (active for display, so Workbench's Attribute colour mode shows it).
     """
-    n = len(mesh.vertices)
+    # Colour By's writer, and so the core's map: the colour bar drawn on mesh.png is this view's legend.
+    from .colour_by import set_vertex_colours
+
     z = positions(mesh)[:, 2]
     top = float(z.max(initial=0.0))
-    t = z / top if top > 0 else np.zeros_like(z)
-    rgba = np.ones((n, 4), dtype=np.float32)
-    rgba[:, :3] = height_colours(t)
-    attribute = mesh.color_attributes.get(HEIGHT_ATTRIBUTE)
-    if attribute is not None:
-        mesh.color_attributes.remove(attribute)
-    attribute = mesh.color_attributes.new(HEIGHT_ATTRIBUTE, "BYTE_COLOR", "POINT")
-    attribute.data.foreach_set("color_srgb", rgba.ravel())
-    mesh.color_attributes.active_color = attribute
-    return attribute
+    t = np.clip(z / top, 0.0, 1.0) if top > 0 else np.zeros_like(z)
+    return set_vertex_colours(mesh, t, name=HEIGHT_ATTRIBUTE)
