@@ -388,24 +388,38 @@ def test_bad_plot_files(tmp_path, content, words):
 # --- Command line ---------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def field_files(tmp_path):
-    """A synthetic georeferenced float planar orthophoto, its DSM with ODM's no-data, and plots."""
+# The synthetic field's map frame (2 cm pixels, UTM 16N): pixel (col, row) -> map (x, y).
+FIELD_TRANSFORM = [[0.02, 0, 500000.0], [0, -0.02, 4000000.0]]
+
+
+def write_synthetic_pair(folder, *, dsm_name="dsm.tif", **tiff_options):
+    """A synthetic field as OpenDroneMap writes one: ``ortho.tif`` (float, planar, georeferenced) and
+    its DSM (with ODM's no-data) in `folder`; returns the field's truth."""
     img, dsm, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=6)
-    t = [[0.02, 0, 500000.0], [0, -0.02, 4000000.0]]
     write_tiff(
-        tmp_path / "ortho.tif",
+        folder / "ortho.tif",
         np.moveaxis(img.astype(np.float32), -1, 0),
         scale=(0.02, 0.02),
         tie=(500000.0, 4000000.0),
         keys=geokeys(UTM16N),
         planarconfig="separate",
         photometric="minisblack",
-        compression="lzw",
+        **tiff_options,
     )
     write_geotiff(
-        tmp_path / "dsm.tif", np.nan_to_num(dsm, nan=-3.4e38), transform=t, crs=UTM16N, nodata=-3.4e38
+        folder / dsm_name,
+        np.nan_to_num(dsm, nan=-3.4e38),
+        transform=FIELD_TRANSFORM,
+        crs=UTM16N,
+        nodata=-3.4e38,
     )
+    return truth
+
+
+@pytest.fixture
+def field_files(tmp_path):
+    """A synthetic georeferenced float planar orthophoto, its DSM with ODM's no-data, and plots."""
+    truth = write_synthetic_pair(tmp_path, compression="lzw")
     ring = [[500001.0, 3999999.0], [500004.0, 3999999.0], [500004.0, 3999996.0], [500001.0, 3999996.0]]
     far = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 0.0]]
     doc = {

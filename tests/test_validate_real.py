@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 from conftest import REPO
 from PIL import Image
-from test_measured_heights import UTM16N, geokeys, write_tiff
+from test_measured_heights import FIELD_TRANSFORM, UTM16N, write_synthetic_pair
 
 from cliff_terrain.georaster import write_geotiff
 from cliff_terrain.synthetic import synthetic_field
-from cliff_terrain.synthetic_surface import synthetic_surface
 
 
 @pytest.fixture(scope="module")
@@ -51,20 +50,8 @@ def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_pat
     # A field: the early flight is the bare ground tilted by up to 20 cm; the later one the surface.
     field = data / "fields" / "trial"
     field.mkdir(parents=True)
-    img, dsm, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=6)
-    t = [[0.02, 0, 500000.0], [0, -0.02, 4000000.0]]
-    write_tiff(
-        field / "ortho.tif",
-        np.moveaxis(img.astype(np.float32), -1, 0),
-        scale=(0.02, 0.02),
-        tie=(500000.0, 4000000.0),
-        keys=geokeys(UTM16N),
-        planarconfig="separate",
-        photometric="minisblack",
-    )
-    write_geotiff(
-        field / "late.tif", np.nan_to_num(dsm, nan=-3.4e38), transform=t, crs=UTM16N, nodata=-3.4e38
-    )
+    truth = write_synthetic_pair(field, dsm_name="late.tif")
+    t = FIELD_TRANSFORM
     rows, cols = np.mgrid[:300, :450]
     early = truth.ground - 0.2 * cols / 450  # the first flight stands lower towards the east
     write_geotiff(field / "early.tif", early.astype(np.float32), transform=t, crs=UTM16N)
