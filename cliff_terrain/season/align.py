@@ -56,18 +56,29 @@ def index_grid(path, *, size=ALIGN_SIZE):
 
 
 def resample(index, transform, to_transform, shape):
-    """`index` (with its pixel -> map `transform`) sampled at the pixel centres of another grid."""
-    from scipy import ndimage
+    """`index` (with its pixel -> map `transform`) sampled at the pixel centres of another grid
+    (bilinear; NaN where a neighbour has no data or lies outside)."""
+    import cv2
 
     rows, cols = shape
-    rr, cc = np.mgrid[0:rows, 0:cols].astype(np.float64) + 0.5
-    to_source = np.linalg.inv(transform) @ np.asarray(to_transform, dtype=np.float64)
-    src_c = to_source[0, 0] * cc + to_source[0, 1] * rr + to_source[0, 2] - 0.5
-    src_r = to_source[1, 0] * cc + to_source[1, 1] * rr + to_source[1, 2] - 0.5
+    a = np.linalg.inv(transform) @ np.asarray(to_transform, dtype=np.float64)
+    # Grid pixel (col, row) -> source pixel, both counted from pixel centres (OpenCV's convention).
+    inverse = a[:2].copy()
+    inverse[:, 2] += 0.5 * (a[:2, 0] + a[:2, 1]) - 0.5
     valid = np.isfinite(index)
-    values = ndimage.map_coordinates(np.where(valid, index, 0.0), [src_r, src_c], order=1, cval=np.nan)
-    inside = ndimage.map_coordinates(valid.astype(np.float64), [src_r, src_c], order=1, cval=0.0)
-    values[inside < 0.999] = np.nan  # only where every neighbour has data
+
+    def warp(image, outside):
+        return cv2.warpAffine(
+            image,
+            inverse,
+            (cols, rows),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=outside,
+        )
+
+    values = warp(np.where(valid, index, 0.0), np.nan)
+    values[warp(valid.astype(np.float64), 0.0) < 0.999] = np.nan  # only where every neighbour has data
     return values
 
 
@@ -162,7 +173,6 @@ def grid_shift(reference, moving, *, moving_valid=None, max_shift=None):
     >>> np.round(shift, 1).tolist(), score > 0.9
     ([3.0, -5.0], True)
     """
-    from scipy import ndimage
 
     reference = np.asarray(reference, dtype=np.float64)
     moving = np.asarray(moving, dtype=np.float64)
@@ -175,18 +185,15 @@ def grid_shift(reference, moving, *, moving_valid=None, max_shift=None):
         # of the field, and pixels near it are left out.
         weight = mask.astype(np.float64)
         values = np.where(mask, grid, 0.0)
-
-        def smooth(sigma, values=values, weight=weight):
-            return ndimage.gaussian_filter(values, sigma) / np.maximum(
-                ndimage.gaussian_filter(weight, sigma), 1e-9
-            )
-
-        band = smooth(1.0) - smooth(4.0)
-        masks[k] = mask & (ndimage.gaussian_filter(weight, 4.0) > 0.99)
+        weight_fine, weight_coarse = _blur(weight, 1.0), _blur(weight, 4.0)
+        band = _blur(values, 1.0) / np.maximum(weight_fine, 1e-9) - _blur(values, 4.0) / np.maximum(
+            weight_coarse, 1e-9
+        )
+        masks[k] = mask & (weight_coarse > 0.99)
         bands.append(np.where(masks[k], band, 0.0))
-    ncc, overlap = _masked_ncc(bands, masks)
     rows, cols = reference.shape
     limit = max(rows, cols) if max_shift is None else max_shift
+    ncc, overlap = _masked_ncc(bands, masks, limit)
     dr = np.fft.fftfreq(ncc.shape[0], 1.0 / ncc.shape[0])[:, None]  # the shift of each row of the map
     dc = np.fft.fftfreq(ncc.shape[1], 1.0 / ncc.shape[1])[None, :]
     enough = overlap >= 0.5 * min(masks[0].sum(), masks[1].sum())
@@ -204,15 +211,28 @@ def grid_shift(reference, moving, *, moving_valid=None, max_shift=None):
     return np.asarray(shift), float(ncc[peak])
 
 
-def _masked_ncc(bands, masks):
-    """Normalised cross-correlation of masked grids for every shift s (the moving grid's pixel x + s
-    against the reference's x), by FFT, and the number of pixels overlapping; both indexed by s modulo
-    the padded shape (``numpy.fft.fftfreq`` order)."""
+def _blur(image, sigma):
+    """A Gaussian blur (kernel to 4 sigma, mirrored borders: scipy.ndimage.gaussian_filter's), by
+    OpenCV: the band-pass was most of a season's alignment with SciPy's."""
+    import cv2
+
+    return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+
+
+def _masked_ncc(bands, masks, max_shift):
+    """Normalised cross-correlation of masked grids for every shift s up to `max_shift` pixels (the
+    moving grid's pixel x + s against the reference's x), by FFT, and the number of pixels
+    overlapping; both indexed by s modulo the padded shape (``numpy.fft.fftfreq`` order).
+
+    Padding each axis to its length plus `max_shift` keeps those shifts free of wrap-around (a
+    shift s can only meet s +- the padded length, which no pair of pixels spans); the whole
+    range of shifts would need twice the length, and the FFTs were most of a season's alignment.
+    """
     from scipy import fft
 
     f, g = bands
     mf, mg = (m.astype(np.float64) for m in masks)
-    shape = [fft.next_fast_len(2 * n - 1, real=True) for n in f.shape]
+    shape = [fft.next_fast_len(n + min(int(np.ceil(max_shift)), n - 1) + 1, real=True) for n in f.shape]
 
     def spectrum(a):
         return fft.rfft2(a, shape)
