@@ -9,6 +9,8 @@ different extents or sizes compare (:func:`season_shifts`, :func:`grid_shift`).
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 # The alignment grid: each photo's index at most this many pixels on its longest side (the relief's
@@ -97,27 +99,39 @@ def season_shifts(paths, *, size=ALIGN_SIZE, max_shift_m=MAX_SHIFT_M, neighbours
         Per photo, in order: ``shift`` ((x, y) metres: where its content lies from where the
         consensus puts it) and ``score`` (its best pair's correlation).
     """
-    grids = [_index_grid_or_none(path, size) for path in paths]
+    from concurrent.futures import ThreadPoolExecutor
+
     n = len(paths)
-    equations, weights, targets = [], [], []
-    best = np.zeros(n)
-    for i in range(n):
-        if grids[i] is None:
-            continue
+
+    def compare(pair):
+        """Date j's content from date i's (map metres), and the correlation."""
+        i, j = pair
         reference, grid = grids[i]
         pixel = float(np.sqrt(abs(np.linalg.det(grid[:2, :2]))))
-        for j in range(i + 1, min(n, i + 1 + neighbours)):
-            if grids[j] is None:
-                continue
-            moving = resample(*grids[j], grid, reference.shape)
-            shift, score = grid_shift(reference, moving, max_shift=max_shift_m / pixel)
-            best[i], best[j] = max(best[i], score), max(best[j], score)
-            if score >= MIN_SCORE:
-                row = np.zeros(n)
-                row[i], row[j] = -1.0, 1.0
-                equations.append(row)
-                weights.append(score)
-                targets.append(grid[:2, :2] @ shift[::-1])  # date j's content from date i's, map metres
+        moving = resample(*grids[j], grid, reference.shape)
+        shift, score = grid_shift(reference, moving, max_shift=max_shift_m / pixel)
+        return grid[:2, :2] @ shift[::-1], score
+
+    # Threads: decoding, OpenCV and the FFTs release the GIL, and the tasks wait for this.
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        grids = list(pool.map(lambda path: _index_grid_or_none(path, size), paths))
+        pairs = [
+            (i, j)
+            for i in range(n)
+            for j in range(i + 1, min(n, i + 1 + neighbours))
+            if grids[i] is not None and grids[j] is not None
+        ]
+        compared = list(pool.map(compare, pairs))
+    equations, weights, targets = [], [], []
+    best = np.zeros(n)
+    for (i, j), (target, score) in zip(pairs, compared, strict=True):
+        best[i], best[j] = max(best[i], score), max(best[j], score)
+        if score >= MIN_SCORE:
+            row = np.zeros(n)
+            row[i], row[j] = -1.0, 1.0
+            equations.append(row)
+            weights.append(score)
+            targets.append(target)
     trusted = best >= MIN_SCORE
     shifts = np.zeros((n, 2))
     if equations:
@@ -183,8 +197,10 @@ def grid_shift(reference, moving, *, moving_valid=None, max_shift=None):
     for k, (grid, mask) in enumerate(zip((reference, moving), masks, strict=True)):
         # Smoothed within the data only (normalised convolution): the edge of the no-data is no edge
         # of the field, and pixels near it are left out.
-        weight = mask.astype(np.float64)
-        values = np.where(mask, grid, 0.0)
+        # float32: half the memory traffic of the blurs and FFTs; the correlations' sums are of
+        # zero-mean bands, far from float32's limits (on the soybean season the shifts agree with float64's to 1e-5 px).
+        weight = mask.astype(np.float32)
+        values = np.where(mask, grid, 0.0).astype(np.float32)
         weight_fine, weight_coarse = _blur(weight, 1.0), _blur(weight, 4.0)
         band = _blur(values, 1.0) / np.maximum(weight_fine, 1e-9) - _blur(values, 4.0) / np.maximum(
             weight_coarse, 1e-9
@@ -231,7 +247,7 @@ def _masked_ncc(bands, masks, max_shift):
     from scipy import fft
 
     f, g = bands
-    mf, mg = (m.astype(np.float64) for m in masks)
+    mf, mg = (m.astype(np.float32) for m in masks)
     shape = [fft.next_fast_len(n + min(int(np.ceil(max_shift)), n - 1) + 1, real=True) for n in f.shape]
 
     def spectrum(a):
@@ -250,9 +266,10 @@ def _masked_ncc(bands, masks, max_shift):
     var_g = correlate(G2, Mf) - g_f**2 / n
     var_f = correlate(Mg, F2) - mg_f**2 / n
     denominator = np.sqrt(np.maximum(var_g, 0.0) * np.maximum(var_f, 0.0))
+    tiny = np.finfo(denominator.dtype).tiny  # float32 here: 1e-300 would be 0
     ncc = np.where(
-        denominator > 1e-12 * max(float(denominator.max()), 1e-300),
-        numerator / np.maximum(denominator, 1e-300),
+        denominator > 1e-12 * max(float(denominator.max()), tiny),
+        numerator / np.maximum(denominator, tiny),
         -1.0,
     )
     return ncc, overlap
