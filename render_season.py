@@ -7,6 +7,10 @@ SEASON_DIR is what ``cliff-terrain season ... --out SEASON_DIR`` wrote; this scr
 ``season.json`` and cached height grids and never runs Dask. It writes into ``--out`` (default
 ``SEASON_DIR/animation``): ``frames/date_0001.png`` ... (one per date, the date stamped in each),
 ``season.mp4`` (Blender's FFmpeg output, each date held ``--hold`` frames) and ``season.blend``.
+``--color-by NAME`` colours the plots on each frame by a column of ``season.csv`` (``cover``,
+``height_p90``: a value per date) or of ``traits/traits.csv`` (``max_height_m``,
+``senescence_date``: one per plot), viridis on one scale for the whole season, stamped on the frames;
+the photo stays outside the plots.
 The sidebar's Season Animation button does the same with the default options. Bad input exits
 with status 2 and one line on stderr.
 """
@@ -69,6 +73,13 @@ def build_parser():
     parser.add_argument("--hold", type=_positive_int, default=12, help="video frames per date (default 12)")
     parser.add_argument("--fps", type=_positive_int, default=12, help="video frame rate (default 12)")
     parser.add_argument("--no-video", action="store_true", help="the PNG frames only")
+    parser.add_argument(
+        "--color-by",
+        metavar="NAME",
+        default=None,
+        help="colour the plots by a column of season.csv (cover, height_p90, ...) or "
+        "traits/traits.csv (max_height_m, senescence_date, ...)",
+    )
     return parser
 
 
@@ -85,17 +96,32 @@ def run(args):
     bpy, _, _ = start_blender(usage="blender -b -P render_season.py -- SEASON_DIR")
     errors = importlib.import_module(f"{PACKAGE}.cliff_terrain.errors")
     outputs = importlib.import_module(f"{PACKAGE}.cliff_terrain.season.outputs")
-    plots_module = importlib.import_module(f"{PACKAGE}.cliff_terrain.plots")
+    plots_module = importlib.import_module(f"{PACKAGE}.cliff_terrain.io.plot_polygons")
     scene_season = importlib.import_module(f"{PACKAGE}.scene.season")
     try:
         season = outputs.read_season(season_dir)
-        plots = None if args.no_plots or not season.plots else plots_module.read_plots(season.plots)
+        plots = None
+        if season.plots and not (args.no_plots and args.color_by is None):
+            plots = plots_module.read_plots(season.plots)
+        colours = None
+        if args.color_by is not None:
+            if plots is None:
+                raise errors.CliffTerrainError(f"`color_by` {args.color_by!r} needs the season's plots file")
+            colours = outputs.plot_colours(season, args.color_by, n_plots=len(plots.polygons))
     except errors.CliffTerrainError as exc:
         raise InputError(str(exc)) from None
+    if colours is not None:
+        log(f"colour by {colours.describe()}")
     for date, image, error in season.failed:
         log(f"left out {date} ({image}): {error}")
     built = scene_season.build_season_scene(
-        bpy.context, season, plots=plots, size=args.size, engine=args.engine
+        bpy.context,
+        season,
+        plots=None if args.no_plots else plots,
+        colours=colours,
+        colour_plots=plots,
+        size=args.size,
+        engine=args.engine,
     )
     log(
         f"scene: {len(built.dates)} reliefs ({built.dates[0]} to {built.dates[-1]}), frames 1-{len(built.dates)}"

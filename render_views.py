@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import json
 import os
 import sys
 import time
@@ -28,14 +27,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent
 PACKAGE = "cliff_terrain_addon"
 PROG = "render_views.py"
-
-# Everything the script writes into the output folder.
-RENDERS = ("xy.png", "xy_flat.png", "xz.png", "view3d.png", "mesh.png")
-MAPS = ("filtered.png", "mask.png", "distance.png", "height.tif")
-# Figures with legends, drawn on copies of the renders (the raw renders stay as Blender made them,
-# the top views for PSNR/SSIM), and the contact sheet for a report.
-FIGURES = ("xy_annotated.png", "xz_annotated.png", "mesh_annotated.png", "summary.png")
-OUTPUTS = (*RENDERS, *MAPS, *FIGURES, "scene.blend", "metrics.json")
 
 _START = time.perf_counter()
 # Inside Blender (blender -b -P) bpy is loaded before this script runs; with the bpy wheel it is not.
@@ -121,62 +112,15 @@ def build_parser():
         "--out", metavar="DIR", help="output folder (default: <image stem>_relief/ beside the image)"
     )
     build = parser.add_argument_group("relief (as cliff_terrain.build_relief)")
-    build.add_argument(
-        "--max-size",
-        type=_number(int, "--max-size", minimum=settings.MIN_SIZE, maximum=settings.MAX_SIZE),
-        default=settings.DEFAULT_MAX_SIZE,
-        help=f"longest side of the processing grid in pixels (default {settings.DEFAULT_MAX_SIZE})",
-    )
-    build.add_argument(
-        "--segmentation",
-        choices=settings.ids(settings.SEGMENTATIONS),
-        default=settings.DEFAULT_SEGMENTATION,
-    )
-    build.add_argument("--profile", choices=settings.ids(settings.PROFILES), default=settings.DEFAULT_PROFILE)
-    build.add_argument(
-        "--exaggeration",
-        type=_number(float, "--exaggeration", minimum=settings.MIN_EXAGGERATION, strict_minimum=True),
-        default=settings.DEFAULT_EXAGGERATION,
-        help="height factor",
-    )
-    build.add_argument(
-        "--max-height",
-        type=_number(float, "--max-height", minimum=0.0, strict_minimum=True),
-        default=settings.DEFAULT_MAX_HEIGHT,
-        help="canopy height: where the plateau profile levels off (a cap for the others); metres with "
-        "a GSD, else processing pixels (default: the radius of a typical isolated plant)",
-    )
-    build.add_argument(
-        "--gsd",
-        type=_number(float, "--gsd", minimum=0.0, strict_minimum=True),
-        help="ground sampling distance of the photo in m/px (default: from its metadata, if any)",
-    )
-    build.add_argument("--one-sided", action="store_true", help="the relief surface only (no walls and base)")
-    build.add_argument(
-        "--mesh",
-        choices=settings.ids(settings.MESHES),
-        default=settings.DEFAULT_MESH,
-        help=f"grid: a vertex per pixel corner; adaptive: a TIN within --max-error (default {settings.DEFAULT_MESH})",
-    )
-    build.add_argument(
-        "--max-error",
-        type=_number(float, "--max-error", minimum=0.0, strict_minimum=True),
-        help="adaptive mesh: largest vertical error, in metres with a GSD, else in processing pixels "
-        "(default: 5 mm with a GSD, else 1%% of the relief's height)",
-    )
-    build.add_argument(
-        "--dsm", metavar="DSM", help="surface model GeoTIFF of the orthophoto: measured heights"
-    )
-    build.add_argument(
-        "--dtm", metavar="DTM", help="terrain model GeoTIFF (default: ground estimated from the DSM)"
-    )
-    build.add_argument(
-        "--heights",
-        choices=settings.ids(settings.HEIGHT_MODES),
-        help="where heights come from (default: measured with --dsm, else inflated)",
-    )
+    core_module("params").ReliefParams.add_arguments(build, number=_number)
     build.add_argument(
         "--plots", metavar="FILE", help="plot polygons (GeoJSON or Shapefile): writes plots.csv (needs --dsm)"
+    )
+    build.add_argument(
+        "--indices",
+        metavar="NAMES",
+        help="vegetation indices per plant and plot (regions.csv, plots.csv), e.g. NDVI,NDRE: "
+        "ExG, NGRDI, VARI, GLI, NDVI, NDRE, GNDVI, OSAVI",
     )
     render = parser.add_argument_group("rendering")
     render.add_argument(
@@ -231,6 +175,12 @@ def build_parser():
         help="vertical exaggeration of the side view (default: a round factor that makes the relief "
         "rise to 12-30 %% of the view's width, at least 1)",
     )
+    render.add_argument(
+        "--color-by",
+        metavar="INDEX",
+        help="also render the top view coloured by a vegetation index of the image's bands (viridis, "
+        "2nd to 98th percentile) into xy_<index>.png, e.g. NDVI",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     return parser
 
@@ -251,6 +201,11 @@ def output_folder(args):
     return Path(args.out) if args.out else image.with_name(f"{image.stem}_relief")
 
 
+def index_view_name(index):
+    """The file of the top view coloured by `index`: ``xy_ndvi.png``."""
+    return f"xy_{index.lower()}.png"
+
+
 def check_inputs(args):
     """Fail before any work: a missing photo, an output folder that is a file, files to overwrite."""
     image = Path(args.image)
@@ -261,8 +216,19 @@ def check_inputs(args):
     out = output_folder(args)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out exists and is not a folder: {out}")
+    args.color_index = None
+    if args.color_by:
+        try:
+            (args.color_index,) = core_module("relief.indices").parse_indices(args.color_by)
+        except ValueError:  # a CliffTerrainError (an unknown index), or more than one index
+            raise InputError(f"--color-by takes one vegetation index, got {args.color_by!r}") from None
     if not args.overwrite:
-        existing = [out / name for name in OUTPUTS if (out / name).exists()]
+        names = core_module("figures.outputs").OUTPUTS  # everything the script writes
+        if args.color_index:
+            names = (*names, index_view_name(args.color_index))
+        if args.dsm or args.plots or args.indices:  # and the region and plot tables
+            names = (*names, *core_module("measure.tables").TABLES)
+        existing = [out / name for name in names if (out / name).exists()]
         if existing:
             more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
             raise InputError(f"{existing[0]} exists{more}; use --overwrite to replace it")
@@ -273,7 +239,16 @@ def check_inputs(args):
         if not args.dsm:
             raise InputError("--plots needs --dsm (plot heights are measured on the surface model)")
         try:
-            args.plot_set = core_module("plots").read_plots(args.plots)
+            args.plot_set = core_module("io.plot_polygons").read_plots(args.plots)
+        except core_module("errors").CliffTerrainError as exc:
+            raise InputError(str(exc)) from None
+    args.bands_read = None
+    if args.indices or args.color_index:  # an index whose band the file lacks: one line, before any work
+        try:
+            names = core_module("relief.indices").parse_indices(args.indices)
+            args.bands_read = core_module("io.bands").read_bands(str(image), names=args.bands)
+            wanted = (*names, *([args.color_index] if args.color_index else []))
+            core_module("relief.indices").check_indices(args.bands_read, wanted)
         except core_module("errors").CliffTerrainError as exc:
             raise InputError(str(exc)) from None
     args.transect_strip = None
@@ -281,8 +256,8 @@ def check_inputs(args):
         # Checked against the photo's header now, not after the pipeline's seconds of work.
         errors = core_module("errors")
         try:
-            meta = core_module("image_io").read_metadata(str(image))
-            args.transect_strip = core_module("figures").parse_transect(
+            meta = core_module("io.photo").read_metadata(str(image))
+            args.transect_strip = core_module("io.transect").parse_transect(
                 args.transect, shape=(meta.height, meta.width), name="--transect"
             )
         except errors.CliffTerrainError as exc:
@@ -338,8 +313,8 @@ def run(args):
     image, out = check_inputs(args)
     log("starting Blender")
     bpy, addon, core = start_blender()
-    evaluation = core_module("evaluation")
-    view_figures = core_module("view_figures")
+    evaluation = core_module("evaluate.views")
+    outputs = core_module("figures.outputs")
     rig = importlib.import_module(f"{PACKAGE}.scene.rig")
     render_settings = importlib.import_module(f"{PACKAGE}.scene.render_settings")
     views = importlib.import_module(f"{PACKAGE}.scene.views")
@@ -354,22 +329,8 @@ def run(args):
     start = time.perf_counter()
     path = str(image.resolve())
     try:
-        relief = core.build_relief(
-            path,
-            max_size=args.max_size,
-            segmentation=args.segmentation,
-            profile=args.profile,
-            exaggeration=args.exaggeration,
-            max_height=args.max_height,
-            gsd=args.gsd,
-            two_sided=not args.one_sided,
-            mesh=args.mesh,
-            max_error=args.max_error,
-            dsm=args.dsm,
-            dtm=args.dtm,
-            heights=args.heights or ("measured" if args.dsm else core_module("settings").DEFAULT_HEIGHT_MODE),
-            progress=lambda fraction, name: log(f"pipeline: {name}"),
-        )
+        params = core_module("params").ReliefParams.from_args(args)
+        relief = core.build_relief(path, params, progress=lambda fraction, name: log(f"pipeline: {name}"))
     except core.CliffTerrainError as exc:
         raise InputError(str(exc)) from None
     stage("pipeline", start)
@@ -420,65 +381,52 @@ def run(args):
     metrics = views.evaluate_relief(obj, view_rig, paths["xy"], paths["xy_flat"], source=path)
     stage("metrics", start)
 
-    log("writing the maps")
-    start = time.perf_counter()
-    view_figures.write_maps(relief, out)
-    stage("maps", start)
-
-    if args.dsm or args.plots:
-        log("writing the region and plot tables")
+    if args.color_index:
+        colour_by = importlib.import_module(f"{PACKAGE}.scene.colour_by")
+        log(f"rendering the top view coloured by {args.color_index}")
+        shown = colour_by.colour_relief(obj, "INDEX", index=args.color_index)
+        if shown != "INDEX":
+            raise InputError(
+                f"{path}: its header names no bands giving {args.color_index}; name them in the file"
+            )
         start = time.perf_counter()
-        try:
-            tables = core_module("canopy").relief_tables(relief, plots=args.plot_set, source=path)
-            core_module("tables").write_files({out / name: text for name, text in tables.items()})
-        except core.CliffTerrainError as exc:
-            raise InputError(str(exc)) from None
-        stage("tables", start)
-
-    log("drawing the figures")
-    start = time.perf_counter()
-    figures_record = view_figures.write_figures(
-        relief, out, view_rig.side, metrics, transect=args.transect_strip
-    )
-    stage("figures", start)
+        views.render_view(
+            context, view_rig, "xy", str(out / index_view_name(args.color_index)), engine=engine,
+            samples=args.samples, quiet=True,
+        )  # fmt: skip
+        stage(f"render_{args.color_index.lower()}", start)
 
     log("saving scene.blend")
     start = time.perf_counter()
     views.set_top_view(context, view_rig, engine, samples=args.samples)
-    blend = out / "scene.blend"
+    blend = out / outputs.SCENE
     if blend.exists():
         blend.unlink()  # no scene.blend1 backup beside it
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
     stage("save_blend", start)
-    timings["total"] = time.perf_counter() - _START
 
-    meta = relief.metadata
-    # JSON holds no infinity: the PSNR of a view identical to the photo is written as null.
-    record = evaluation.json_safe(
-        {
-            **metrics,
-            "regions": relief.n_regions,
-            "max_height": relief.max_height,
-            "units": relief.units,
-            "gsd_m_per_px": meta.gsd_m_per_px,
-            "gsd_source": meta.gsd_source,
-            "vertices": len(obj.data.vertices),
-            "faces": len(obj.data.polygons),
-            "max_error": relief.max_error,
-            "image": {"path": path, "width": meta.width, "height": meta.height},
-            "processing_size": [cols, rows],
-            "params": relief.params,
-            "engine": engine,
-            "samples": args.samples,
-            "flat_view": f"Cycles, texture as emission, {render_settings.FLAT_SAMPLES} samples, 1-pixel box filter",
-            "light": view_rig.light,
-            **figures_record,
-            "paper_table4": core_module("settings").PAPER_TABLE4,
-            "timings_s": {key: round(value, 3) for key, value in timings.items()},
-            "versions": {"cliff_terrain": core.__version__, "blender": bpy.app.version_string},
-        }
-    )
-    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
+    index_maps = None
+    if args.bands_read is not None:
+        indices = core_module("relief.indices")
+        index_maps = indices.index_maps(
+            args.bands_read, indices.parse_indices(args.indices), shape=relief.mask.shape
+        )
+    try:
+        record = outputs.write_outputs(
+            relief,
+            out,
+            side=view_rig.side,
+            metrics=metrics,
+            transect=args.transect_strip,
+            plots=args.plot_set,
+            render=views.render_record(obj, engine=engine, samples=args.samples, light=view_rig.light),
+            timings=timings,
+            started=_START,
+            log=log,
+            index_maps=index_maps,
+        )
+    except core.CliffTerrainError as exc:
+        raise InputError(str(exc)) from None
     log(f"{evaluation.metrics_summary(metrics)} ({evaluation.paper_summary()})")
     log(f"done: {out}")
     return record

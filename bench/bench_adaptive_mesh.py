@@ -11,10 +11,17 @@ For every shared photo, at the default `max_size` and the default maximum error:
   pixel centres (the decimated surface sampled there; pixel centres it no longer covers are
   counted apart).
 
+The ODM pair (orthophoto and DSM) is measured twice: heights inflated from the orthophoto, and
+measured from the DSM (``height_source="measured"``, whose default bound is the DSM's noise).
+
+With ``--auto``, the end-to-end comparison behind ``mesh="auto"``: the Build Relief operator (core
+and Blender) on the 12 MP photo at ``max_size`` 1000, 2000 and 4000, grid and adaptive alternating
+in the same run, `--repeats` times each.
+
 Then a 12 MP photo at full resolution (``max_size=4000``) through the operator with the adaptive
 mesh. The photos are read from ../shared and never copied.
 
-    python bench/bench_adaptive_mesh.py [--only NAME] [--no-peer] [--no-12mp]
+    python bench/bench_adaptive_mesh.py [--only NAME] [--no-peer] [--no-12mp] [--auto [--repeats N]]
 
 `main(argv=None)` returns the figures as a dict (for bench/run_all.py).
 """
@@ -22,6 +29,7 @@ mesh. The photos are read from ../shared and never copied.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import tempfile
 import time
@@ -48,7 +56,13 @@ PHOTOS = (
     ),
     "dsm/fieldimager_ex2/odm_orthophoto.tif",
 )
+# The ODM pair with measured heights (the default bound: the DSM's noise, at least 1 cm).
+MEASURED = (
+    "dsm/fieldimager_ex2/odm_orthophoto.tif",
+    {"dsm": "dsm/fieldimager_ex2/dsm.tif", "height_source": "measured"},
+)
 FULL_RES = "uav/caliterra/IMG_9370.jpg"  # 4000 x 3000
+AUTO_SIZES = (1000, 2000, 4000)
 GOALS = {"triangle_ratio": 10.0, "blend_ratio": 5.0, "full_res_s": 3.0}
 
 
@@ -147,14 +161,18 @@ def run_peer(heights, target_triangles):
     return seconds, len(tris) // 3, error, float(1.0 - covered.mean())
 
 
-def measure(path, tmp, *, peer, max_size=None):
+def measure(path, tmp, *, peer, max_size=None, dsm=None, height_source="inflated"):
     import bpy  # noqa: F401  (the operator needs Blender)
 
     core = sys.modules[f"{ADDON}.cliff_terrain"]
-    mesh_mod = sys.modules[f"{ADDON}.cliff_terrain.mesh"]
-    tin = sys.modules[f"{ADDON}.cliff_terrain.tin"]
+    mesh_mod = importlib.import_module(f"{ADDON}.cliff_terrain.mesh.adaptive")
+    tin = importlib.import_module(f"{ADDON}.cliff_terrain.mesh.tin_sample")
     sizes = {} if max_size is None else {"max_size": max_size}
+    if dsm is not None:
+        sizes.update(dsm=str(dsm), height_source=height_source)
     relief = core.build_relief(str(path), mesh="adaptive", **sizes)
+    if dsm is not None:  # the operator's name of the height source
+        sizes["heights"] = sizes.pop("height_source")
     heights = relief.heights
     rows, cols = heights.shape
     grid_triangles = 2 * rows * cols
@@ -167,11 +185,12 @@ def measure(path, tmp, *, peer, max_size=None):
     grid_s, grid_faces, grid_blend = run_operator(path, "grid", tmp, **sizes)
     ours_s, ours_faces, ours_blend = run_operator(path, "adaptive", tmp, **sizes)
     row = {
-        "photo": str(path.relative_to(SHARED)),
+        "photo": str(path.relative_to(SHARED)) + ("" if dsm is None else f" + DSM ({height_source})"),
         "grid": [rows, cols],
         "units": relief.units,
         "max_height": relief.max_height,
         "max_error_bound": relief.max_error,
+        "max_error_rule": relief.max_error_rule,
         "max_error_measured": max_error,
         "within_bound": max_error <= relief.max_error * (1 + 1e-6),
         "grid_triangles": grid_triangles,
@@ -197,12 +216,38 @@ def measure(path, tmp, *, peer, max_size=None):
     return row
 
 
+def compare_end_to_end(path, tmp, *, repeats):
+    """Build Relief operator seconds (core and Blender) with each mesh at each of AUTO_SIZES,
+    alternating grid and adaptive; `repeats` runs each, and the faces."""
+    rows = []
+    for size in AUTO_SIZES:
+        seconds = {"grid": [], "adaptive": []}
+        faces = {}
+        for _ in range(repeats):
+            for mesh in ("grid", "adaptive"):
+                s, n, _size = run_operator(path, mesh, tmp, max_size=size)
+                seconds[mesh].append(s)
+                faces[mesh] = n
+        row = {"photo": str(path.relative_to(SHARED)), "max_size": size, "seconds": seconds, "faces": faces}
+        rows.append(row)
+        g, a = seconds["grid"], seconds["adaptive"]
+        print(
+            f"end to end at max_size={size}: grid {min(g):.2f}-{max(g):.2f} s, adaptive {min(a):.2f}-"
+            f"{max(a):.2f} s (median {np.median(g):.2f} vs {np.median(a):.2f}); faces {faces['grid']} / "
+            f"{faces['adaptive']}",
+            flush=True,
+        )
+    return rows
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", help="photos whose path contains this text")
     parser.add_argument("--no-peer", action="store_true", help="skip Blender's Decimate")
     parser.add_argument("--no-12mp", action="store_true", help="skip the 12 MP photo at max_size=4000")
     parser.add_argument("--max-size", type=int, default=None, help="processing size (default: the default)")
+    parser.add_argument("--auto", action="store_true", help="only the end-to-end timings behind mesh='auto'")
+    parser.add_argument("--repeats", type=int, default=3, help="--auto: runs of each mesh at each size")
     args = parser.parse_args(argv)
 
     import bpy
@@ -210,19 +255,29 @@ def main(argv=None):
     info = machine()
     print(f"machine: {describe(info)}; Blender {bpy.app.version_string} (bpy module)")
     addon, registered_here = load_addon()
-    rows_out, full = [], None
+    rows_out, full, auto = [], None, None
     try:
         with tempfile.TemporaryDirectory(prefix="cliff_terrain_bench_") as tmp:
-            photos = [SHARED / p for p in PHOTOS if not args.only or args.only in p]
+            if args.auto:
+                full_path = SHARED / FULL_RES
+                bpy.ops.cliff_terrain.build_relief(filepath=str(full_path), max_size=64)  # warm-up
+                auto = compare_end_to_end(full_path, tmp, repeats=args.repeats)
+                return {"machine": info, "blender": bpy.app.version_string, "auto": auto}
+            cases = [(p, {}) for p in PHOTOS] + [(MEASURED[0], {k: v for k, v in MEASURED[1].items()})]
+            cases = [(SHARED / p, kw) for p, kw in cases if not args.only or args.only in p]
+            for _, kw in cases:
+                if "dsm" in kw:
+                    kw["dsm"] = SHARED / kw["dsm"]
+            photos = [p for p, _ in cases]
             missing = [str(p) for p in photos if not p.is_file()]
             if missing:
                 print(f"not found (skipped): {', '.join(missing)}")
-            photos = [p for p in photos if p.is_file()]
-            if photos:  # warm-up: the first build imports SciPy, scikit-image and OpenCV
-                bpy.ops.cliff_terrain.build_relief(filepath=str(photos[0]), max_size=64)
-            for path in photos:
+            cases = [(p, kw) for p, kw in cases if p.is_file()]
+            if cases:  # warm-up: the first build imports SciPy, scikit-image and OpenCV
+                bpy.ops.cliff_terrain.build_relief(filepath=str(cases[0][0]), max_size=64)
+            for path, kw in cases:
                 try:
-                    row = measure(path, tmp, peer=not args.no_peer, max_size=args.max_size)
+                    row = measure(path, tmp, peer=not args.no_peer, max_size=args.max_size, **kw)
                 except Exception as exc:  # one unreadable photo must not hide the others
                     print(f"{path.name}: {type(exc).__name__}: {exc}")
                     continue
@@ -237,7 +292,7 @@ def main(argv=None):
                 print(
                     f"{row['photo']}: {row['grid'][1]}x{row['grid'][0]}, {row['triangle_ratio']:.1f}x fewer "
                     f"triangles ({row['adaptive_triangles']}), max error {row['max_error_measured']:.4g} <= "
-                    f"{row['max_error_bound']:.4g} {row['units']}: {row['within_bound']}; TIN+mesh "
+                    f"{row['max_error_bound']:.4g} {row['units']} ({row['max_error_rule']}): {row['within_bound']}; TIN+mesh "
                     f"{row['adaptive_mesh_s']:.2f} s; operator {row['operator_grid_s']:.2f} -> "
                     f"{row['operator_adaptive_s']:.2f} s ({row['operator_speedup']:.2f}x); blend "
                     f"{row['blend_grid_mb']:.1f} -> {row['blend_adaptive_mb']:.1f} MB "

@@ -11,8 +11,8 @@ Ours: ``bpy.ops.cliff_terrain.build_relief`` on a real crop-field photo (a 3501x
 * **Later builds** (warm), in this process, ``--repeat`` times.
 * **The stages apart**, one after the other: the core alone (``build_relief``), then the mesh
   transfer, then the material: the plain sequential build, timed beside each warm build of ours. The
-  operator moves the mesh into Blender while the core computes (its ``mesh_sink``), so its whole
-  takes less than the sum of these.
+  operator runs the core in a worker thread and moves the mesh into Blender meanwhile, so its
+  whole takes less than the sum of these.
 
 The peer: what a Blender user does with a height map - a Grid primitive with the same vertex count,
 a Displace modifier driven by the height image as an image texture (UV mapped), then Apply, in this
@@ -20,6 +20,11 @@ process after the warm builds. It gets the height image ready-made in Blender (n
 timed on mesh making alone, while ours is timed end to end.
 
     python bench/bench_blender_build.py [--max-size 2000] [--repeat 5] [--fresh 3] [--json PATH]
+    python bench/bench_blender_build.py --compare REF [--rounds 4] [--repeat 3]
+
+``--compare REF`` times the operator of this folder against the one of git revision REF (checked
+out into a temporary folder) in the same run: warm builds in a fresh Blender per round and per
+version, the two versions alternating, so that both see the same machine.
 
 The photo is written to a temporary file (never committed). `main(argv=None)` returns the figures
 as a dict, with ``rows`` for the README's benchmark table (bench/run_all.py writes it).
@@ -69,6 +74,57 @@ os._exit(0)  # bpy 4.2-4.5 crash while the interpreter shuts down (see render_vi
 """
 
 
+# Warm builds in a fresh Blender of the extension in folder argv[1]: one build for the imports, then
+# argv[4] timed builds.
+_WARM = r"""
+import gc, json, os, sys, time
+import bpy
+sys.path.insert(0, sys.argv[1])
+import render_views
+render_views.addon_package().register()
+bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2], max_size=64)
+runs = []
+for _ in range(int(sys.argv[4])):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    gc.collect()
+    start = time.perf_counter()
+    result = bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2], max_size=int(sys.argv[3]))
+    runs.append(time.perf_counter() - start)
+    assert result == {"FINISHED"}, result
+print("RESULT " + json.dumps(runs), flush=True)
+os._exit(0)
+"""
+
+
+def time_warm(folder, photo, max_size, repeat):
+    """Seconds of `repeat` warm builds by the extension in `folder`, in a new Blender process."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _WARM, str(folder), str(photo), str(max_size), str(repeat)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    if not lines:
+        raise RuntimeError(f"the Blender of {folder} failed: {proc.stderr.strip()[-500:]}")
+    return json.loads(lines[-1][len("RESULT ") :])
+
+
+def compare(ref, photo, max_size, rounds, repeat):
+    """Warm builds of this folder's operator and of git revision `ref`'s, alternating in fresh
+    processes: {"this": [...], ref: [...]} in seconds."""
+    runs = {"this": [], ref: []}
+    with tempfile.TemporaryDirectory(prefix="cliff_terrain_ref_") as old:
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], capture_output=True, check=True)
+        subprocess.run(["tar", "-x", "-C", old], input=archive.stdout, check=True)
+        for _ in range(rounds):
+            runs[ref] += time_warm(old, photo, max_size, repeat)
+            runs["this"] += time_warm(ROOT, photo, max_size, repeat)
+    for name, values in runs.items():
+        print(f"{name}: {_spread(values)}; every run (s): {' '.join(f'{v:.2f}' for v in values)}")
+    return runs
+
+
 def write_photo(path):
     """The real frame's centre, cropped (not resized) to CROP; a synthetic field without it."""
     cols, rows = CROP
@@ -78,7 +134,7 @@ def write_photo(path):
         bgr = bgr[r0 : r0 + rows, c0 : c0 + cols]
         source = f"{REAL_IMAGE.relative_to(ROOT.parent)}, centre crop"
     else:
-        from cliff_terrain.synthetic import synthetic_field
+        from cliff_terrain.data.synthetic import synthetic_field
 
         rgb, _ = synthetic_field(shape=(rows, cols), seed=0)
         bgr = np.ascontiguousarray(rgb[..., ::-1])
@@ -243,7 +299,17 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=5, help="warm builds of ours and runs of the peer")
     parser.add_argument("--fresh", type=int, default=3, help="first builds, each in a fresh Blender")
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    parser.add_argument("--compare", metavar="REF", help="time against the operator of git revision REF")
+    parser.add_argument("--rounds", type=int, default=4, help="with --compare: fresh processes per version")
     args = parser.parse_args(argv)
+    if args.compare:
+        with tempfile.TemporaryDirectory(prefix="cliff_terrain_bench_") as tmp:
+            photo = Path(tmp) / "crop_photo.jpg"
+            print(f"machine: {describe(machine())}")
+            print(
+                f"photo: {write_photo(photo)}, {CROP[0]}x{CROP[1]} (temporary JPEG), max_size={args.max_size}"
+            )
+            return compare(args.compare, photo, args.max_size, max(1, args.rounds), max(1, args.repeat))
 
     import bpy
 

@@ -1,13 +1,13 @@
 """Benchmark: canopy height and plot table from a 4000x3000 orthophoto and its DSM, against a naive peer.
 
-The field is the synthetic surface (cliff_terrain.synthetic_surface): tilted, undulating ground
+The field is the synthetic surface (cliff_terrain.data.synthetic_surface): tilted, undulating ground
 with ridges under the rows, plants of known heights, shadowed flanks that a colour segmentation
 calls soil, noise and no-data holes. The orthophoto is 4000x3000 at 1 cm/px; the DSM is 3x
 coarser (3 cm/px, as photogrammetry DSMs are), written as LZW GeoTIFFs with OpenDroneMap's
 no-data. 80 plots cover the field.
 
 Ours: plant mask, DSM resampled onto the orthophoto's grid, ground from the soil pixels
-(cliff_terrain.ground.estimate_ground), CHM, plots rasterized and tabled. The peer is what one
+(cliff_terrain.measure.ground.estimate_ground), CHM, plots rasterized and tabled. The peer is what one
 does without a segmentation: a 5th percentile of the DSM in 5 m blocks as the ground
 (ground.naive_block_ground) and a numpy percentile per plot mask. Accuracy: per-plot p90 canopy
 height against the truth's (the figure the issue is judged by).
@@ -34,11 +34,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from cliff_terrain.canopy import measure_canopy, measure_orthophoto, plant_mask  # noqa: E402
-from cliff_terrain.georaster import GeoRaster, write_geotiff  # noqa: E402
-from cliff_terrain.ground import canopy_height, naive_block_ground  # noqa: E402
-from cliff_terrain.plots import PlotSet, as_affine, plot_table, rasterize_plots  # noqa: E402
-from cliff_terrain.synthetic_surface import synthetic_surface  # noqa: E402
+from cliff_terrain.data.synthetic_surface import synthetic_surface  # noqa: E402
+from cliff_terrain.io.geotiff import GeoRaster, write_geotiff  # noqa: E402
+from cliff_terrain.io.plot_polygons import PlotSet  # noqa: E402
+from cliff_terrain.io.transform import as_affine  # noqa: E402
+from cliff_terrain.measure.canopy import measure_canopy, measure_orthophoto, plant_mask  # noqa: E402
+from cliff_terrain.measure.field_plots import plot_table, rasterize_plots  # noqa: E402
+from cliff_terrain.measure.ground import canopy_height, naive_block_ground  # noqa: E402
 
 GSD = 0.01
 DSM_FACTOR = 3
@@ -84,7 +86,7 @@ def ours(image, transform, dsm, plots):
 
 
 def peer(image, transform, dsm, plots):
-    from cliff_terrain.georaster import resample
+    from cliff_terrain.io.geotiff import resample
 
     surface = resample(dsm, transform=transform, shape=image.shape[:2])
     chm = canopy_height(surface, naive_block_ground(surface, pixel_size=GSD))
@@ -111,7 +113,7 @@ def main(argv=None):
     image, transform, dsm, truth, plots, early = field(rows, cols)
     labels = rasterize_plots(plots, transform=transform, shape=(rows, cols))
     # Judged as the issue will be: against the difference of the two flights (same DSM grid).
-    from cliff_terrain.georaster import resample
+    from cliff_terrain.io.geotiff import resample
 
     shape = (rows, cols)
     two_flights = canopy_height(

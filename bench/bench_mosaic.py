@@ -1,7 +1,7 @@
 """Benchmark: a big tiled GeoTIFF orthomosaic (>= 400 MP) built in tiles: throughput and peak memory.
 
 The mosaic is generated in a temporary folder (a synthetic field repeated, written tile by tile,
-zlib-compressed; never decoded whole, never committed). Ours: cliff_terrain.mosaic (overview for
+zlib-compressed; never decoded whole, never committed). Ours: cliff_terrain.mesh.tiles (overview for
 the shared settings, then every 4096-pixel tile with a 512-pixel margin: mask, regions, heights)
 plus an adaptive mesh per tile, in a subprocess whose peak resident memory is read from the OS;
 then the same with the tiles as Dask tasks on a local cluster (``relief_tiles(client=...)``, the
@@ -9,7 +9,10 @@ meshes built in the client as they come, as Blender would), against the one-proc
 The peer, in the same run: the single-photo pipeline (``build_relief``) on a 12 MP photo at full
 resolution (``max_size=4000``), the route that holds the whole image in memory.
 
-    python bench/bench_mosaic.py [--side 20480] [--tiles N] [--workers 2]
+    python bench/bench_mosaic.py [--side 20480] [--tiles N] [--workers 2] [--repeat 1]
+
+With ``--repeat N`` the peer and the one-process run alternate N times (peer, ours, peer, ours, ...),
+so that both see the same load on a shared machine; the figures are then ranges.
 
 `main(argv=None)` returns the figures as a dict (for bench/run_all.py).
 """
@@ -37,7 +40,7 @@ WRITE = textwrap.dedent(
     """
     import sys
     import numpy as np, tifffile
-    from cliff_terrain.synthetic import synthetic_field
+    from cliff_terrain.data.synthetic import synthetic_field
     path, side, tile = sys.argv[1], int(sys.argv[2]), 512
     field, _ = synthetic_field(shape=(2048, 2048), seed=5)
     keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32633, 3076, 0, 1, 9001)
@@ -58,15 +61,15 @@ RUN = textwrap.dedent(
     import contextlib, itertools, json, sys, time
     import numpy as np
     from cliff_terrain._memory import peak_rss
-    from cliff_terrain.mesh import adaptive_mesh
-    from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tiles, tile_windows
+    from cliff_terrain.mesh.adaptive import adaptive_mesh
+    from cliff_terrain.mesh.tiles import MosaicReader, mosaic_settings, relief_tiles, tile_windows
     path, limit, workers = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     start = time.perf_counter()
     with contextlib.ExitStack() as stack:
         client = None
         if workers:  # the tiles as Dask tasks on a local cluster; the meshes here, as Blender would
             from distributed import Client
-            from cliff_terrain.season.runner import local_cluster
+            from cliff_terrain.season.cluster import local_cluster
             client = stack.enter_context(Client(stack.enter_context(local_cluster(workers))))
         cluster_s = time.perf_counter() - start
         reader = stack.enter_context(MosaicReader(path))
@@ -98,7 +101,7 @@ PEER = textwrap.dedent(
     """
     import json, sys, time
     from cliff_terrain._memory import peak_rss
-    from cliff_terrain.pipeline import build_relief
+    from cliff_terrain.build import build_relief
     start = time.perf_counter()
     relief = build_relief(sys.argv[1], max_size=4000)
     seconds = time.perf_counter() - start
@@ -126,6 +129,9 @@ def main(argv=None):
     parser.add_argument(
         "--workers", type=int, default=2, help="also run the tiles on N Dask workers (0: not)"
     )
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="alternate the peer and the one-process run N times"
+    )
     args = parser.parse_args(argv)
     info = machine()
     print(f"machine: {describe(info)}")
@@ -137,14 +143,31 @@ def main(argv=None):
             f"mosaic: {args.side} x {args.side} ({args.side**2 / 1e6:.0f} MP), {path.stat().st_size / 1e6:.0f} MB "
             f"on disk, written in {time.perf_counter() - start:.1f} s"
         )
-        ours = _python(RUN, path, args.tiles, 0)
-        mps = ours["pixels"] / 1e6 / ours["seconds"]
-        print(
-            f"ours, one process: {ours['tiles']} tiles, {ours['pixels'] / 1e6:.0f} MP in {ours['seconds']:.1f} s "
-            f"(overview and settings {ours['settings_s']:.1f} s): {mps:.2f} MP/s, peak memory "
-            f"{ours['peak_rss_gb']:.2f} GB (goal <= {MEMORY_GOAL_GB:g} GB), {ours['plants']} plants, "
-            f"{ours['triangles']} triangles"
-        )
+        rounds = []
+        for _ in range(max(1, args.repeat)):
+            peer = _python(PEER, PHOTO_12MP) if PHOTO_12MP.is_file() else None
+            ours = _python(RUN, path, args.tiles, 0)
+            mps = ours["pixels"] / 1e6 / ours["seconds"]
+            print(
+                f"ours, one process: {ours['tiles']} tiles, {ours['pixels'] / 1e6:.0f} MP in {ours['seconds']:.1f} s "
+                f"(overview and settings {ours['settings_s']:.1f} s): {mps:.2f} MP/s, peak memory "
+                f"{ours['peak_rss_gb']:.2f} GB (goal <= {MEMORY_GOAL_GB:g} GB), {ours['plants']} plants, "
+                f"{ours['triangles']} triangles"
+            )
+            if peer is not None:
+                peer_mps = peer["pixels"] / 1e6 / peer["seconds"]
+                print(
+                    f"peer (build_relief, 12 MP photo whole at max_size=4000), just before: {peer_mps:.2f} MP/s, "
+                    f"peak memory {peer['peak_rss_gb']:.2f} GB; ratio ours/peer {mps / peer_mps:.2f}x"
+                )
+            rounds.append((ours, mps, peer))
+        if len(rounds) > 1:
+            ratios = [m / (p["pixels"] / 1e6 / p["seconds"]) for _, m, p in rounds if p is not None]
+            print(
+                f"{len(rounds)} rounds: ours {min(r[1] for r in rounds):.2f}-{max(r[1] for r in rounds):.2f} MP/s"
+                + (f", ratio ours/peer {min(ratios):.2f}-{max(ratios):.2f}x" if ratios else "")
+            )
+        ours, mps, peer = rounds[-1]
         result = {"machine": info, "side": args.side, "ours": ours, "ours_mp_per_s": mps}
         if args.workers:
             dask = _python(RUN, path, args.tiles, args.workers)
@@ -158,14 +181,10 @@ def main(argv=None):
                 + f" GB; same plants and triangles: {(dask['plants'], dask['triangles']) == (ours['plants'], ours['triangles'])}"
             )
             result.update(dask=dask, dask_mp_per_s=dask_mps, dask_ratio=dask_mps / mps)
-    if PHOTO_12MP.is_file():
-        peer = _python(PEER, PHOTO_12MP)
+    if peer is not None:
         peer_mps = peer["pixels"] / 1e6 / peer["seconds"]
-        print(
-            f"peer (build_relief, 12 MP photo whole at max_size=4000): {peer_mps:.2f} MP/s, peak memory "
-            f"{peer['peak_rss_gb']:.2f} GB; ratio ours/peer {mps / peer_mps:.2f}x"
-        )
         result.update(peer=peer, peer_mp_per_s=peer_mps, ratio=mps / peer_mps)
+    result["rounds"] = [{"ours_mp_per_s": m, "peer": p} for _, m, p in rounds]
     return result
 
 

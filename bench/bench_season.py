@@ -33,8 +33,8 @@ SEASON = ROOT.parent / "shared" / "data" / "uav" / "lamberton_soybean"
 
 def _warm():
     """Import what a task needs (run once on each worker, and here, before timing)."""
-    import cliff_terrain.pipeline  # noqa: F401
-    import cliff_terrain.plots  # noqa: F401
+    import cliff_terrain.build  # noqa: F401
+    import cliff_terrain.measure.field_plots  # noqa: F401
     import cliff_terrain.season.runner  # noqa: F401
 
     return True
@@ -46,7 +46,7 @@ def _noop(i):
 
 def _pool_task(job):
     """One image in a fresh cache, as a task of the multiprocessing peer."""
-    from cliff_terrain.season.runner import process_image
+    from cliff_terrain.season.task import process_image
 
     with tempfile.TemporaryDirectory(prefix="bench_season_pool_") as cache:
         result = process_image({**job, "cache": cache})
@@ -85,7 +85,9 @@ def main(argv=None):
 
     from distributed import Client
 
-    from cliff_terrain.season.runner import local_cluster, plan_season, run_season
+    from cliff_terrain.season.cluster import local_cluster
+    from cliff_terrain.season.plan import plan_season
+    from cliff_terrain.season.runner import run_season
 
     print(describe())
     jobs, plots = plan_season([SEASON], plots=SEASON / "plots.geojson", max_size=args.max_size)

@@ -25,7 +25,7 @@ import bench_blender_build as bench  # noqa: E402
 
 # module (under the add-on's package) -> the functions or methods timed in it
 STEPS = {
-    "cliff_terrain.pipeline": [
+    "cliff_terrain.build": [
         "open_image",
         "resize_longest",
         "quaternion_filter",
@@ -36,19 +36,21 @@ STEPS = {
         "place_vertices",
         "adaptive_mesh",
     ],
-    "cliff_terrain.mesh": ["tin_mesh"],
-    "cliff_terrain.tin": ["triangulate"],
-    "cliff_terrain.image_io": ["OpenImage.decode"],
-    "cliff_terrain.segmentation": [
+    "cliff_terrain.mesh.adaptive": ["tin_mesh", "triangulate"],
+    "cliff_terrain.io.photo": ["OpenImage.decode"],
+    "cliff_terrain.relief.segmentation": [
         "_vegetation_mask",
         "_clean",
         "distance_map",
         "colour_edges",
-        "_label4",
+        "inner_boundaries",
+    ],
+    # split_regions looks these up in its own module
+    "cliff_terrain.relief.watershed": [
+        "label4",
         "label_max",
         "_watershed_raveled",
         "_flood_components",
-        "inner_boundaries",
     ],
     "operators.build": [
         "allocate_mesh",

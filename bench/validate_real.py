@@ -10,7 +10,7 @@ real fields" for the sources, their licences and how they were laid out):
     against it, and the share of the relief's volume that stands on its plant pixels.
 ``DATA_DIR/photos/<set>/NAME.(png|jpg|tif)``
     A photo without annotation: the reference is an independent ExG/Otsu mask
-    (:func:`cliff_terrain.mask_quality.reference_mask`).
+    (:func:`cliff_terrain.evaluate.mask_quality.reference_mask`).
 ``DATA_DIR/fields/<field>/field.json``
     A field flown on several dates::
 
@@ -49,7 +49,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from cliff_terrain import CliffTerrainError, build_relief  # noqa: E402
-from cliff_terrain.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
+from cliff_terrain.evaluate.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
 
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
@@ -166,9 +166,10 @@ def field_rows(data_dir):
     import cv2
 
     from cliff_terrain.cli import main as cli
-    from cliff_terrain.georaster import read_surface, resample
-    from cliff_terrain.ground import canopy_height, naive_block_ground
-    from cliff_terrain.plots import rasterize_plots, read_plots
+    from cliff_terrain.io.geotiff import read_surface, resample
+    from cliff_terrain.io.plot_polygons import read_plots
+    from cliff_terrain.measure.field_plots import rasterize_plots
+    from cliff_terrain.measure.ground import canopy_height, naive_block_ground
 
     rows = []
     for spec_path in (
@@ -225,7 +226,7 @@ def field_rows(data_dir):
 
 def plot_p90(labels, n, heights):
     """Each plot's 90th percentile of `heights` over all its pixels with data (soil counts)."""
-    from cliff_terrain.plots import region_figures
+    from cliff_terrain.measure.field_plots import region_figures
 
     figures = region_figures(labels, n, mask=np.ones(labels.shape, bool), heights=heights, pixel_area_m2=1.0)
     return np.array([f["height_p90_m"] for f in figures])

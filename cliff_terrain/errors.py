@@ -39,3 +39,7 @@ class PlotFileError(CliffTerrainError):
 
 class GroundError(CliffTerrainError):
     """Too little exposed soil to estimate the ground under the crop from one flight: give a DTM."""
+
+
+class MissingBandError(CliffTerrainError):
+    """A vegetation index needs a band the multispectral file lacks (the message names both)."""

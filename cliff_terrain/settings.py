@@ -51,8 +51,14 @@ DEFAULT_MAX_HEIGHT = None
 DEFAULT_EXAGGERATION = 1.0
 MIN_EXAGGERATION = 0.0  # exclusive
 
-# The relief's front: one vertex per pixel corner, or a TIN within a vertical error (cliff_terrain/tin.py).
+# The relief's front: one vertex per pixel corner, or a TIN within a vertical error (cliff_terrain/mesh/tin.py);
+# "auto" picks one per build (cliff_terrain.mesh.adaptive.choose_mesh) and says which.
 MESHES = (
+    (
+        "auto",
+        "Auto",
+        "Adaptive wherever it builds at least as fast as the grid (see the README); the build says which",
+    ),
     ("grid", "Grid", "One vertex per pixel corner: every pixel's height, and the most triangles"),
     (
         "adaptive",
@@ -60,10 +66,16 @@ MESHES = (
         "Few triangles where the ground is flat: a TIN within the maximum error of every pixel's height",
     ),
 )
-DEFAULT_MESH = "grid"
-# The adaptive mesh's default maximum vertical error: this share of the relief's height, or this
-# many metres when the ground sampling distance is known (what a 3D print or a plant shows).
-DEFAULT_MAX_ERROR_SHARE = 0.01
+DEFAULT_MESH = "auto"
+# "auto": processing grids of fewer pixels than this get the grid (None: always adaptive); from
+# bench/bench_adaptive_mesh.py's end-to-end timings (README "Adaptive mesh and big orthomosaics").
+AUTO_GRID_BELOW_PIXELS = None
+# The adaptive mesh's default maximum vertical error (cliff_terrain.mesh.tin.default_max_error):
+# heights from a shape prior (inflated, calibrated) hold nothing below the photo's resolution,
+# so half a pixel in height units; measured ones (a DSM) the DSM's noise, at least this floor.
+DEFAULT_MAX_ERROR_PIXELS = 0.5
+DEFAULT_MAX_ERROR_FLOOR_M = 0.01
+# Each tile of an imported orthomosaic (operators/mosaic.py): a fixed bound in metres.
 DEFAULT_MAX_ERROR_M = 0.005
 
 # Rendered views: the longest side of a view, and the shorter side that default views are enlarged
@@ -107,7 +119,7 @@ HEIGHT_MODES = (
     ("measured", "Measured", "The mesh follows the canopy height model: DSM minus ground, in metres"),
 )
 DEFAULT_HEIGHT_MODE = "inflated"
-# Ground from one flight: blocks of this side (metres) for the trend (see cliff_terrain.ground).
+# Ground from one flight: blocks of this side (metres) for the trend (see cliff_terrain.measure.ground).
 DEFAULT_GROUND_BLOCK_M = 5.0
 
 

@@ -14,6 +14,9 @@ objects are never modified. Sizes: metres when the ground sampling distance is k
 as ``blender_units_per_unit`` in the object's ``cliff_terrain`` custom property).
 """
 
+import dataclasses
+import queue
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import bpy
@@ -71,18 +74,17 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         # Also here, not only in invoke: headless and from scripts Blender calls execute directly.
         self.take_scene_settings(context)
         path = bpy.path.abspath(self.filepath)
-        params = self.core_kwargs()
         created = []
         try:
+            params = self.relief_params()
             with _Progress(context) as progress:
 
                 def on_progress(fraction, stage):
                     progress(PIPELINE_SHARE * fraction, stage)
 
-                sink = _ReliefMesh(relief_name(path), created)
-                relief = build_relief(path, progress=on_progress, mesh_sink=sink, **params)
+                relief, mesh = build_beside_the_mesh(build_relief, path, params, on_progress, created)
                 progress(PIPELINE_SHARE, "building the mesh")
-                obj = build_relief_object(context, relief, path, params, created=created, mesh=sink.mesh)
+                obj = build_relief_object(context, relief, path, params, created=created, mesh=mesh)
                 progress(1.0, "done")
         except Exception as exc:
             return cancel_build(self, exc, created)
@@ -94,12 +96,25 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         if settings.color_by != "PHOTO":  # a new relief shows what the others show
             from ..scene.colour_by import colour_relief
 
-            colour_relief(obj, settings.color_by, settings=settings, trait=settings.color_trait)
+            colour_relief(
+                obj,
+                settings.color_by,
+                settings=settings,
+                trait=settings.color_trait,
+                index=settings.color_index,
+            )
         info = obj["cliff_terrain"]
         self.report(
             {"INFO"},
             f"Built {obj.name}: {len(obj.data.vertices)} vertices, {info['regions']} regions, "
-            + ("sizes in metres" if info["units"] == "m" else "relative units (longest side = 10)"),
+            + ("sizes in metres" if info["units"] == "m" else "relative units (longest side = 10)")
+            + f"; {info['mesh']} mesh"
+            + ("" if info["mesh_rule"] == "given" else f" ({info['mesh_rule']})")
+            + (
+                f", max error {info['max_error']:.3g} {info['units']}: {info['max_error_rule']}"
+                if info["max_error"]
+                else ""
+            ),
         )
         return {"FINISHED"}
 
@@ -165,28 +180,65 @@ def _fit_visible_part(space, regions, region, rv3d, per_pixel):
     rv3d.view_location += (rv3d.view_rotation @ Vector((1.0, 0.0, 0.0))) * shift
 
 
-class _ReliefMesh:
-    """The relief's Blender mesh, made while the core computes (its ``mesh_sink``).
+def build_beside_the_mesh(build_relief, path, params, progress, created):
+    """``(relief, mesh)``: `build_relief` run in a worker thread while this thread makes the mesh.
 
-    Each step comes when the core's worker least needs the GIL that Blender's calls hold:
-    elements are allocated while it decodes the photo, the faces, edges and UVs are checked
-    (numpy) while it segments and are copied in while it floods the watershed. The mesh goes
-    into `created` as soon as it exists.
+    The worker computes the relief without a mesh (``mesh=None``); meanwhile this thread, the one
+    Blender's calls need, allocates the Blender mesh (the grid's size comes from the photo's
+    header) while the worker decodes the photo, and writes the faces, edges and UVs in once it
+    computes the heights (long calls that release the GIL, which Blender's bulk writes hold; its
+    progress tells when). The vertices are placed by the caller (:func:`build_relief_object`). The
+    worker's `progress` is relayed to `progress` in this thread. `mesh` is None for an adaptive mesh, whose size is known only at the
+    end: it is built with the relief, in this thread. The mesh goes into `created` as soon as it
+    exists; an exception of either thread propagates once the worker has finished.
     """
+    from ..cliff_terrain.build import grid_shape
+    from ..cliff_terrain.mesh.adaptive import choose_mesh
+    from ..cliff_terrain.mesh.grid import grid_sizes, grid_topology, place_vertices
 
-    def __init__(self, name, created):
-        self.name, self.created = name, created
-        self.mesh = self.topology = None
+    shape = grid_shape(path, max_size=params.max_size)
+    kind, rule = choose_mesh(params.mesh, shape)  # what build_relief would choose ("auto")
+    if kind != "grid":
+        return build_relief(path, params, progress=progress), None
+    events = queue.SimpleQueue()
+    stages = set()
 
-    def allocate(self, sizes):
-        self.mesh = allocate_mesh(self.name, sizes)
-        self.created.append(self.mesh)
+    def relay(*, until=None):
+        """Pass the worker's progress on: what has come, or all until stage `until` or its end."""
+        while not events.empty() or (until is not None and until not in stages and not future.done()):
+            try:
+                event = events.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            stages.add(event[1])
+            if progress is not None:
+                progress(*event)
 
-    def prepare(self, mesh_arrays):
-        self.topology = checked_topology(mesh_arrays)
-
-    def fill(self):
-        fill_topology(self.mesh, self.topology)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain") as pool:
+        future = pool.submit(
+            build_relief,
+            path,
+            params,
+            mesh=None,
+            progress=lambda fraction, stage: events.put((fraction, stage)),
+        )
+        try:
+            mesh = allocate_mesh(relief_name(path), grid_sizes(shape, two_sided=params.two_sided))
+            created.append(mesh)
+            relay()
+            topology = grid_topology(shape, two_sided=params.two_sided)
+            checked = checked_topology(topology)
+            relay(until="heights")
+            fill_topology(mesh, checked)
+        finally:
+            relay(until="done")  # the worker's last stage, or its end by an exception (raised below)
+            future.exception()
+    relief = future.result()
+    vertices = place_vertices(topology, relief.heights, pixel_size=relief.pixel_size)
+    relief = dataclasses.replace(
+        relief, mesh=vertices, mesh_kind=kind, mesh_rule=rule, params={**relief.params, "mesh": params.mesh}
+    )
+    return relief, mesh
 
 
 def relief_scale(relief):
@@ -232,6 +284,7 @@ def build_relief_object(context, relief, path, params, *, created, mesh=None):
 def build_record(relief, path, params, scale):
     """What a relief object records about its build (its ``cliff_terrain`` custom property)."""
     from ..cliff_terrain import __version__
+    from ..cliff_terrain.relief.indices import available_indices
 
     return {
         "version": __version__,
@@ -248,16 +301,32 @@ def build_record(relief, path, params, scale):
         "gsd_source": relief.metadata.gsd_source or "",
         # The adaptive mesh's bound (0 for the grid) and its front faces (triangles, or grid quads).
         "max_error": float(relief.max_error or 0.0),
+        # Which rule chose the bound ("given", half a pixel, the DSM's noise; "" for the grid), and
+        # the mesh made with why ("auto" resolved per build).
+        "max_error_rule": relief.max_error_rule or "",
+        "mesh": relief.mesh_kind or "",
+        "mesh_rule": relief.mesh_rule,
         "front_faces": int(relief.mesh.n_front_faces),
         "max_height": relief.max_height,
         # Tells a rebuild of the relief from its photo (Render Views' figures) from another photo.
         "mask_digest": mask_digest(relief.mask),
+        # A multispectral photo's bands (as named by its file or by the build) and the vegetation
+        # indices they allow (Color By offers them).
+        "bands": list(relief.metadata.band_names or ()),
+        "indices": list(available_indices(relief.metadata.band_names or ())),
         "image_width": int(relief.metadata.width),
         "image_height": int(relief.metadata.height),
-        # ID properties hold no None: an unknown GSD is stored as 0, as in the settings.
-        "params": {key: (0.0 if value is None else value) for key, value in params.items()},
+        # The settings as the sidebar holds them (0 for "not given"), which a rebuild reads back.
+        "params": _relief_params(params).to_properties(),
         **key_figures(relief),
     }
+
+
+def _relief_params(params):
+    """`params` as a :class:`ReliefParams` (render_views.py passes a relief's recorded ``params``)."""
+    from ..cliff_terrain.params import ReliefParams
+
+    return params if isinstance(params, ReliefParams) else ReliefParams.from_properties(params)
 
 
 def mask_digest(mask):
@@ -275,7 +344,7 @@ def key_figures(relief):
     The mesh is built near the world origin; ``map_offset`` is the map (x, y) of its local (0, 0)
     (the grid's bottom-left corner) in EPSG ``crs``: add it to a vertex to get map coordinates.
     """
-    from ..cliff_terrain.key_figures import key_figures as core_figures
+    from ..cliff_terrain.measure.key_figures import key_figures as core_figures
 
     # One definition of the figures (the core's), shown in the sidebar in centimetres.
     core = core_figures(relief)

@@ -172,7 +172,7 @@ def draw_colour_bar():
     import gpu
     from gpu_extras.batch import batch_for_shader
 
-    from ..cliff_terrain.figures import HEIGHT_COLOURS
+    from ..cliff_terrain.figures.legends import HEIGHT_COLOURS
 
     scale = context.preferences.system.ui_scale
     x0, y0, width, height = colour_bar_box(context.area, context.region, context.preferences)

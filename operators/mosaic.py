@@ -1,12 +1,12 @@
 """The Import Mosaic operator: a tiled GeoTIFF orthomosaic of any size -> one relief object per tile.
 
-The core reads the mosaic in windows and builds it tile by tile (cliff_terrain.mosaic); each tile
-becomes an adaptive mesh (cliff_terrain.mesh.adaptive_mesh) in metres with its own part of the
-photo as texture (never larger than the tile, at most 16384 pixels: GPUs' texture limit). The tiles
-are parented to one empty that carries the georeference (EPSG code and the map coordinates of the
-mosaic's top-left corner, as custom properties: map coordinates in metres are too large for
-Blender's single-precision positions). Tiles are one-sided surfaces, side by side, each joined to its
-left and top neighbours by a seam (cliff_terrain.seams), so no crack opens where a plant crosses a border.
+The core reads the mosaic in windows and builds it tile by tile (cliff_terrain.mesh.tiles); each tile
+comes as an adaptive mesh in metres with its own part of the photo as texture (never larger than the
+tile, at most 16384 pixels: GPUs' texture limit), joined to its left and top neighbours by a seam, so
+no crack opens where a plant crosses a border (cliff_terrain.mesh.tile_meshes). This operator only
+turns each into an object. The tiles are parented to one empty that carries the georeference (EPSG
+code and the map coordinates of the mosaic's top-left corner, as custom properties: map coordinates
+in metres are too large for Blender's single-precision positions).
 """
 
 from pathlib import Path
@@ -57,9 +57,8 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     def execute(self, context):
         try:
             from ..cliff_terrain import CliffTerrainError
-            from ..cliff_terrain.mesh import adaptive_mesh
-            from ..cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tile, tile_windows
-            from ..cliff_terrain.seams import border, stitch
+            from ..cliff_terrain.mesh.tile_meshes import tile_meshes
+            from ..cliff_terrain.mesh.tiles import MosaicReader
             from ..cliff_terrain.settings import DEFAULT_MAX_ERROR_M
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
@@ -72,7 +71,9 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                 if gsd is None:
                     raise CliffTerrainError(f"mosaic {path!r} has no georeference: its pixel size is unknown")
                 max_error = self.max_error if self.max_error > 0 else DEFAULT_MAX_ERROR_M
-                settings = mosaic_settings(reader, tile=self.tile)
+                tiles = tile_meshes(
+                    reader, max_error=max_error, pixel_size=gsd, tile=self.tile, overlap=self.overlap
+                )
                 rows = reader.shape[0]
                 name = Path(path).stem or "mosaic"
                 root = bpy.data.objects.new(name, None)
@@ -88,23 +89,12 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                     "shape": list(reader.shape),
                     "max_error": max_error,
                 }
-                # Each tile's right and bottom borders wait for the tile that shares them, which
-                # closes the crack between the two with a seam (cliff_terrain.seams).
-                right, bottom = {}, {}
-                for k, window in enumerate(tile_windows(reader.shape, tile=self.tile, overlap=self.overlap)):
-                    tile = relief_tile(reader, window, settings)
-                    r0, r1, c0, c1 = window.core
-                    mesh = adaptive_mesh(
-                        tile.heights * np.float32(gsd), max_error=max_error, pixel_size=gsd, two_sided=False
-                    )
-                    right[(r0, c1)], bottom[(r1, c0)] = border(mesh, "right"), border(mesh, "bottom")
-                    shared = {"left": right.pop((r0, c0), None), "top": bottom.pop((r0, c0), None)}
-                    mesh = stitch(mesh, {side: b for side, b in shared.items() if b is not None})
+                for k, tile in enumerate(tiles):
+                    r0, r1, c0, c1 = tile.core
                     part = f"{name}_{k:04d}"
-                    data = mesh_from_arrays(part, mesh)
+                    data = mesh_from_arrays(part, tile.mesh)
                     created.append(data)
-                    rgb, _ = reader.read(r0, r1, c0, c1)
-                    image = image_from_array(part, rgb)
+                    image = image_from_array(part, tile.rgb)
                     created.append(image)
                     obj = textured_object(
                         part, data, image, context.collection, created=created, extension="EXTEND"
@@ -112,7 +102,10 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                     obj.parent = root
                     # The tile's bottom-left corner, y up from the mosaic's last row, in metres.
                     obj.location = (c0 * gsd, (rows - r1) * gsd, 0.0)
-                    obj["cliff_terrain_tile"] = {"core": [r0, r1, c0, c1], "triangles": mesh.n_front_faces}
+                    obj["cliff_terrain_tile"] = {
+                        "core": [r0, r1, c0, c1],
+                        "triangles": tile.mesh.n_front_faces,
+                    }
         except Exception as exc:
             return cancel_build(self, exc, created)
         for other in context.view_layer.objects.selected:

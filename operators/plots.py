@@ -2,7 +2,7 @@
 
 The grid's layout is the scene settings' (``plot_columns`` ... ``plot_start``; an edit rebuilds the
 active grid at once); its placement is the grid object's own matrix, moved with G, R and S. The core
-does the work: :mod:`cliff_terrain.plot_grid` numbers and writes the plots, :mod:`cliff_terrain.plot_fit`
+does the work: :mod:`cliff_terrain.measure.plot_grid` numbers and writes the plots, :mod:`cliff_terrain.measure.plot_fit`
 snaps the grid to the crop of the relief's orthophoto.
 """
 
@@ -82,10 +82,10 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        from ..cliff_terrain.canopy import plant_mask
-        from ..cliff_terrain.georaster import read_orthophoto
-        from ..cliff_terrain.plot_fit import fit_grid
-        from ..cliff_terrain.plot_grid import Placement
+        from ..cliff_terrain.io.geotiff import read_orthophoto
+        from ..cliff_terrain.measure.canopy import plant_mask
+        from ..cliff_terrain.measure.plot_fit import fit_grid
+        from ..cliff_terrain.measure.plot_grid import Placement
         from ..scene.plot_grid import FIT_KEY, grid_map_corners, layout_of, move_grid
 
         grid = context.active_object
@@ -126,7 +126,7 @@ class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
     bl_options = {"REGISTER"}
 
     def execute(self, context):
-        from ..cliff_terrain.canopy import relief_plot_rows
+        from ..cliff_terrain.measure.canopy import relief_plot_rows
         from ..scene.plot_grid import TABLE_KEY, grid_plots, grid_relief
         from ..scene.probe import relief_of
 
@@ -162,7 +162,7 @@ class CLIFF_TERRAIN_OT_export_plots(_OnAGrid, FileOperator, bpy.types.Operator):
     def execute(self, context):
         from pathlib import Path
 
-        from ..cliff_terrain.plot_files import write_plots
+        from ..cliff_terrain.io.plot_files import write_plots
         from ..scene.plot_grid import grid_plots
 
         path = Path(bpy.path.abspath(self.filepath))

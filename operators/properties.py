@@ -9,6 +9,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 
 # The core's choices, defaults and limits (a module that imports nothing: registering stays fast).
 from ..cliff_terrain import settings
+from ..cliff_terrain.relief import indices
 
 # Names of the parameters passed to the core's build_relief (besides the image path).
 PARAMETER_NAMES = (
@@ -99,8 +100,8 @@ class ReliefParameters:
     max_error: FloatProperty(
         name="Max Error",
         description="Adaptive mesh: largest vertical distance between the mesh and any pixel's height, "
-        "in metres with a GSD, else in processing pixels. 0 = automatic: 5 mm with a GSD, else 1 % of "
-        "the relief's height",
+        "in metres with a GSD, else in processing pixels. 0 = automatic: half a pixel for heights "
+        "from the photo, the DSM's noise (at least 1 cm) for measured ones",
         min=0.0,
         soft_max=1.0,
         default=0.0,
@@ -128,29 +129,11 @@ class ReliefParameters:
         default=settings.DEFAULT_HEIGHT_MODE,
     )
 
-    @staticmethod
-    def record_kwargs(params):
-        """``build_relief`` keyword arguments from a relief's recorded ``params`` (ID properties hold
-        no None: 0 and empty paths stand for it, as in the settings)."""
-        kwargs = {name: params[name] for name in PARAMETER_NAMES if name in params}
-        for name in ("gsd", "max_height", "max_error"):
-            if name in kwargs and not kwargs[name]:
-                kwargs[name] = None
-        for name in ("dsm", "dtm"):
-            if not isinstance(kwargs.get(name), str) or not kwargs[name]:
-                kwargs[name] = None
-        return kwargs
+    def relief_params(self):
+        """The core's :class:`ReliefParams` of these properties (0 and empty paths mean "not given")."""
+        from ..cliff_terrain.params import ReliefParams
 
-    def core_kwargs(self):
-        """Keyword arguments for ``cliff_terrain.pipeline.build_relief`` (GSD 0 means unknown)."""
-        kwargs = {name: getattr(self, name) for name in PARAMETER_NAMES}
-        kwargs["gsd"] = kwargs["gsd"] if kwargs["gsd"] > 0.0 else None
-        kwargs["max_height"] = kwargs["max_height"] if kwargs["max_height"] > 0.0 else None
-        # Max Error 0 means the core's default (5 mm with a GSD, else 1 % of the relief's height).
-        kwargs["max_error"] = kwargs["max_error"] if kwargs["max_error"] > 0.0 else None
-        for name in ("dsm", "dtm"):
-            kwargs[name] = bpy.path.abspath(kwargs[name]) if kwargs[name] else None
-        return kwargs
+        return ReliefParams.from_properties(self, path=bpy.path.abspath)
 
 
 def _grid_changed(settings, context):
@@ -173,20 +156,28 @@ _PLOT_TRAIT = (
     "MESH_GRID",
     2,
 )
+_INDEX = (
+    "INDEX",
+    "Vegetation Index",
+    "A vegetation index of the relief's multispectral bands (NDVI, NDRE ...)",
+    "COLOR",
+    3,
+)
 # Blender keeps no reference to dynamic enum items: they must outlive the call.
 _ITEMS = {}
 
 
 def _colour_items(settings, context):
-    """Photo and Height; Plot Trait too once some relief has a measured plot grid."""
+    """Photo and Height; Plot Trait too once some relief has a measured plot grid, Vegetation Index
+    once some relief's bands give one."""
     from ..scene.colour_by import measured_grids, reliefs
 
     scene = getattr(context, "scene", None)
     # Drawn at every redraw of the sidebar: one pass over the objects.
-    measured = scene is not None and not measured_grids().keys().isdisjoint(
-        obj.name for obj in reliefs(scene)
-    )
-    _ITEMS["colour"] = (*_COLOUR_MODES, _PLOT_TRAIT) if measured else _COLOUR_MODES
+    objects = reliefs(scene) if scene is not None else []
+    measured = scene is not None and not measured_grids().keys().isdisjoint(obj.name for obj in objects)
+    indexed = any(obj["cliff_terrain"].get("indices") for obj in objects)
+    _ITEMS["colour"] = (*_COLOUR_MODES, *([_PLOT_TRAIT] if measured else []), *([_INDEX] if indexed else []))
     return _ITEMS["colour"]
 
 
@@ -195,7 +186,9 @@ def _colour_changed(settings, context):
     from ..scene.colour_by import colour_relief, reliefs, show_colours_in_solid
 
     shown = {
-        colour_relief(obj, settings.color_by, settings=settings, trait=settings.color_trait)
+        colour_relief(
+            obj, settings.color_by, settings=settings, trait=settings.color_trait, index=settings.color_index
+        )
         for obj in reliefs(context.scene)
     }
     show_colours_in_solid(getattr(context, "screen", None), bool(shown - {"PHOTO"}))
@@ -286,6 +279,13 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
             (key, label, f"{label} of each plot, from Measure Plots")
             for key, label, _ in settings.PLOT_TRAITS
         ],
+        update=_colour_changed,
+    )
+    color_index: EnumProperty(
+        name="Index",
+        description="The vegetation index that Color By Vegetation Index shows (of the relief's own bands)",
+        items=[(name, name, f"{name} = {d.formula} ({d.reference})") for name, d in indices.INDICES.items()],
+        default="NDVI",
         update=_colour_changed,
     )
     show_plot_labels: BoolProperty(

@@ -11,7 +11,6 @@ Error policy as in the build operator: a bad photo or setting is reported as an 
 operator returns CANCELLED; anything else is a bug, its traceback goes to the console.
 """
 
-import json
 import os
 import tempfile
 import time
@@ -22,7 +21,7 @@ import bpy
 from bpy.props import EnumProperty, IntProperty
 
 from ..cliff_terrain import settings as core_settings
-from ..cliff_terrain.evaluation import json_safe, metrics_summary, view_resolution
+from ..cliff_terrain.evaluate.views import metrics_summary, view_resolution
 from ..scene import render_settings, rig, views
 from . import render_job
 
@@ -136,27 +135,39 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
         out_dir = os.path.join(folder, bpy.path.clean_name(obj.name))
         os.makedirs(out_dir, exist_ok=True)  # views are replaced, as F12 replaces its result
         metrics = self.run(context, out_dir, tuple(views.VIEW_FILES))
-        metrics.update(self.write_figures(obj, out_dir, metrics))
-        with open(os.path.join(out_dir, "metrics.json"), "w", encoding="utf-8") as stream:
-            json.dump(json_safe(metrics), stream, indent=2)
+        self.write_outputs(obj, Path(out_dir), metrics)
         self.report(
             {"INFO"}, f"Rendered {len(views.VIEW_FILES)} views into {out_dir}: {metrics_summary(metrics)}"
         )
         return {"FINISHED"}
 
-    def write_figures(self, obj, out_dir, metrics):
-        """The maps and annotated figures render_views.py writes beside the views (summary.png...),
-        from the relief rebuilt from its photo and settings (a core run without a mesh); skipped
-        with a warning when the photo has changed since the build. Returns what metrics.json
-        records about them."""
-        from ..cliff_terrain import view_figures
+    def write_outputs(self, obj, out, metrics):
+        """What render_views.py writes beside the views (the maps, tables, annotated figures and
+        metrics.json), from the relief rebuilt from its photo and settings (a core run without a
+        mesh); only metrics.json, with a warning, when the photo has changed since the build."""
+        from ..cliff_terrain.figures import outputs
 
-        relief, reason = relief_from_record(obj["cliff_terrain"])
+        metrics = dict(metrics)
+        side, seconds = metrics.pop("side_view"), metrics.pop("timings_s")
+        record = obj["cliff_terrain"]
+        render = views.render_record(
+            obj, engine=metrics.pop("engine"), samples=metrics.pop("samples"), light=metrics.pop("light")
+        )
+        # The relief is rebuilt without its mesh: the parameters and error bound are the build's.
+        render["params"] = record["params"].to_dict()
+        render["max_error"] = float(record.get("max_error", 0.0)) or None
+        render["max_error_rule"] = record.get("max_error_rule") or None
+        render["mesh"] = record.get("mesh") or None
+        render["mesh_rule"] = record.get("mesh_rule", "")
+        timings = {
+            ("metrics" if name == "metrics" else f"render_{name}"): value for name, value in seconds.items()
+        }
+        relief, reason = relief_from_record(record)
         if relief is None:
             self.report({"WARNING"}, f"No annotated figures: {reason}")
-            return {}
-        view_figures.write_maps(relief, Path(out_dir))
-        return view_figures.write_figures(relief, Path(out_dir), metrics["side_view"], metrics)
+            outputs.write_metrics(out, metrics, side=side, render=render, timings=timings)
+            return
+        outputs.write_outputs(relief, out, side=side, metrics=metrics, render=render, timings=timings)
 
 
 def relief_from_record(record):
@@ -165,31 +176,15 @@ def relief_from_record(record):
     import numpy as np
 
     from ..cliff_terrain import CliffTerrainError, build_relief
+    from ..cliff_terrain.params import ReliefParams
     from .build import mask_digest
 
     source = str(record["source"])
     if not os.path.isfile(source):
         return None, f"the photo {source!r} is not there any more"
-    params = dict(record["params"])
-
-    def optional(key):  # ID properties hold no None: the build stored 0 (or "") for "not given"
-        value = params.get(key)
-        return None if value in (None, 0, 0.0, "") else value
-
     try:
-        relief = build_relief(
-            source,
-            max_size=int(params["max_size"]),
-            segmentation=str(params["segmentation"]),
-            profile=str(params["profile"]),
-            exaggeration=float(params["exaggeration"]),
-            max_height=optional("max_height"),
-            gsd=optional("gsd"),
-            mesh=None,
-            dsm=optional("dsm"),
-            dtm=optional("dtm"),
-            heights=str(params.get("heights") or "inflated"),
-        )
+        params = ReliefParams.from_properties(dict(record["params"]))
+        relief = build_relief(source, params, mesh=None)
     except (CliffTerrainError, OSError) as exc:
         return None, f"the photo {source!r} no longer builds: {exc}"
     shape = (int(record["grid_rows"]), int(record["grid_cols"]))

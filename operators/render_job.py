@@ -25,6 +25,8 @@ import time
 import bpy
 from bpy.props import StringProperty
 
+from ..cliff_terrain.figures.outputs import RENDERS
+
 ADDON_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHILD_SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "render_job_child.py")
 # What the child prints before each view, and the views each operator renders.
@@ -231,7 +233,7 @@ def rendered_views(folder):
     """The PNG files of a Render Views folder, in the order the views are listed."""
     if not folder or not os.path.isdir(folder):
         return []
-    order = ["xy.png", "xy_flat.png", "xz.png", "view3d.png", "mesh.png"]
+    order = list(RENDERS)
     names = [name for name in os.listdir(folder) if name.lower().endswith(".png")]
     return sorted(names, key=lambda name: (order.index(name) if name in order else len(order), name))
 

@@ -33,6 +33,12 @@ class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
     show_plots: bpy.props.BoolProperty(
         name="Plot Outlines", description="Draw the season's plot polygons", default=True
     )
+    color_by: bpy.props.StringProperty(
+        name="Colour By",
+        description="Colour the plots on each frame by a column of season.csv (cover, height_p90, ...: "
+        "changes each date) or traits/traits.csv (max_height_m, senescence_date, ...); empty: the photo",
+        default="",
+    )
     render: bpy.props.BoolProperty(
         name="Render", description="Render the PNG frames and the video into animation/", default=True
     )
@@ -40,8 +46,8 @@ class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
     def execute(self, context):
         try:
             from ..cliff_terrain.errors import CliffTerrainError
-            from ..cliff_terrain.plots import read_plots
-            from ..cliff_terrain.season.outputs import read_season
+            from ..cliff_terrain.io.plot_polygons import read_plots
+            from ..cliff_terrain.season.outputs import plot_colours, read_season
             from ..scene.season import build_season_scene, render_season
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
@@ -49,8 +55,20 @@ class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
         folder = Path(bpy.path.abspath(self.directory))
         try:
             season = read_season(folder)
-            plots = read_plots(season.plots) if self.show_plots and season.plots else None
-            built = build_season_scene(context, season, plots=plots)
+            plots = read_plots(season.plots) if season.plots and (self.show_plots or self.color_by) else None
+            colours = None
+            if self.color_by:
+                if plots is None:
+                    raise CliffTerrainError(f"`color_by` {self.color_by!r} needs the season's plots file")
+                colours = plot_colours(season, self.color_by, n_plots=len(plots.polygons))
+                self.report({"INFO"}, f"colour by {colours.describe()}")
+            built = build_season_scene(
+                context,
+                season,
+                plots=plots if self.show_plots else None,
+                colours=colours,
+                colour_plots=plots,
+            )
             if self.render:
                 render_season(built, folder / ANIMATION_DIR, log=lambda m: self.report({"INFO"}, m))
         except CliffTerrainError as exc:

@@ -44,7 +44,7 @@ def photo_gsd(path):
         return None
     if key not in _PHOTO_GSD:
         try:
-            from ..cliff_terrain.image_io import read_metadata
+            from ..cliff_terrain.io.photo import read_metadata
 
             meta = read_metadata(path)
             _PHOTO_GSD[key] = (meta.gsd_m_per_px, meta.gsd_source)
@@ -142,12 +142,18 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
                     text=f"Adaptive: {info.get('front_faces')} triangles, "
                     f"max error {info['max_error']:.3g} {info.get('units')}"
                 )
+                if info.get("max_error_rule"):
+                    box.label(text=f"Bound: {info['max_error_rule']}")
+            if info.get("mesh_rule", "given") != "given":
+                box.label(text=f"Mesh: {info['mesh_rule']}")
 
         # ---- Inspecting ----
         col = layout.column()
         col.prop(settings, "color_by")
         if settings.color_by == "PLOT_TRAIT":
             col.prop(settings, "color_trait")
+        elif settings.color_by == "INDEX":
+            col.prop(settings, "color_index")
         layout.operator(PROBE_OPERATOR, icon="EYEDROPPER")
         probe = obj.get(PROBE_KEY) if info is not None else None
         if probe:
@@ -223,7 +229,7 @@ class CLIFF_TERRAIN_PT_mesh(_SubPanel, bpy.types.Panel):
         col.prop(settings, "max_size")
         col.prop(settings, "mesh")
         sub = col.row()
-        sub.active = settings.mesh == "adaptive"  # the grid has no error to bound
+        sub.active = settings.mesh != "grid"  # the grid has no error to bound
         sub.prop(settings, "max_error")
         col.prop(settings, "two_sided")
 
@@ -242,7 +248,7 @@ class CLIFF_TERRAIN_PT_figures(_SubPanel, bpy.types.Panel):
             col.operator(idname, icon=icon)
         if settings.psnr or settings.ssim:
             box = layout.box()
-            from ..cliff_terrain.evaluation import psnr_text  # numpy: not at Blender's start-up
+            from ..cliff_terrain.evaluate.views import psnr_text  # numpy: not at Blender's start-up
 
             box.label(text=f"PSNR {psnr_text(settings.psnr)}", icon="INFO")
             box.label(text=f"SSIM {settings.ssim:.3f}")

@@ -62,6 +62,16 @@ def ensure_colour_nodes(material):
     mix.location = (bsdf.location.x - 200, bsdf.location.y - 150)
 
 
+def photo_where_transparent(material):
+    """The Colour By nodes mix by the colour attribute's alpha: its colour where alpha is 1, the photo
+    where it is 0 (a season's frames colour the plots and keep the photo around them)."""
+    ensure_colour_nodes(material)
+    tree = material.node_tree
+    mix, attribute = tree.nodes.get(MIX_NODE), tree.nodes.get(ATTRIBUTE_NODE)
+    if mix is not None and attribute is not None:
+        tree.links.new(attribute.outputs["Alpha"], _socket(mix.inputs, "Factor_Float"))
+
+
 def _socket(sockets, identifier):
     return next(s for s in sockets if s.identifier == identifier)
 
@@ -78,7 +88,7 @@ def height_legend(relief):
 
 def trait_legend(relief, grid, settings, trait):
     """(t per vertex in [0, 1], NaN outside the plots; legend) of colouring `relief` by a plot trait."""
-    from ..cliff_terrain.plots import rasterize_plots
+    from ..cliff_terrain.measure.field_plots import rasterize_plots
     from .plot_grid import TABLE_KEY, grid_plots
     from .probe import grid_cells
 
@@ -107,15 +117,42 @@ def trait_legend(relief, grid, settings, trait):
     return t, {"mode": "PLOT_TRAIT", "title": label, "low": low, "high": high, "unit": unit}
 
 
-def set_vertex_colours(mesh, t, *, name=COLOUR_ATTRIBUTE):
-    """Write viridis colours of `t` (in [0, 1]; NaN: grey) as the mesh's active point colour attribute
-    `name`, and return it (active for display, so Solid's Attribute colour shows it)."""
-    from ..cliff_terrain.figures import height_colours
+def index_legend(relief, index):
+    """(t per vertex in [0, 1], NaN without data; legend) of colouring `relief` by a vegetation index
+    of its photo's bands (:mod:`cliff_terrain.relief.indices`), from its 2nd to 98th percentile."""
+    from ..cliff_terrain.io.bands import read_bands
+    from ..cliff_terrain.relief.indices import index_maps
+    from .probe import grid_cells
+
+    info = relief["cliff_terrain"]
+    shape = (int(info["grid_rows"]), int(info["grid_cols"]))
+    values = index_maps(read_bands(info["source"], names=info.get("bands") or None), (index,), shape=shape)[
+        index
+    ]
+    row, col = grid_cells(info, positions(relief.data)[:, :2])
+    per_vertex = values[row, col].astype(np.float64)
+    finite = values[np.isfinite(values)]
+    low, high = (float(v) for v in np.percentile(finite, (2, 98))) if finite.size else (0.0, 1.0)
+    span = high - low
+    t = (
+        np.clip((per_vertex - low) / span, 0.0, 1.0)
+        if span > 0
+        else np.where(np.isnan(per_vertex), np.nan, 0.5)
+    )
+    return t, {"mode": "INDEX", "title": index, "low": low, "high": high, "unit": ""}
+
+
+def set_vertex_colours(mesh, t, *, name=COLOUR_ATTRIBUTE, nan_alpha=1.0):
+    """Write viridis colours of `t` (in [0, 1]; NaN: grey, of alpha `nan_alpha`) as the mesh's active
+    point colour attribute `name`, and return it (active for display, so Solid's Attribute colour
+    shows it). :func:`photo_where_transparent` makes the material show the photo where alpha is 0."""
+    from ..cliff_terrain.figures.legends import height_colours
 
     t = np.asarray(t, dtype=np.float64)
     rgba = np.ones((len(t), 4), dtype=np.float32)
     rgba[:, :3] = height_colours(np.nan_to_num(t))
     rgba[np.isnan(t), :3] = OUTSIDE_PLOTS
+    rgba[np.isnan(t), 3] = nan_alpha
     attribute = mesh.color_attributes.get(name)
     if attribute is None:
         attribute = mesh.color_attributes.new(name, "BYTE_COLOR", "POINT")
@@ -124,10 +161,12 @@ def set_vertex_colours(mesh, t, *, name=COLOUR_ATTRIBUTE):
     return attribute
 
 
-def colour_relief(relief, mode, *, settings=None, trait="height_p90_m"):
-    """Colour one relief by `mode` (``PHOTO``, ``HEIGHT`` or ``PLOT_TRAIT``); returns the mode it shows.
+def colour_relief(relief, mode, *, settings=None, trait="height_p90_m", index="NDVI"):
+    """Colour one relief by `mode` (``PHOTO``, ``HEIGHT``, ``PLOT_TRAIT`` or ``INDEX``); returns the
+    mode it shows.
 
-    A relief with no measured plot grid stays on its photo when asked for a plot trait.
+    A relief with no measured plot grid stays on its photo when asked for a plot trait, and one whose
+    bands do not give `index` (its record's ``indices``) when asked for an index.
     """
     material = relief.active_material
     if material is not None:
@@ -139,6 +178,8 @@ def colour_relief(relief, mode, *, settings=None, trait="height_p90_m"):
         grid = measured_grid(relief)
         if grid is not None:
             t, legend = trait_legend(relief, grid, settings, trait)
+    elif mode == "INDEX" and index in relief["cliff_terrain"].get("indices", ()):
+        t, legend = index_legend(relief, index)
     if legend is not None:
         set_vertex_colours(relief.data, t)
         relief[LEGEND_KEY] = legend

@@ -1,6 +1,6 @@
 """The relief's material: the full-resolution photo on the top, soil-coloured walls and base.
 
-Front corners have UVs in [0, 1]^2; walls and base have ``u = x + 1`` (see cliff_terrain.mesh). The
+Front corners have UVs in [0, 1]^2; walls and base have ``u = x + 1`` (see cliff_terrain.mesh.grid). The
 texture repeats, so ``u > 1`` samples the photo at the same ground position, and a ``U > 1`` test
 (Separate XYZ -> Math) mixes in a soil colour and darkens and desaturates the result there: the
 sides read as soil in a section, not as the border pixels stretched down. Used by the build
@@ -39,7 +39,7 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
     ----------
     path : str
         The photo file.
-    metadata : cliff_terrain.image_io.ImageMetadata, optional
+    metadata : cliff_terrain.io.photo.ImageMetadata, optional
         The core's metadata (``width``, ``height``, ``orientation``) to check Blender's reading with.
     fallback_rgb : (rows, cols, 3) uint8 array, optional
         The core's decoded, oriented pixels (rows from the top), used when at full resolution.
@@ -75,7 +75,7 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
     )
     if not full_size:
         # Rare (rotated or unusual files): decode again, oriented and at full resolution.
-        from ..cliff_terrain.image_io import load_image
+        from ..cliff_terrain.io.photo import load_image
 
         fallback_rgb, _ = load_image(path)
     return image_from_array(name or bpy.path.basename(path), fallback_rgb), True

@@ -30,7 +30,7 @@ KEEP_VERTEX_NORMALS = bpy.app.version >= (5, 1, 0)
 
 
 def mesh_from_arrays(name, mesh_arrays, *, scale=1.0, uv_name=UV_NAME):
-    """Create a new mesh datablock from a :class:`cliff_terrain.mesh.MeshArrays`.
+    """Create a new mesh datablock from a :class:`cliff_terrain.mesh.grid.MeshArrays`.
 
     Parameters
     ----------
@@ -140,7 +140,7 @@ def allocate_mesh(name, sizes):
     """A new mesh with room for `sizes` vertices, corners, faces and edges, none of them written yet.
 
     `sizes` has ``n_vertices``, ``n_corners``, ``n_faces`` and ``n_edges`` (a
-    :class:`cliff_terrain.mesh.MeshSizes` or a :class:`Topology`). Allocating is most of the cost
+    :class:`cliff_terrain.mesh.grid.MeshSizes` or a :class:`Topology`). Allocating is most of the cost
     of a big mesh (Blender zeroes the memory), so the build operator does it while the core
     decodes the photo; :func:`fill_topology` writes the faces, edges and UVs.
     """

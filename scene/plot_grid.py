@@ -29,7 +29,7 @@ def grid_relief(grid):
 
 def layout_of(settings):
     """The core layout of the scene's grid settings."""
-    from ..cliff_terrain.plot_grid import grid_layout
+    from ..cliff_terrain.measure.plot_grid import grid_layout
 
     return grid_layout(
         settings.plot_columns,
@@ -57,7 +57,7 @@ class MapFrame:
             self.offset = np.array(info["map_offset"], dtype=np.float64)
             self.crs = int(info["crs"])
         else:
-            from ..cliff_terrain.georaster import read_georeference
+            from ..cliff_terrain.io.geotiff import read_georeference
 
             transform, self.crs = read_georeference(info["source"])
             # The mesh's local (0, 0) is the photo's bottom-left corner.
@@ -178,8 +178,8 @@ def move_grid(grid, frame, placement):
 
 
 def grid_plots(grid, settings):
-    """The grid as numbered plots in the relief's CRS (:class:`cliff_terrain.plots.PlotSet`), and the frame."""
-    from ..cliff_terrain.plot_grid import Placement, plots_from
+    """The grid as numbered plots in the relief's CRS (:class:`cliff_terrain.io.plot_polygons.PlotSet`), and the frame."""
+    from ..cliff_terrain.measure.plot_grid import Placement, plots_from
 
     layout = layout_of(settings)
     frame, corners = grid_map_corners(grid, layout)

@@ -16,20 +16,19 @@ _RELIEFS = {}
 
 
 def relief_of(obj):
-    """The core :class:`~cliff_terrain.pipeline.Relief` of a relief object, rebuilt once and cached."""
+    """The core :class:`~cliff_terrain.build.Relief` of a relief object, rebuilt once and cached."""
     from ..cliff_terrain.errors import CliffTerrainError
     from ..operators.build import mask_digest
-    from ..operators.properties import ReliefParameters
 
     info = obj["cliff_terrain"]
     key = (obj.name, info.get("mask_digest"))
     if key in _RELIEFS:
         return _RELIEFS[key]
-    from ..cliff_terrain.pipeline import build_relief
+    from ..cliff_terrain.build import build_relief
+    from ..cliff_terrain.params import ReliefParams
 
-    kwargs = ReliefParameters.record_kwargs(info.get("params", {}).to_dict())
-    kwargs.pop("mesh", None)
-    relief = build_relief(info["source"], mesh=None, **kwargs)
+    params = ReliefParams.from_properties(info.get("params", {}).to_dict())
+    relief = build_relief(info["source"], params, mesh=None)
     if info.get("mask_digest") and mask_digest(relief.mask) != info["mask_digest"]:
         raise CliffTerrainError(
             f"{info['source']!r} no longer gives the relief {obj.name!r} was built from (the photo "
@@ -102,7 +101,7 @@ def probe(obj, local):
     import numpy as np
 
     from ..cliff_terrain.errors import CliffTerrainError
-    from ..cliff_terrain.plots import region_figures
+    from ..cliff_terrain.measure.field_plots import region_figures
 
     info = obj["cliff_terrain"]
     pixel = pixel_of(info, local)

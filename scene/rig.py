@@ -137,8 +137,8 @@ def make_rig(
         Share of the sky light on level ground, in [0, 1); the sun gives the rest.
     side_exaggeration : float, optional
         Vertical exaggeration of the side view; default a round factor that makes the relief rise
-        to a useful share of the view (``cliff_terrain.figures.vertical_exaggeration``).
-    transect : cliff_terrain.figures.Transect, optional
+        to a useful share of the view (``cliff_terrain.figures.legends.vertical_exaggeration``).
+    transect : cliff_terrain.io.transect.Transect, optional
         A strip of the photo the side view shows alone (default: the whole relief from the south).
     photo_shape : tuple of int, optional
         (rows, cols) of the photo the transect's pixels refer to.
@@ -233,7 +233,7 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
         edge), ``rows_per_unit`` (image rows per unit of the relief's heights), ``strip_columns``
         (image columns where the strip starts and ends), ``transect``.
     """
-    from ..cliff_terrain.figures import vertical_exaggeration
+    from ..cliff_terrain.figures.legends import vertical_exaggeration
 
     width, depth, _ = bounds.size
     ground = obj.matrix_world.translation.z  # the mesh's z = 0 is the relief's height 0
@@ -295,7 +295,8 @@ def strip_top(obj, start, end, half, ground, *, default):
     `start` to `end` (world x, y); `default` when no vertex lies in the strip.
 
     The relief's surface is flat between its vertices (grid or TIN), so its highest point in
-    the strip is a vertex, up to the strip's edges.
+    the strip is a vertex inside it or where an edge crosses the strip's border: a TIN's long
+    edges cross a narrow strip with no vertex in it higher than the surface they carry there.
     """
     matrix = np.array(obj.matrix_world, dtype=np.float64)
     world = positions(obj.data).astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
@@ -306,9 +307,28 @@ def strip_top(obj, start, end, half, ground, *, default):
     along = offset @ direction
     across = offset @ [-direction[1], direction[0]]
     inside = (along >= 0) & (along <= length) & (np.abs(across) <= half)
-    if not inside.any():
+    tops = [world[inside, 2]]
+    edges = np.empty(2 * len(obj.data.edges), dtype=np.int32)
+    obj.data.edges.foreach_get("vertices", edges)
+    a, b = edges.reshape(-1, 2).T
+    points = np.stack([along, across], axis=1)
+    for axis, value, low, high in (
+        (0, 0.0, -half, half),
+        (0, length, -half, half),
+        (1, -half, 0.0, length),
+        (1, half, 0.0, length),
+    ):
+        da, db = points[a, axis] - value, points[b, axis] - value
+        crosses = da * db < 0
+        t = da[crosses] / (da[crosses] - db[crosses])
+        ea, eb = a[crosses], b[crosses]
+        at = points[ea, 1 - axis] + t * (points[eb, 1 - axis] - points[ea, 1 - axis])
+        within = (at >= low) & (at <= high)
+        tops.append((world[ea, 2] + t * (world[eb, 2] - world[ea, 2]))[within])
+    tops = np.concatenate(tops)
+    if not tops.size:
         return default
-    return max(float(world[inside, 2].max()) - ground, 0.0)
+    return max(float(tops.max()) - ground, 0.0)
 
 
 def remove_rig(scene):

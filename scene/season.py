@@ -19,7 +19,10 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from ..cliff_terrain.mesh import grid_mesh
+from ..cliff_terrain.errors import CliffTerrainError
+from ..cliff_terrain.measure.field_plots import rasterize_plots
+from ..cliff_terrain.mesh.grid import grid_mesh
+from .colour_by import photo_where_transparent, set_vertex_colours
 from .datablocks import remove_collection
 from .material import load_photo, relief_material
 from .mesh_data import mesh_from_arrays
@@ -48,15 +51,23 @@ class SeasonScene:
     failed: list = field(default_factory=list)
 
 
-def build_season_scene(context, season, *, plots=None, size=(1280, 720), engine="WORKBENCH"):
+def build_season_scene(
+    context, season, *, plots=None, colours=None, colour_plots=None, size=(1280, 720), engine="WORKBENCH"
+):
     """Build the season's animation in the context's scene (replacing an earlier season's collection).
 
     Parameters
     ----------
     context : bpy.types.Context
     season : cliff_terrain.season.outputs.SeasonOutputs
-    plots : cliff_terrain.plots.PlotSet, optional
+    plots : cliff_terrain.io.plot_polygons.PlotSet, optional
         Plot outlines to draw (in the season's CRS).
+    colours : cliff_terrain.season.outputs.PlotColours, optional
+        Colour each date's relief inside each plot by its value (viridis, one scale for the season);
+        outside the plots, and in a plot without a value, the photo stays. The scale is stamped on
+        every frame.
+    colour_plots : cliff_terrain.measure.field_plots.PlotSet, optional
+        The plots `colours` refers to (default `plots`).
     size : (int, int)
         Frame (cols, rows) in pixels.
     engine : {"WORKBENCH", "CYCLES"}
@@ -75,9 +86,17 @@ def build_season_scene(context, season, *, plots=None, size=(1280, 720), engine=
     # (UTM coordinates are millions of metres: float32 vertices would lose centimetres).
     corners = np.concatenate([_grid_corners(d.transform, d.heights.shape) for d in season.dates])
     origin = tuple(float(v) for v in (corners.min(axis=0) + corners.max(axis=0)) / 2)
+    colour_plots = colour_plots if colour_plots is not None else plots
+    if colours is not None and engine == "WORKBENCH":
+        engine = "CYCLES"  # Workbench draws no material nodes: the colours mix in the material
+    if colours is not None and colour_plots is None:
+        raise CliffTerrainError("`colours` needs the plots (`colour_plots` or `plots`), got None")
     reliefs = []
-    for date in season.dates:
-        reliefs.append(_relief_object(collection, date, origin))
+    for i, date in enumerate(season.dates):
+        obj = _relief_object(collection, date, origin)
+        if colours is not None:
+            _colour_plots(obj, date, colour_plots, colours.normalised(i))
+        reliefs.append(obj)
     n = len(reliefs)
     scene.frame_start, scene.frame_end = 1, n
     for marker in list(scene.timeline_markers):
@@ -91,7 +110,7 @@ def build_season_scene(context, season, *, plots=None, size=(1280, 720), engine=
     thickness = camera.data.ortho_scale / size[0]
     outlines = _outlines(collection, plots, origin, thickness) if plots is not None else None
     scene.camera = camera
-    _render_settings(scene, engine, size)
+    _render_settings(scene, engine, size, legend=None if colours is None else colours.legend())
     scene.frame_set(1)
     return SeasonScene(
         scene=scene,
@@ -174,6 +193,20 @@ def _relief_object(collection, date, origin):
     return obj
 
 
+def _colour_plots(obj, date, plots, t):
+    """Colour the relief's vertices inside plot k by `t[k]` (viridis); elsewhere, and where `t` is
+    NaN, alpha 0 so the material shows the photo."""
+    rows, cols = date.heights.shape
+    # The grid's vertices are its pixel corners: the corner lattice is a grid of (rows + 1, cols + 1)
+    # pixels half a pixel up and left, whose pixel centres are the vertices, in grid_mesh's order.
+    t_map = np.vstack([np.asarray(date.transform, dtype=np.float64), [0.0, 0.0, 1.0]])
+    corners = t_map @ np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
+    labels = rasterize_plots(plots, transform=corners, shape=(rows + 1, cols + 1)).ravel()
+    per_plot = np.concatenate([[np.nan], np.asarray(t, dtype=np.float64)])
+    set_vertex_colours(obj.data, per_plot[labels], nan_alpha=0.0)
+    photo_where_transparent(obj.active_material)
+
+
 def _visible_on_frame_only(obj, frame, n_frames):
     """Keyframe the object's visibility: shown (viewport and render) on `frame` only."""
     for f in range(1, n_frames + 1):
@@ -234,7 +267,7 @@ def _camera(collection, corners, top, size):
     return camera
 
 
-def _render_settings(scene, engine, size):
+def _render_settings(scene, engine, size, *, legend=None):
     render = scene.render
     if engine == "WORKBENCH" and not gpu_available():
         engine = "CYCLES"  # Workbench draws through EGL, which this machine lacks
@@ -269,6 +302,9 @@ def _render_settings(scene, engine, size):
     for name in render.bl_rna.properties.keys():
         if name.startswith("use_stamp_"):
             setattr(render, name, name == "use_stamp_marker")
+    if legend:  # the colour scale, on every frame beside the date
+        render.use_stamp_note = True
+        render.stamp_note_text = legend
     render.stamp_font_size = max(16, size[1] // 16)
     render.stamp_foreground = (1.0, 1.0, 1.0, 1.0)
     render.stamp_background = (0.0, 0.0, 0.0, 0.8)

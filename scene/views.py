@@ -2,7 +2,7 @@
 with the photo. Used by the Render Views and Evaluate operators and by ``render_views.py``.
 
 The rig (cameras, light) is in ``rig``, the materials in ``render_materials``, the settings in
-``render_settings``; the comparison itself (numpy only) is :mod:`cliff_terrain.evaluation`.
+``render_settings``; the comparison itself (numpy only) is :mod:`cliff_terrain.evaluate.views`.
 """
 
 from __future__ import annotations
@@ -16,25 +16,21 @@ import time
 import bpy
 import numpy as np
 
-from ..cliff_terrain.evaluation import (
+from ..cliff_terrain.evaluate.views import (
     compare_top_views,
     read_png,
     reference_image,
     resize_nearest,
     slope_degrees,
 )
+from ..cliff_terrain.figures import outputs
 from .mesh_data import positions
 from .render_materials import add_height_colours, flat_material, height_material, make_matte, relief_image
 from .render_settings import FLAT_SAMPLES, SAMPLES, configure, gpu_available
 
-# Views in the order they are rendered (Cycles keeps its scene data between them).
-VIEW_FILES = {
-    "xy_flat": "xy_flat.png",
-    "xy": "xy.png",
-    "xz": "xz.png",
-    "view3d": "view3d.png",
-    "mesh": "mesh.png",
-}
+# Views in the order they are rendered (Cycles keeps its scene data between them), and their files.
+RENDER_ORDER = ("xy_flat", "xy", "xz", "view3d", "mesh")
+VIEW_FILES = {view: outputs.VIEW_FILES[view] for view in RENDER_ORDER}
 
 
 def render_to(scene, path, *, quiet=False):
@@ -166,15 +162,15 @@ def front_corner_heights(obj, grid_shape):
     """Heights (z) of the relief's front grid, (rows + 1, cols + 1), in Blender units.
 
     The front vertices come first in the mesh, row by row from the photo's top (see
-    cliff_terrain.mesh).
+    cliff_terrain.mesh.grid).
     """
     rows, cols = grid_shape
     n = (rows + 1) * (cols + 1)
     mesh = obj.data
     if len(mesh.polygons) and mesh.polygons[0].loop_total == 3:
-        # An adaptive mesh (cliff_terrain.mesh.adaptive_mesh): its front triangles come first;
+        # An adaptive mesh (cliff_terrain.mesh.adaptive.adaptive_mesh): its front triangles come first;
         # sample them at the pixel corners.
-        from ..cliff_terrain.tin import sample_front
+        from ..cliff_terrain.mesh.tin_sample import sample_front
 
         sizes = np.empty(len(mesh.polygons), dtype=np.int32)
         mesh.polygons.foreach_get("loop_total", sizes)
@@ -208,7 +204,8 @@ def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):
     """
     record = obj["cliff_terrain"]
     size = rig.sizes["xy"]
-    reference, description = reference_image(source or record["source"], size)
+    bands = tuple(record.get("bands", ())) or None  # a multispectral photo's, when its file names none
+    reference, description = reference_image(source or record["source"], size, bands=bands)
     grid = (int(record["grid_rows"]), int(record["grid_cols"]))
     width = rig.bounds.size[0]
     slope = slope_degrees(front_corner_heights(obj, grid), width / grid[1])
@@ -218,3 +215,19 @@ def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):
     metrics["reference"] = description
     metrics["render_size"] = list(size)
     return metrics
+
+
+def render_record(obj, *, engine, samples, light):
+    """What ``metrics.json`` records of the Blender side of a run (``figures.outputs.write_metrics``):
+    the relief object's mesh, the engine, samples and light of the views, the versions."""
+    from ..cliff_terrain import __version__
+
+    return {
+        "vertices": len(obj.data.vertices),
+        "faces": len(obj.data.polygons),
+        "engine": engine,
+        "samples": samples,
+        "flat_view": f"Cycles, texture as emission, {FLAT_SAMPLES} samples, 1-pixel box filter",
+        "light": light,
+        "versions": {"cliff_terrain": __version__, "blender": bpy.app.version_string},
+    }

@@ -250,7 +250,7 @@ CASES = [
     Case("1x1", make_one_pixel, Refused("it is 1x1 pixels; an image needs at least 2x2")),
     Case("2x2", make_two_by_two, Built(size=(2, 2), grid=(2, 2), regions=1, covered=True)),
     Case("2x64-strip", make_strip, Built(size=(64, 2), grid=(2, 64), regions=0)),
-    # Grey has no excess green: documented (cliff_terrain.segmentation) as flat, like bare soil.
+    # Grey has no excess green: documented (cliff_terrain.relief.segmentation) as flat, like bare soil.
     Case("greyscale", make_greyscale, Built(size=(COLS, ROWS), grid=(ROWS, COLS), regions=0)),
     Case(
         "rgba-no-data",
@@ -328,7 +328,8 @@ def check_relief(expect, heights, regions, *, corners):
 
 
 def build(photo):
-    result = bpy.ops.cliff_terrain.build_relief(filepath=str(photo), max_size=MAX_SIZE)
+    # The grid: the checks below read its vertex layout.
+    result = bpy.ops.cliff_terrain.build_relief(filepath=str(photo), max_size=MAX_SIZE, mesh="grid")
     assert result == {"FINISHED"}
     return bpy.context.active_object
 
@@ -403,7 +404,7 @@ def test_build_operator(case, scene, datablock_counts, tmp_path, shared_folder, 
 
     if isinstance(case.expect, Refused):
         with pytest.raises(RuntimeError) as failure:
-            bpy.ops.cliff_terrain.build_relief(filepath=str(photo), max_size=MAX_SIZE)
+            bpy.ops.cliff_terrain.build_relief(filepath=str(photo), max_size=MAX_SIZE, mesh="grid")
         message = str(failure.value)
         assert message.startswith("Error: ") and len(message.strip().splitlines()) == 1, message
         check_refusal(message, case, photo, cli=False)
@@ -460,7 +461,19 @@ def test_undo_removes_a_relief_textured_from_decoded_pixels(scene, tmp_path):
 
 def render_views(photo, *args):
     return subprocess.run(
-        [sys.executable, str(SCRIPT), str(photo), "--max-size", str(MAX_SIZE), "--samples", "1", *args],
+        # The grid: the checks read its vertex count.
+        [
+            sys.executable,
+            str(SCRIPT),
+            str(photo),
+            "--max-size",
+            str(MAX_SIZE),
+            "--samples",
+            "1",
+            "--mesh",
+            "grid",
+            *args,
+        ],
         capture_output=True,
         text=True,
         encoding="utf-8",

@@ -9,6 +9,7 @@ Pillow can only come from the wheels inside the zip. Wheels are cached in ``whee
 ``make extension``), so only the first run downloads them.
 """
 
+import ast
 import importlib.util
 import json
 import os
@@ -92,7 +93,7 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
     assert manifest["blender_version_min"] == {"3.11": "4.2.0", "3.13": "4.3.0"}[PYTHON]
     for required in (
         "__init__.py",
-        "cliff_terrain/pipeline.py",
+        "cliff_terrain/build.py",
         "operators/build.py",
         "scene/mesh_data.py",
         "panels/sidebar.py",
@@ -115,6 +116,29 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
     # chart are command-line only.
     assert "cliff_terrain/season/outputs.py" in names and "operators/season.py" in names
     assert "cliff_terrain/season/runner.py" not in names and "cliff_terrain/season/charts.py" not in names
+    # Mask quality and the synthetic surface serve the tests, benchmarks and tools, not the extension.
+    assert "cliff_terrain/evaluate/mask_quality.py" not in names
+    assert "cliff_terrain/data/synthetic_surface.py" not in names
+
+
+def test_every_module_the_zip_imports_is_in_the_zip(linux_zip):
+    """What the manifest leaves out is imported by nothing the zip holds (lazy imports too), so no
+    button of the installed extension can fail on a missing module."""
+    with zipfile.ZipFile(linux_zip) as archive:
+        sources = {n: archive.read(n).decode() for n in archive.namelist() if n.endswith(".py")}
+    modules = {n[: -len(".py")].removesuffix("/__init__").replace("/", ".") for n in sources}
+    missing = []
+    for name, text in sources.items():
+        package = name[: -len(".py")].replace("/", ".").split(".")[:-1]
+        for node in ast.walk(ast.parse(text)):
+            if not isinstance(node, ast.ImportFrom) or node.level == 0:
+                continue
+            base = package[: len(package) - node.level + 1] + ([node.module] if node.module else [])
+            for alias in node.names:
+                target = ".".join([*base, alias.name])
+                if ".".join(base) not in modules and target not in modules:
+                    missing.append(f"{name}: {'.' * node.level}{node.module or ''} import {alias.name}")
+    assert not missing, "\n".join(missing)
 
 
 def test_zip_check_names_a_wheel_the_builder_left_out(tool, tmp_path):
@@ -255,7 +279,7 @@ def test_installed_zip_builds_a_relief_with_its_own_wheels(linux_zip, tmp_path):
     # The same UVs as the core's: front in [0, 1], walls and base beyond u = 1.
     uvs = np.array(out["uvs"], dtype=np.float32)
     np.testing.assert_array_equal(uvs, ref.mesh.uvs)
-    n_front = 4 * ref.mesh.n_front_faces
+    n_front = int(ref.mesh.face_sizes[: ref.mesh.n_front_faces].sum())  # grid quads or TIN triangles
     assert uvs[:n_front].min() >= 0.0 and uvs[:n_front].max() <= 1.0
     assert n_front < len(uvs) and uvs[n_front:, 0].min() >= 1.0
     assert out["name"] == MAIZE.stem and out["material"] == MAIZE.stem
@@ -315,3 +339,64 @@ def test_a_zip_for_another_platform_is_refused_by_blender(tmp_path):
     out, message = install_only(zip_path, tmp_path)
     assert not out["enabled"], out
     assert "This platform (linux-x64) isn't one of (windows-x64)" in message, out
+
+
+def test_the_operator_fills_its_mesh_in_its_own_thread_while_the_core_runs_in_a_worker(
+    addon, scene, monkeypatch
+):
+    """The core is a plain function; the operator runs it (without a mesh) in a worker thread and
+    meanwhile makes the Blender mesh in the calling thread, to which the progress is relayed."""
+    import importlib
+    import threading
+
+    from conftest import ADDON
+
+    build = importlib.import_module(f"{ADDON}.operators.build")
+    core = importlib.import_module(f"{ADDON}.cliff_terrain")
+    params = importlib.import_module(f"{ADDON}.cliff_terrain.params").ReliefParams(max_size=300, mesh="grid")
+    caller, allocated, calls = threading.get_ident(), threading.Event(), []
+    real_allocate, real_fill = build.allocate_mesh, build.fill_topology
+
+    def allocate(name, sizes):
+        calls.append(("allocate", threading.get_ident()))
+        mesh = real_allocate(name, sizes)
+        allocated.set()
+        return mesh
+
+    def fill(mesh, topology):
+        calls.append(("fill", threading.get_ident()))
+        real_fill(mesh, topology)
+
+    monkeypatch.setattr(build, "allocate_mesh", allocate)
+    monkeypatch.setattr(build, "fill_topology", fill)
+
+    def core_build(path, params, **kwargs):
+        calls.append(("core", threading.get_ident(), params.mesh, kwargs.get("mesh")))
+        assert allocated.wait(60)  # the mesh is made while the core runs
+        return core.build_relief(path, params, **kwargs)
+
+    stages, created = [], []
+    relief, mesh = build.build_beside_the_mesh(
+        core_build, str(MAIZE), params, lambda f, s: stages.append((s, threading.get_ident())), created
+    )
+    worker = calls[0][1]
+    assert calls[0] == ("core", worker, "grid", None) and worker != caller
+    assert calls[1:] == [("allocate", caller), ("fill", caller)]
+    assert created == [mesh]
+    assert [s for s, _ in stages] == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
+    assert {t for _, t in stages} == {caller}
+    ref = core.build_relief(str(MAIZE), max_size=300, mesh="grid")
+    assert relief.params["mesh"] == "grid" and relief.mesh_kind == "grid" and relief.mesh_rule == "given"
+    np.testing.assert_array_equal(relief.mesh.vertices, ref.mesh.vertices)
+    assert (len(mesh.vertices), len(mesh.polygons)) == (ref.mesh.n_vertices, ref.mesh.n_faces)
+    bpy.data.meshes.remove(mesh)
+
+    # The worker's error propagates once it has finished; the mesh made meanwhile is in `created`.
+    def failing(path, params, **kwargs):
+        raise core.CliffTerrainError("the core failed")
+
+    created = []
+    with pytest.raises(core.CliffTerrainError, match="the core failed"):
+        build.build_beside_the_mesh(failing, str(MAIZE), params, None, created)
+    assert len(created) == 1
+    bpy.data.meshes.remove(created[0])

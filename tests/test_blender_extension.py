@@ -174,12 +174,12 @@ def test_mesh_from_arrays_one_sided_and_bad_indices(addon, core, scene, databloc
 def test_a_mesh_allocated_for_other_sizes_is_not_filled(addon, core, scene):
     mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
     topology = mesh_data.checked_topology(core.grid_mesh(np.zeros((3, 4))))
-    mesh = mesh_data.allocate_mesh("other", core.mesh.grid_sizes((3, 5)))
+    mesh = mesh_data.allocate_mesh("other", core.grid_sizes((3, 5)))
     with pytest.raises(
         ValueError, match=r"mesh 'other' has room for \(40, 140, 32, 70\) vertices, corners, faces"
     ):
         mesh_data.fill_topology(mesh, topology)
-    right = mesh_data.allocate_mesh("right", core.mesh.grid_sizes((3, 4)))
+    right = mesh_data.allocate_mesh("right", core.grid_sizes((3, 4)))
     mesh_data.fill_topology(right, topology)
     mesh_data.set_positions(right, core.grid_mesh(np.zeros((3, 4))).vertices)
     assert right.validate(verbose=False) is False
@@ -190,8 +190,8 @@ def test_a_mesh_allocated_for_other_sizes_is_not_filled(addon, core, scene):
 
 @needs_uav
 def test_build_matches_core_in_normalised_units(addon, core, scene):
-    obj = build(filepath=BROCCOLI, max_size=96)
-    ref = core.build_relief(str(BROCCOLI), max_size=96)
+    obj = build(filepath=BROCCOLI, max_size=96, mesh="grid")
+    ref = core.build_relief(str(BROCCOLI), max_size=96, mesh="grid")
     assert ref.units == "px"  # no EXIF and no GSD given
     mesh = obj.data
 
@@ -219,7 +219,7 @@ def test_build_matches_core_in_normalised_units(addon, core, scene):
 @needs_uav
 def test_walls_and_base_are_marked_by_u_above_one(addon, scene):
     # The material tells walls and base from the top by U > 1, so every back corner needs it.
-    obj = build(filepath=BROCCOLI, max_size=40)
+    obj = build(filepath=BROCCOLI, max_size=40, mesh="grid")
     n_front_corners = 4 * (obj["cliff_terrain"]["grid_rows"] * obj["cliff_terrain"]["grid_cols"])
     uvs = corner_uvs(obj.data)
     assert n_front_corners < len(uvs)
@@ -246,6 +246,11 @@ def test_build_records_its_settings_on_the_object(addon, core, scene):
     assert info["regions"] == ref.n_regions > 0
     assert info["max_height"] == pytest.approx(ref.max_height)
     assert (info["image_width"], info["image_height"]) == (1500, 1500)
+    # "auto" resolved as the core resolves it, and why; the bound and the rule that chose it.
+    assert (info["mesh"], info["mesh_rule"]) == (ref.mesh_kind, ref.mesh_rule)
+    assert info["mesh_rule"].startswith("auto: ")
+    assert info["max_error"] == pytest.approx(ref.max_error or 0.0)
+    assert info["max_error_rule"] == (ref.max_error_rule or "")
     assert info["params"] == {
         "segmentation": "paper",
         "profile": "poisson",
@@ -254,7 +259,7 @@ def test_build_records_its_settings_on_the_object(addon, core, scene):
         "max_height": 0.0,  # 0: the canopy height estimated from the photo
         "gsd": 0.0,
         "two_sided": True,
-        "mesh": "grid",
+        "mesh": "auto",
         "max_error": 0.0,  # 0: the adaptive mesh's automatic error
         "dsm": 0.0,  # no surface model (ID properties hold no None)
         "dtm": 0.0,
@@ -274,7 +279,7 @@ def test_build_in_metres_with_a_given_gsd(addon, core, scene):
 
 @needs_uav
 def test_build_in_metres_from_geotiff(addon, core, scene):
-    obj = build(filepath=MAIZE, max_size=100, two_sided=False)
+    obj = build(filepath=MAIZE, max_size=100, two_sided=False, mesh="grid")
     meta = core.load_image(str(MAIZE))[1]
     assert meta.gsd_source == "geotiff"
     assert obj["cliff_terrain"]["units"] == "m"
@@ -410,9 +415,11 @@ def test_parameters_not_given_come_from_the_scene_settings(addon, scene):
     settings.max_size = 32
     settings.two_sided = False
     settings.profile = "poisson"
+    settings.mesh = "grid"
     assert bpy.ops.cliff_terrain.build_relief("INVOKE_DEFAULT") == {"FINISHED"}
     params = bpy.context.active_object["cliff_terrain"]["params"]
     assert (params["max_size"], params["two_sided"], params["profile"]) == (32, False, "poisson")
+    assert params["mesh"] == "grid"
     assert len(bpy.context.active_object.data.vertices) == 33 * 33
     # An explicit value wins over the scene's; the last run's value does not.
     assert bpy.ops.cliff_terrain.build_relief(max_size=24) == {"FINISHED"}
@@ -646,13 +653,13 @@ def test_settings_match_the_brief_and_the_core(addon, core, scene):
     assert rna["filepath"].subtype == "FILE_PATH" and rna["output_dir"].subtype == "DIR_PATH"
     # The core's range, from the one module that holds it (the panel stopped at 8000 once).
     assert (rna["max_size"].hard_min, rna["max_size"].hard_max, rna["max_size"].default) == (16, 16384, 1000)
-    segmentation = importlib.import_module(f"{ADDON}.cliff_terrain.segmentation")
-    heights = importlib.import_module(f"{ADDON}.cliff_terrain.heights")
+    segmentation = importlib.import_module(f"{ADDON}.cliff_terrain.relief.segmentation")
+    heights = importlib.import_module(f"{ADDON}.cliff_terrain.relief.inflate")
     assert tuple(item.identifier for item in rna["segmentation"].enum_items) == segmentation.METHODS
     assert tuple(item.identifier for item in rna["profile"].enum_items) == heights.PROFILES
-    assert settings.core_kwargs()["gsd"] is None
+    assert settings.relief_params().gsd is None
     settings.gsd = 0.02
-    assert settings.core_kwargs()["gsd"] == pytest.approx(0.02)
+    assert settings.relief_params().gsd == pytest.approx(0.02)
     for name in ("psnr", "ssim", "exaggeration", "two_sided"):
         assert name in rna
 

@@ -87,7 +87,7 @@ def test_probe_with_a_surface_model_reports_ground_and_canopy_in_metres(scene):
     assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
     obj = bpy.context.active_object
     reference = build_relief(
-        str(ODM), max_size=250, mesh=None, dsm=str(ODM.with_name("dsm.tif")), heights="measured"
+        str(ODM), max_size=250, mesh=None, dsm=str(ODM.with_name("dsm.tif")), height_source="measured"
     )
     points, pixels = _world_points(obj, reference, 6, seed=2)
     for (x, y), (row, col) in zip(points, pixels, strict=True):
@@ -117,7 +117,7 @@ def test_probe_off_the_relief_is_an_error_naming_the_point(scene):
 def test_colour_by_height_colours_the_material_and_back(scene):
     import bpy
 
-    from cliff_terrain.figures import height_colours
+    from cliff_terrain.figures.legends import height_colours
 
     photo = _photo(BROCCOLI)
     settings = scene.cliff_terrain

@@ -22,7 +22,7 @@ def ex2(name):
 def test_build_from_the_sidebar_fields_measures_heights(scene):
     import bpy
 
-    from cliff_terrain.pipeline import build_relief
+    from cliff_terrain.build import build_relief
 
     settings = scene.cliff_terrain
     settings.filepath = ex2("odm_orthophoto.tif")
@@ -37,10 +37,10 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
     # The object sits at the world origin; its record holds the map offset of its (0, 0).
     assert tuple(obj.location) == (0.0, 0.0, 0.0)
     reference = build_relief(
-        settings.filepath, dsm=settings.dsm, heights="measured", max_size=300, two_sided=False
+        settings.filepath, dsm=settings.dsm, height_source="measured", max_size=300, two_sided=False
     )
     rows = reference.heights.shape[0]
-    a, b, c, d, e, f = reference.params["georeference"]["transform"]
+    a, b, c, d, e, f = reference.georeference["transform"]
     assert (b, d) == (0.0, 0.0)  # north-up: the grid's bottom-left corner is (c, f + e * rows)
     assert list(info["map_offset"]) == pytest.approx([c, f + e * rows], abs=1e-6)
     z = np.empty(len(obj.data.vertices) * 3, np.float32)
@@ -91,7 +91,7 @@ def test_render_views_plots_need_a_dsm(tmp_path):
 def test_render_views_with_dsm_and_plots(tmp_path):
     import json
 
-    from cliff_terrain.georaster import read_orthophoto
+    from cliff_terrain.io.geotiff import read_orthophoto
 
     ortho = read_orthophoto(ex2("odm_orthophoto.tif"))
     x0, y0 = ortho.transform[0, 2] + 20, ortho.transform[1, 2] - 20
@@ -147,7 +147,7 @@ def test_render_views_with_dsm_and_plots(tmp_path):
         assert summary[key] == pytest.approx(metrics[key], rel=1e-6), key
     assert summary["threshold"] == metrics["params"]["threshold"]
     # And both are what the CHM says: the p90 of the canopy height over the plant pixels.
-    from cliff_terrain.georaster import read_surface
+    from cliff_terrain.io.geotiff import read_surface
 
     chm = read_surface(heights_out / "chm.tif").data
     with Image.open(out / "mask.png") as image:

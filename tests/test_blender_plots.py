@@ -34,9 +34,10 @@ def test_add_edit_fit_and_export_a_plot_grid(relief, tmp_path):
     import bpy
     from cliff_terrain_addon.scene.plot_grid import MapFrame, grid_plots
 
-    from cliff_terrain.canopy import plant_mask
-    from cliff_terrain.georaster import read_orthophoto
-    from cliff_terrain.plots import rasterize_plots, read_plots
+    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.plot_polygons import read_plots
+    from cliff_terrain.measure.canopy import plant_mask
+    from cliff_terrain.measure.field_plots import rasterize_plots
 
     settings = bpy.context.scene.cliff_terrain
     settings.plot_columns, settings.plot_rows = 4, 9
@@ -96,8 +97,8 @@ def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
     from cliff_terrain_addon.panels.sidebar import plot_table_lines
     from cliff_terrain_addon.scene.plot_grid import TABLE_KEY, grid_plots
 
-    from cliff_terrain.pipeline import build_relief
-    from cliff_terrain.plots import plot_table, rasterize_plots
+    from cliff_terrain.build import build_relief
+    from cliff_terrain.measure.field_plots import plot_table, rasterize_plots
 
     settings = bpy.context.scene.cliff_terrain
     settings.plot_columns, settings.plot_rows = 3, 4
@@ -109,7 +110,7 @@ def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
     assert sorted(row["plot"] for row in table) == list(range(1, 13))
     # The same figures as the core's plot table on the relief built with the same settings.
     reference = build_relief(
-        str(ODM), dsm=str(ODM.with_name("dsm.tif")), heights="measured", max_size=250, mesh=None
+        str(ODM), dsm=str(ODM.with_name("dsm.tif")), height_source="measured", max_size=250, mesh=None
     )
     plots, _ = grid_plots(grid, settings)
     canopy = reference.canopy
@@ -128,7 +129,7 @@ def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
 
     # Colour By Plot Trait: offered now that a plot table exists; each plot's vertices take the viridis
     # colour of its p90 between the lowest and the highest plot's, vertices outside the plots grey.
-    from cliff_terrain.figures import height_colours
+    from cliff_terrain.figures.legends import height_colours
 
     settings.color_trait = "height_p90_m"
     settings.color_by = "PLOT_TRAIT"

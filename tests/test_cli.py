@@ -47,6 +47,9 @@ def test_relief_writes_what_build_relief_computes(field, tmp_path):
     assert run.returncode == 0, run.stderr
     relief = build_relief(str(field), max_size=200, gsd=0.01, two_sided=False)
     np.testing.assert_allclose(tifffile.imread(out / "height.tif"), relief.heights, rtol=1e-6)
+    with tifffile.TiffFile(out / "height.tif") as tif:  # as render_views.py writes it: with its units
+        assert tif.shaped_metadata[0]["units"] == "m"
+        assert tif.shaped_metadata[0]["pixel_size"] == pytest.approx(relief.pixel_size)
     np.testing.assert_array_equal(tifffile.imread(out / "labels.tif"), relief.labels)
     np.testing.assert_array_equal(np.asarray(Image.open(out / "mask.png")) > 0, relief.mask)
     summary = json.loads((out / "relief.json").read_text())

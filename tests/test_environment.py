@@ -17,9 +17,11 @@ from conftest import SHARED_UAV
 from PIL import Image, ImageOps
 
 import cliff_terrain
-from cliff_terrain import _deps, image_io
+from cliff_terrain import _deps
 from cliff_terrain.errors import CliffTerrainError, DependencyError
-from cliff_terrain.image_io import load_image
+from cliff_terrain.io import jpeg
+from cliff_terrain.io import photo as image_io
+from cliff_terrain.io.photo import load_image
 
 ROOT = Path(__file__).resolve().parents[1]
 # Optional here (the synthetic photos test the same paths): used when ../shared holds it.
@@ -45,8 +47,8 @@ def _pillow_pixels(path, reduction):
 def pillow_decodes(monkeypatch):
     """Names of the images Pillow's decoder was asked for (the fallback), as a list."""
     calls = []
-    original = image_io._decode
-    monkeypatch.setattr(image_io, "_decode", lambda im, name: calls.append(name) or original(im, name))
+    original = image_io.decode_pixels
+    monkeypatch.setattr(image_io, "decode_pixels", lambda im, name: calls.append(name) or original(im, name))
     return calls
 
 
@@ -66,7 +68,7 @@ def _check_same_as_pillow(photos):
 def test_opencv_without_imread_color_rgb_decodes_bgr_and_swaps(tmp_path, monkeypatch, pillow_decodes):
     # OpenCV 4.10 and older (Debian 13's python3-opencv) have no IMREAD_COLOR_RGB.
     monkeypatch.delattr(cv2, "IMREAD_COLOR_RGB", raising=False)
-    flags, swap = image_io._cv2_colour_flags(2)
+    flags, swap = jpeg.cv2_colour_flags(2)
     assert swap and flags == cv2.IMREAD_REDUCED_COLOR_2 | cv2.IMREAD_IGNORE_ORIENTATION
     _check_same_as_pillow(_photos(tmp_path))
     assert pillow_decodes == []  # still OpenCV's one GIL-free call
@@ -91,7 +93,7 @@ def test_opencv_5_refusing_rgb_beside_bgr_is_never_asked_for_both(tmp_path, monk
 
     monkeypatch.setattr(cv2, "imdecode", strict_imdecode)
     for reduction in (1, 2, 4, 8):
-        flags, swap = image_io._cv2_colour_flags(reduction)
+        flags, swap = jpeg.cv2_colour_flags(reduction)
         assert not swap and flags & rgb_flag and not flags & bgr
     _check_same_as_pillow(_photos(tmp_path))
     assert pillow_decodes == []
@@ -131,7 +133,7 @@ def test_a_codec_pillow_was_built_without_names_pillow(tmp_path, monkeypatch):
     def no_codec(im, name):
         raise OSError("decoder zip not available")
 
-    monkeypatch.setattr(image_io, "_decode", no_codec)
+    monkeypatch.setattr(image_io, "decode_pixels", no_codec)
     with pytest.raises(
         DependencyError, match=rf"installed pillow {PIL.__version__}.*decoder zip not available"
     ):
@@ -153,7 +155,7 @@ def test_out_of_memory_is_reported_as_such(tmp_path, monkeypatch):
     def oom(im, name):
         raise MemoryError
 
-    monkeypatch.setattr(image_io, "_decode", oom)
+    monkeypatch.setattr(image_io, "decode_pixels", oom)
     with pytest.raises(CliffTerrainError, match="ran out of memory"):
         load_image(path)
 

@@ -1,4 +1,4 @@
-"""cliff_terrain.evaluation without Blender: colour curves, slopes, the shading measure, view sizes,
+"""cliff_terrain.evaluate.views without Blender: colour curves, slopes, the shading measure, view sizes,
 the reference image and the metrics' summary, each against an independent computation."""
 
 import json
@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from cliff_terrain import CliffTerrainError, psnr
-from cliff_terrain.evaluation import (
+from cliff_terrain.evaluate.views import (
     compare_top_views,
     json_safe,
     linear_to_srgb,

@@ -1,5 +1,5 @@
-"""Legends drawn after rendering (cliff_terrain.figures): positions measured on the drawn pixels,
-against values computed here from the inputs."""
+"""Legends drawn after rendering (cliff_terrain.figures: legends, annotate, sheet): positions
+measured on the drawn pixels, against values computed here from the inputs."""
 
 from __future__ import annotations
 
@@ -7,21 +7,17 @@ import numpy as np
 import pytest
 
 from cliff_terrain import CliffTerrainError
-from cliff_terrain.figures import (
-    INK,
-    Transect,
-    annotate_colour_bar,
-    annotate_side_view,
-    annotate_top_view,
-    contact_sheet,
+from cliff_terrain.figures.annotate import annotate_colour_bar, annotate_side_view, annotate_top_view
+from cliff_terrain.figures.drawing import INK, font_size
+from cliff_terrain.figures.legends import (
     display_units,
-    font_size,
     height_colours,
     nice_below,
     nice_step,
-    parse_transect,
     vertical_exaggeration,
 )
+from cliff_terrain.figures.sheet import contact_sheet
+from cliff_terrain.io.transect import Transect, parse_transect
 
 
 def ink_rows(column):

@@ -18,7 +18,7 @@ from conftest import SHARED_UAV as UAV
 from PIL import Image
 
 from cliff_terrain.errors import CliffTerrainError
-from cliff_terrain.image_io import load_image, read_metadata
+from cliff_terrain.io.photo import load_image, read_metadata
 
 # A longer run: CLIFF_TERRAIN_FUZZ_CASES=50000 CLIFF_TERRAIN_FUZZ_SEED=1 pytest tests/test_fuzz_jpeg.py
 JPEG_CASES = int(os.environ.get("CLIFF_TERRAIN_FUZZ_CASES", 1500))

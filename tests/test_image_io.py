@@ -17,7 +17,7 @@ from conftest import SHARED_UAV as UAV
 from PIL import Image, ImageOps, TiffImagePlugin
 
 from cliff_terrain.errors import CliffTerrainError, ImageReadError, ImageTooLargeError
-from cliff_terrain.image_io import ImageMetadata, load_image, read_metadata
+from cliff_terrain.io.photo import ImageMetadata, load_image, read_metadata
 
 needs_uav = pytest.mark.skipif(not UAV.is_dir(), reason=f"shared UAV images not found at {UAV}")
 BROCCOLI = UAV / "broccoli" / "01_clip_raw_test.jpg"
@@ -722,12 +722,12 @@ def _jpeg_variants(tmp_path):
 
 
 def test_jpegs_decode_in_one_call_to_exactly_pillows_pixels(tmp_path, monkeypatch):
-    import cliff_terrain.image_io as image_io
+    import cliff_terrain.io.photo as image_io
 
     pillow_decodes = []
-    pillow_decode = image_io._decode
+    pillow_decode = image_io.decode_pixels
     monkeypatch.setattr(
-        image_io, "_decode", lambda im, name: pillow_decodes.append(name) or pillow_decode(im, name)
+        image_io, "decode_pixels", lambda im, name: pillow_decodes.append(name) or pillow_decode(im, name)
     )
     photos = _jpeg_variants(tmp_path) + [p for p in (BROCCOLI, CALITERRA, SENECA) if p.is_file()]
     for path in photos:
@@ -746,7 +746,7 @@ def test_jpegs_decode_in_one_call_to_exactly_pillows_pixels(tmp_path, monkeypatc
 
 
 def test_open_image_knows_the_shape_before_decoding(tmp_path):
-    from cliff_terrain.image_io import OpenImage, open_image
+    from cliff_terrain.io.photo import OpenImage, open_image
 
     path = _jpeg_variants(tmp_path)[-2]  # orientation 6: stored 161x119, shown 119x161
     with open_image(path, max_size=16, gsd=0.01) as image:

@@ -11,12 +11,13 @@ import pytest
 import tifffile
 from conftest import REPO
 
+from cliff_terrain.data.synthetic_surface import synthetic_surface
 from cliff_terrain.errors import CliffTerrainError, GeoreferenceError, PlotFileError, RasterReadError
-from cliff_terrain.georaster import read_orthophoto, read_surface, resample, write_geotiff
-from cliff_terrain.ground import canopy_height, estimate_ground, naive_block_ground
-from cliff_terrain.plots import PlotSet, plot_table, rasterize_plots, read_plots
-from cliff_terrain.segmentation import segment
-from cliff_terrain.synthetic_surface import synthetic_surface
+from cliff_terrain.io.geotiff import read_orthophoto, read_surface, resample, write_geotiff
+from cliff_terrain.io.plot_polygons import PlotSet, read_plots
+from cliff_terrain.measure.field_plots import plot_table, rasterize_plots
+from cliff_terrain.measure.ground import canopy_height, estimate_ground, naive_block_ground
+from cliff_terrain.relief.segmentation import segment
 
 EX2 = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 UTM16N = 32616
@@ -140,7 +141,7 @@ def test_orthophoto_samples_and_layouts(tmp_path, layout):
 
 
 def test_float_planar_orthophoto_loads_as_a_photo(tmp_path):
-    from cliff_terrain.image_io import load_image
+    from cliff_terrain.io.photo import load_image
 
     rgb8 = np.random.default_rng(2).integers(1, 256, size=(40, 50, 3), dtype=np.uint8)
     data = np.moveaxis(rgb8.astype(np.float32), -1, 0)
@@ -157,8 +158,55 @@ def test_float_planar_orthophoto_loads_as_a_photo(tmp_path):
     assert meta.gsd_m_per_px == pytest.approx(0.5) and meta.gsd_source == "geotiff"
 
 
+def test_the_photo_reader_is_chosen_by_the_tiff_header_not_by_pillows_error(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from cliff_terrain.io import photo
+    from cliff_terrain.io.reader import PhotoReader
+    from cliff_terrain.io.tiff_photo import TiffPhoto
+
+    opened, original = [], Image.open
+    monkeypatch.setattr(Image, "open", lambda *a, **k: opened.append(a) or original(*a, **k))
+    data = np.moveaxis(np.full((20, 30, 3), 200, np.float32), -1, 0)
+    path = write_tiff(
+        tmp_path / "odm.tif", data, keys=geokeys(UTM16N), planarconfig="separate", photometric="minisblack"
+    )
+    with photo.open_image(path) as image:
+        assert isinstance(image, TiffPhoto) and isinstance(image, PhotoReader)
+        assert image.shape == (20, 30) and image.metadata.gsd_m_per_px == pytest.approx(0.5)
+        rgb, _ = image.decode()
+    assert rgb.shape == (20, 30, 3) and opened == []  # Pillow never tried
+    rgb8 = tmp_path / "rgb8.tif"
+    tifffile.imwrite(rgb8, np.zeros((20, 30, 3), np.uint8), photometric="rgb")
+    with photo.open_image(rgb8) as image:
+        assert isinstance(image, photo.OpenImage) and isinstance(image, PhotoReader)
+
+
+@pytest.mark.parametrize(
+    ("units", "metres", "name"),
+    [(9002, 0.3048, "international feet"), (9003, 1200.0 / 3937.0, "US survey feet"), (9001, 1.0, None)],
+)
+def test_feet_a_photos_scale_is_converted_by_its_own_foot_a_raster_in_them_refused(
+    tmp_path, units, metres, name
+):
+    from cliff_terrain.io.photo import read_metadata
+
+    rgb = np.full((20, 30, 3), 90, np.uint8)
+    path = write_tiff(
+        tmp_path / "ft.tif", rgb, scale=(2.0, 2.0), keys=geokeys(2264, units=units), photometric="rgb"
+    )
+    assert read_metadata(path).gsd_m_per_px == pytest.approx(2.0 * metres, rel=1e-12)
+    if name is None:
+        assert read_orthophoto(path).crs == 2264
+    else:
+        with pytest.raises(
+            GeoreferenceError, match=f"ft.tif' has map units in {name}; Cliff Terrain needs metres"
+        ):
+            read_orthophoto(path)
+
+
 def test_ex2_orthophoto_loads_as_a_photo():
-    from cliff_terrain.image_io import load_image
+    from cliff_terrain.io.photo import load_image
 
     rgb, meta = load_image(ex2("odm_orthophoto.tif"))
     assert rgb.shape == (550, 535, 3) and meta.gsd_m_per_px == pytest.approx(0.19996, abs=1e-5)
@@ -167,8 +215,8 @@ def test_ex2_orthophoto_loads_as_a_photo():
 
 
 def test_resample_follows_the_georeference():
-    from cliff_terrain.georaster import GeoRaster
-    from cliff_terrain.plots import as_affine
+    from cliff_terrain.io.geotiff import GeoRaster
+    from cliff_terrain.io.transform import as_affine
 
     # A plane z = x + 2y sampled at 2 m pixels, resampled to 0.5 m pixels: bilinear is exact on a plane.
     rows, cols = np.mgrid[:20, :20]
@@ -535,22 +583,24 @@ def test_heights_command_bad_input_exits_2_with_one_line(field_files, setup, wor
 
 
 def test_build_relief_measured_and_calibrated(field_files):
-    from cliff_terrain.pipeline import build_relief
-    from cliff_terrain.plots import region_figures
-    from cliff_terrain.segmentation import label_max
+    from cliff_terrain.build import build_relief
+    from cliff_terrain.measure.field_plots import region_figures
+    from cliff_terrain.relief.labels import label_max
 
     folder, truth = field_files
-    measured = build_relief(folder / "ortho.tif", dsm=folder / "dsm.tif", heights="measured", max_size=450)
+    measured = build_relief(
+        folder / "ortho.tif", dsm=folder / "dsm.tif", height_source="measured", max_size=450
+    )
     assert measured.units == "m" and measured.pixel_size == pytest.approx(0.02)
-    assert measured.params["georeference"]["origin"] == pytest.approx([500000.0, 4000000.0])
-    assert measured.params["georeference"]["crs"] == UTM16N
+    assert measured.georeference["origin"] == pytest.approx([500000.0, 4000000.0])
+    assert measured.georeference["crs"] == UTM16N
     np.testing.assert_allclose(measured.heights, np.nan_to_num(measured.canopy.chm), atol=1e-6)
     plants = truth.labels > 0
     assert abs(np.percentile(measured.heights[plants], 90) - np.percentile(truth.chm[plants], 90)) < 0.03
     # The mesh is in metres from the grid's corner (near the world origin), heights measured.
     assert measured.mesh.vertices[:, 2].max() == pytest.approx(measured.heights.max(), abs=0.05)
     calibrated = build_relief(
-        folder / "ortho.tif", dsm=folder / "dsm.tif", heights="calibrated", max_size=450
+        folder / "ortho.tif", dsm=folder / "dsm.tif", height_source="calibrated", max_size=450
     )
     n = calibrated.n_regions
     tops = label_max(calibrated.heights, calibrated.labels)[1:]
@@ -558,11 +608,11 @@ def test_build_relief_measured_and_calibrated(field_files):
     figures = region_figures(calibrated.labels, n, mask=calibrated.mask, heights=chm, pixel_area_m2=1)
     np.testing.assert_allclose(tops, np.nan_to_num([f["height_p99_m"] for f in figures]), atol=1e-4)
     with pytest.raises(CliffTerrainError, match="needs a `dsm`"):
-        build_relief(folder / "ortho.tif", heights="measured")
+        build_relief(folder / "ortho.tif", height_source="measured")
 
 
 def test_plots_in_longitude_latitude_are_refused(tmp_path):
-    from cliff_terrain.plots import check_plot_crs
+    from cliff_terrain.measure.field_plots import check_plot_crs
 
     ring = [[-86.5, 44.1], [-86.4, 44.1], [-86.4, 44.2], [-86.5, 44.1]]
     doc = {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [ring]}}
@@ -603,7 +653,7 @@ def test_heights_command_on_a_coarser_grid_the_user_chooses(field_files):
 def test_plot_geojson_keeps_holes_and_islands(tmp_path):
     # A plot with a hole holding an island, and a second part: written as GeoJSON and read back, it
     # burns into exactly the same pixels (a hole written as its own polygon would come back filled).
-    from cliff_terrain.tables import polygon_geometries, table_geojson
+    from cliff_terrain.io.geojson import polygon_geometries, table_geojson
 
     def square(a, b):
         return np.array([[a, a], [b, a], [b, b], [a, b], [a, a]], dtype=float)
@@ -662,7 +712,7 @@ def test_a_canopy_without_bare_soil_is_refused_and_a_dtm_suggested(field_files):
 def test_bare_soil_leaves_out_dull_leaves_that_the_threshold_calls_soil():
     # Shaded, yellowing leaves below the plant threshold still stand on the canopy: they must not
     # carry the ground. The synthetic surface's shadowed flanks are exactly that.
-    from cliff_terrain.segmentation import bare_soil
+    from cliff_terrain.relief.vegetation import bare_soil
 
     img, _, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=6)
     soil = bare_soil(img)

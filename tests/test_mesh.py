@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cliff_terrain import CliffTerrainError, grid_mesh
-from cliff_terrain.mesh import corner_heights
+from cliff_terrain.mesh.grid import corner_heights
 
 
 def _signed_volume(mesh):
@@ -104,7 +104,7 @@ def test_edges_are_each_pair_of_consecutive_corners_once(two_sided):
 @pytest.mark.parametrize("two_sided", [False, True])
 @pytest.mark.parametrize("shape", [(1, 1), (2, 3), (7, 5), (31, 64)])
 def test_grid_sizes_are_those_of_the_built_mesh(shape, two_sided):
-    from cliff_terrain.mesh import grid_sizes, grid_topology
+    from cliff_terrain.mesh.grid import grid_sizes, grid_topology
 
     mesh = grid_topology(shape, two_sided=two_sided)
     sizes = grid_sizes(shape, two_sided=two_sided)

@@ -19,8 +19,8 @@ from scipy.ndimage import label as _label
 
 from cliff_terrain import synthetic_field
 from cliff_terrain.errors import CliffTerrainError, ImageTooLargeError
-from cliff_terrain.image_io import load_image
-from cliff_terrain.mosaic import (
+from cliff_terrain.io.photo import load_image
+from cliff_terrain.mesh.tiles import (
     MosaicReader,
     mosaic_settings,
     relief_tile,
@@ -81,8 +81,10 @@ def test_a_window_decodes_only_the_tiles_it_overlaps(tmp_path, monkeypatch):
         assert reader.shape == (700, 900) and reader.tile_shape == (128, 128)
         assert reader.gsd == pytest.approx(0.01) and reader.crs == EPSG_UTM33N
         decoded = []
-        original = reader._decode_tile
-        monkeypatch.setattr(reader, "_decode_tile", lambda index: decoded.append(index) or original(index))
+        original = reader.raster.decode_tile
+        monkeypatch.setattr(
+            reader.raster, "decode_tile", lambda index: decoded.append(index) or original(index)
+        )
         window, valid = reader.read(130, 300, 250, 899)
         np.testing.assert_array_equal(window, rgb[130:300, 250:899])
         assert valid is None
@@ -101,6 +103,27 @@ def test_a_striped_mosaic_too_big_to_read_in_windows_says_how_to_tile_it(tmp_pat
     with MosaicReader(path, max_striped_pixels=200_000) as reader:
         window, _ = reader.read(10, 20, 30, 50)
         assert window.shape == (10, 20, 3)
+
+
+def test_a_striped_planar_mosaic_reads_its_windows(tmp_path):
+    # io's one TIFF reader gives windows pixel-interleaved whatever the file's layout.
+    rgb = np.random.default_rng(3).integers(0, 256, (50, 60, 3), dtype=np.uint8)
+    path = tmp_path / "planar.tif"
+    tifffile.imwrite(path, np.moveaxis(rgb, -1, 0), planarconfig="separate", photometric="rgb")
+    with MosaicReader(path) as reader:
+        window, valid = reader.read(10, 30, 5, 40)
+    np.testing.assert_array_equal(window, rgb[10:30, 5:40])
+    assert valid is None
+
+
+def test_a_mosaic_with_an_unreadable_no_data_value_is_refused_as_rasters_are(tmp_path):
+    from cliff_terrain.errors import RasterReadError
+
+    path = tmp_path / "nodata.tif"
+    tags = [*geo_tags(500000.0, 5200000.0, 0.01), (42113, 2, 0, "n/a", True)]
+    tifffile.imwrite(path, np.zeros((64, 64, 3), np.uint8), photometric="rgb", tile=(32, 32), extratags=tags)
+    with pytest.raises(RasterReadError, match=r"nodata.tif' has an unreadable GDAL_NODATA value 'n/a'"):
+        MosaicReader(path)
 
 
 def _check_no_seams(rgb, tmp_path, *, tile, overlap):
@@ -155,6 +178,61 @@ def test_a_real_photo_in_tiles_matches_the_whole_image_run(tmp_path):
     _check_no_seams(rgb, tmp_path, tile=300, overlap=200)
 
 
+def _window_relief(reader, window, settings):
+    """segment() and inflate() of the tile's whole window, cut to its core (what relief_tile computed
+    before it limited the watershed and heights to the core's reach)."""
+    from cliff_terrain.relief.inflate import inflate
+    from cliff_terrain.relief.quaternion import quaternion_filter
+    from cliff_terrain.relief.segmentation import segment
+
+    wr0, wr1, wc0, wc1 = window.window
+    rgb, valid = reader.read(wr0, wr1, wc0, wc1)
+    seg = segment(
+        rgb,
+        filtered=quaternion_filter(rgb),
+        index=settings.index,
+        min_region=settings.min_region,
+        valid=valid,
+        threshold=settings.threshold,
+        radius=settings.radius,
+        edge_scale=settings.edge_scale,
+        soil=settings.soil,
+    )
+    heights = inflate(
+        seg.labels,
+        profile=settings.profile,
+        exaggeration=settings.exaggeration,
+        max_height=settings.max_height,
+        mask_distance=seg.distance,
+    )
+    r0, r1, c0, c1 = window.core
+    cut = (slice(r0 - wr0, r1 - wr0), slice(c0 - wc0, c1 - wc0))
+    return seg.mask[cut], seg.labels[cut], heights[cut]
+
+
+@pytest.mark.parametrize("source", ["field", "broccoli"])
+def test_a_tile_equals_segment_and_inflate_of_its_whole_window(tmp_path, source):
+    # relief_tile runs the watershed and heights only as far as the core's plants reach: the
+    # same mask, the same regions (numbered differently) and exactly the same heights.
+    if source == "field":
+        rgb, _ = synthetic_field(shape=(600, 900), seed=2)
+        tile, overlap = 200, 96
+    else:
+        rgb, _ = load_image(uav_image("broccoli/01_clip_raw_test.jpg"), max_size=1000)
+        tile, overlap = 300, 200
+    path = write_mosaic(tmp_path / "mosaic.tif", rgb, tile=(64, 64))
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader, tile=tile)
+        for window in tile_windows(reader.shape, tile=tile, overlap=overlap):
+            got = relief_tile(reader, window, settings)
+            mask, labels, heights = _window_relief(reader, window, settings)
+            np.testing.assert_array_equal(got.mask, mask)
+            np.testing.assert_array_equal(got.heights, heights)
+            pairs = np.unique(np.stack([got.labels.ravel(), labels.ravel()]), axis=1)
+            assert len(np.unique(pairs[0])) == len(np.unique(pairs[1])) == pairs.shape[1]
+            assert ((pairs[0] == 0) == (pairs[1] == 0)).all()
+
+
 def test_tiles_without_plants_are_flat(tmp_path):
     rgb = np.empty((300, 400, 3), np.uint8)
     rgb[:] = (120, 90, 60)  # bare soil
@@ -182,7 +260,7 @@ def test_tiles_run_as_dask_tasks_in_order_and_equal_the_serial_ones(tmp_path):
     back in order and equal to the serial run's; a caller that stops early leaves no task behind."""
     from distributed import Client
 
-    from cliff_terrain.season.runner import local_cluster
+    from cliff_terrain.season.cluster import local_cluster
 
     rgb, _ = synthetic_field(shape=(300, 400), seed=4)
     path = write_mosaic(tmp_path / "field.tif", rgb)
@@ -212,6 +290,40 @@ def test_tiles_run_as_dask_tasks_in_order_and_equal_the_serial_ones(tmp_path):
         np.testing.assert_array_equal(got.heights, expected.heights)
 
 
+def test_tile_meshes_are_the_tiles_reliefs_joined_without_cracks(tmp_path):
+    """The core's loop the Import Mosaic operator only turns into objects: each tile's relief as
+    an adaptive mesh in metres, stitched to its neighbours, with its part of the photo."""
+    from test_seams import cracks, welded_open_edges
+
+    from cliff_terrain.mesh.tile_meshes import tile_meshes
+
+    rgb, _ = synthetic_field(shape=(300, 400), seed=4)
+    path = write_mosaic(tmp_path / "field.tif", rgb, gsd=0.02)
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader, tile=128)
+        expected = list(relief_tiles(reader, tile=128, overlap=32, settings=settings))
+        with pytest.raises(CliffTerrainError, match=r"`max_error` must be"):
+            tile_meshes(reader, max_error=0.0, pixel_size=0.02)
+        tiles = list(
+            tile_meshes(reader, max_error=0.005, pixel_size=0.02, tile=128, overlap=32, settings=settings)
+        )
+    assert [t.core for t in tiles] == [t.core for t in expected]
+    parts = []
+    for got, want in zip(tiles, expected, strict=True):
+        np.testing.assert_array_equal(got.relief.heights, want.heights)
+        r0, r1, c0, c1 = got.core
+        np.testing.assert_array_equal(got.rgb, rgb[r0:r1, c0:c1])
+        assert got.mesh.vertices[:, 2].max() == pytest.approx(0.02 * float(want.heights.max()), abs=0.005)
+        parts.append(
+            (
+                got.mesh.vertices + np.array([c0 * 0.02, (300 - r1) * 0.02, 0.0]),
+                got.mesh.corner_verts.reshape(-1, 3),
+            )
+        )
+    edges, points = welded_open_edges(parts, 0.02)
+    assert len(edges) > 0 and len(cracks(edges, points, 400, 300)) == 0
+
+
 def test_a_client_that_is_not_one_is_refused_before_any_tile(tmp_path):
     rgb, _ = synthetic_field(shape=(100, 120), seed=4)
     with MosaicReader(write_mosaic(tmp_path / "field.tif", rgb)) as reader:
@@ -224,7 +336,7 @@ BIG_SCRIPT = textwrap.dedent(
     import json, sys, time
     import numpy as np
     from cliff_terrain._memory import peak_rss
-    from cliff_terrain.mosaic import MosaicReader, mosaic_settings, relief_tiles
+    from cliff_terrain.mesh.tiles import MosaicReader, mosaic_settings, relief_tiles
     path, tiles_wanted = sys.argv[1], int(sys.argv[2])
     start = time.perf_counter()
     with MosaicReader(path) as reader:

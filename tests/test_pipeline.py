@@ -5,7 +5,7 @@ import pytest
 from conftest import uav_image
 
 from cliff_terrain import CliffTerrainError, build_relief, synthetic_field
-from cliff_terrain.synthetic import main as synthetic_main
+from cliff_terrain.data.synthetic import main as synthetic_main
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_without_a_mesh_the_heights_are_the_grid_builds(field, tmp_path):
 def test_stages_are_consistent(field):
     image, _ = field
     seen = []
-    relief = build_relief(image, max_size=450, progress=lambda f, s: seen.append((f, s)))
+    relief = build_relief(image, max_size=450, mesh="grid", progress=lambda f, s: seen.append((f, s)))
     rows, cols = relief.working.shape[:2]
     assert (rows, cols) == (300, 450)
     for name in ("mask", "labels", "boundaries", "distance", "heights"):
@@ -68,131 +68,112 @@ def test_stages_are_consistent(field):
     assert stages == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
     fractions = [f for f, _ in seen]
     assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] == 1.0
-    assert set(relief.timings) == {"load", "resize", "filter", "segment", "heights", "topology", "mesh"}
+    assert set(relief.timings) == {"load", "resize", "filter", "segment", "heights", "mesh"}
     assert relief.params["max_size"] == 450 and relief.units == "px"
 
 
-class RecordingSink:
-    """A mesh sink that records which step came when, in which thread."""
-
-    def __init__(self, on_fill=None):
-        import threading
-
-        self.calls, self.on_fill, self.thread = [], on_fill, threading.get_ident
-        self.sizes = self.mesh = None
-
-    def allocate(self, sizes):
-        self.sizes = sizes
-        self.calls.append(("allocate", self.thread()))
-
-    def prepare(self, mesh):
-        # The worker filters and segments meanwhile: the grid is known, the heights are not.
-        self.mesh = mesh
-        self.calls.append(("prepare", self.thread(), mesh.grid_shape, float(np.abs(mesh.vertices).max())))
-
-    def fill(self):
-        self.calls.append(("fill", self.thread()))
-        if self.on_fill is not None:
-            self.on_fill()
-
-
-def test_the_mesh_and_progress_reach_the_calling_thread_while_the_worker_runs(field, tmp_path):
+def test_a_caller_meshes_the_heights_itself_from_the_grid_shape(field, tmp_path):
+    """What the Blender operator does: build without a mesh (in a thread of its own), make the
+    grid's topology from the photo's header meanwhile, and place the vertices when the heights come."""
     import threading
 
     from PIL import Image
 
-    from cliff_terrain.mesh import grid_sizes
+    from cliff_terrain import grid_shape
+    from cliff_terrain.mesh.grid import grid_topology, place_vertices
 
     image, _ = field
     path = tmp_path / "field.jpg"
     Image.fromarray(image).save(path, quality=95)
     caller = threading.get_ident()
     for source in (image, path):
-        sink, stages = RecordingSink(), []
-        relief = build_relief(
+        stages = []
+        shape = grid_shape(source, max_size=450)
+        assert shape == (300, 450)
+        bare = build_relief(
             source,
             max_size=450,
+            mesh=None,
             progress=lambda f, s, stages=stages: stages.append((s, threading.get_ident())),
-            mesh_sink=sink,
         )
-        # In order, once each, in the calling thread; the vertices are placed only afterwards.
-        assert sink.calls == [("allocate", caller), ("prepare", caller, (300, 450), 0.0), ("fill", caller)]
-        assert sink.sizes == grid_sizes((300, 450)) and sink.mesh is relief.mesh
-        assert relief.mesh.vertices[:, 2].max() == pytest.approx(relief.max_height, rel=0.05)
+        # A plain sequential function: every stage reported in order, in the calling thread.
         assert [s for s, _ in stages] == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
         assert {t for _, t in stages} == {caller}
-        # Without a sink the result is the same, array for array.
-        plain = build_relief(source, max_size=450)
+        assert bare.mesh is None and bare.heights.shape == shape
+        plain = build_relief(source, max_size=450, mesh="grid")
         for name in ("working", "labels", "heights"):
-            np.testing.assert_array_equal(getattr(relief, name), getattr(plain, name))
-        np.testing.assert_array_equal(relief.mesh.vertices, plain.mesh.vertices)
+            np.testing.assert_array_equal(getattr(bare, name), getattr(plain, name))
+        mesh = place_vertices(grid_topology(shape), bare.heights, pixel_size=bare.pixel_size)
+        np.testing.assert_array_equal(mesh.vertices, plain.mesh.vertices)
+        np.testing.assert_array_equal(mesh.corner_verts, plain.mesh.corner_verts)
 
 
-def test_the_sink_fills_while_the_worker_is_in_the_watershed(field, monkeypatch):
-    import threading
-
-    import cliff_terrain.segmentation as segmentation
-
-    # Two touching plants: their blob needs the watershed.
-    rows, cols = np.mgrid[:120, :200]
-    image = np.full((120, 200, 3), (120, 90, 60), np.uint8)
-    plants = ((rows - 60) ** 2 + (cols - 70) ** 2 < 35**2) | ((rows - 60) ** 2 + (cols - 130) ** 2 < 35**2)
-    image[plants] = (40, 160, 40)
-    kernel = segmentation._watershed_raveled
-    assert kernel is not None, "scikit-image's watershed kernel moved: _flood falls back"
-    in_kernel, filled = threading.Event(), threading.Event()
-    seen = {}
-
-    def watched_kernel(*args):
-        in_kernel.set()
-        # The sink's fill must come now, while the worker is here (not after it finished).
-        seen["filled_during_kernel"] = filled.wait(timeout=30)
-        return kernel(*args)
-
-    def on_fill():
-        seen["kernel_started_first"] = in_kernel.is_set()
-        filled.set()
-
-    monkeypatch.setattr(segmentation, "_watershed_raveled", watched_kernel)
-    relief = build_relief(image, mesh_sink=RecordingSink(on_fill))
-    assert seen == {"kernel_started_first": True, "filled_during_kernel": True}
-    assert relief.n_regions == 2
-
-
-def test_errors_of_the_sink_and_of_the_worker_propagate(field, monkeypatch, tmp_path):
-    import cliff_terrain.pipeline as pipeline
+def test_errors_of_a_stage_propagate(field, monkeypatch, tmp_path):
+    import cliff_terrain.build as pipeline
 
     image, _ = field
-
-    class Broken(RecordingSink):
-        def prepare(self, mesh):
-            raise RuntimeError("the caller's mesh failed")
-
-    with pytest.raises(RuntimeError, match="the caller's mesh failed"):
-        build_relief(image, max_size=300, mesh_sink=Broken())
-
-    # A photo whose pixel data is cut: the header passes, the worker's decode fails.
+    # A photo whose pixel data is cut: the header passes, the decode fails.
     cut = tmp_path / "cut.jpg"
     from PIL import Image
 
     Image.fromarray(image).save(cut, quality=95)
     data = cut.read_bytes()
     cut.write_bytes(data[: len(data) // 2])
-    sink = RecordingSink()
     with pytest.raises(CliffTerrainError, match="the file is truncated"):
-        build_relief(cut, max_size=300, mesh_sink=sink)
-    assert [call[0] for call in sink.calls] == ["allocate", "prepare", "fill"]
+        build_relief(cut, max_size=300)
 
     def failing_segment(*args, **kwargs):
-        raise CliffTerrainError("segmentation failed in the worker")
+        raise CliffTerrainError("segmentation failed")
 
     monkeypatch.setattr(pipeline, "segment", failing_segment)
-    sink, stages = RecordingSink(), []
-    with pytest.raises(CliffTerrainError, match="segmentation failed in the worker"):
-        build_relief(image, max_size=300, mesh_sink=sink, progress=lambda f, s: stages.append(s))
-    # The sink got every step (the worker's failure ends its wait); progress stopped at the failing stage.
-    assert [call[0] for call in sink.calls] == ["allocate", "prepare", "fill"]
+    stages = []
+    with pytest.raises(CliffTerrainError, match="segmentation failed"):
+        build_relief(image, max_size=300, progress=lambda f, s: stages.append(s))
     assert stages == ["load", "resize", "filter", "segment"]
+
+
+def test_relief_params_round_trip_through_build_relief_properties_and_arguments(field, tmp_path):
+    import argparse
+
+    from cliff_terrain import ReliefParams
+
+    image, _ = field
+    params = ReliefParams(max_size=300, profile="poisson", exaggeration=2.0, gsd=0.01, two_sided=False)
+    relief = build_relief(image, params)
+    assert relief.params["max_size"] == 300 and relief.params["gsd"] == 0.01
+    assert ReliefParams.from_properties(relief.params) == params
+    np.testing.assert_array_equal(relief.heights, build_relief(image, **params.as_kwargs()).heights)
+    # Keywords replace the params' values.
+    assert build_relief(image, params, max_size=200).heights.shape == (133, 200)
+    # ID properties hold no None: 0 stands for it, once each way.
+    props = ReliefParams().to_properties()
+    assert props["gsd"] == props["max_height"] == props["max_error"] == props["dsm"] == 0.0
+    assert props["heights"] == "inflated"
+    assert ReliefParams.from_properties(props) == ReliefParams()
+    assert ReliefParams.from_properties(params.to_properties()) == params
+    assert ReliefParams.from_properties({"dsm": "", "gsd": 0.0}) == ReliefParams()
+    # One argparse definition; its defaults are the core's.
+    parser = argparse.ArgumentParser()
+    ReliefParams.add_arguments(parser)
+    assert ReliefParams.from_args(parser.parse_args([])) == ReliefParams()
+    args = parser.parse_args(["--max-size", "300", "--profile", "poisson", "--exaggeration", "2"])
+    args2 = parser.parse_args(["--gsd", "0.01", "--one-sided"], namespace=args)
+    assert ReliefParams.from_args(args2) == params
+    dsm = str(tmp_path / "dsm.tif")
+    assert ReliefParams.from_args(parser.parse_args(["--dsm", dsm])).height_source == "measured"
+    with pytest.raises(CliffTerrainError, match="`max_size` must be >= 16, got 3"):
+        ReliefParams.from_args(parser.parse_args(["--max-size", "3"]))
+    with pytest.raises(CliffTerrainError, match="`params` must be a ReliefParams or None"):
+        build_relief(image, {"max_size": 300})
+
+
+def test_the_old_heights_keyword_still_works_with_a_deprecation_warning(field):
+    image, _ = field
+    with pytest.warns(DeprecationWarning, match="pass `height_source` instead"):
+        relief = build_relief(image, max_size=200, heights="inflated")
+    assert relief.params["heights"] == "inflated"
+    with pytest.warns(DeprecationWarning), pytest.raises(CliffTerrainError, match="needs a `dsm`"):
+        build_relief(image, max_size=200, heights="measured")
 
 
 def test_gsd_gives_metres(field):
@@ -248,16 +229,11 @@ def test_orthophoto_with_georeference_is_in_metres():
         ({"exaggeration": -1}, r"`exaggeration` must be > 0.0, got -1.0"),
         ({"gsd": 0}, r"`gsd` must be > 0.0, got 0.0"),
         ({"two_sided": "yes"}, "`two_sided` must be True or False, got 'yes'"),
-        (
-            {"mesh_sink": "mesh"},
-            "`mesh_sink` must have methods allocate, prepare and fill, or be None, got 'mesh'",
-        ),
         ({"progress": 3}, "`progress` must be callable or None, got 3"),
-        ({"mesh": "tin"}, "`mesh` must be one of 'grid', 'adaptive', got 'tin'"),
-        (
-            {"mesh": None, "mesh_sink": "sink"},
-            "`mesh_sink` needs a mesh, got mesh=None and mesh_sink='sink'",
-        ),
+        ({"mesh": "tin"}, "`mesh` must be one of 'auto', 'grid', 'adaptive', got 'tin'"),
+        ({"dsm": 3}, "`dsm` must be a file path or None, got 3"),
+        ({"dtm": "dtm.tif"}, "`dtm` needs a `dsm`, got dtm='dtm.tif' and dsm=None"),
+        ({"height_source": "measured"}, "`height_source` 'measured' needs a `dsm`"),
     ],
 )
 def test_bad_settings_name_the_parameter(kwargs, match):
@@ -320,7 +296,7 @@ def test_orthophoto_no_data_stays_flat():
     ],
 )
 def test_resized_shape_is_the_shape_resize_longest_makes(shape, max_size, expected):
-    from cliff_terrain.pipeline import resize_longest, resized_shape
+    from cliff_terrain.relief.resize import resize_longest, resized_shape
 
     assert resized_shape(shape, max_size) == expected
     assert resize_longest(np.zeros((*shape, 3), np.uint8), max_size).shape[:2] == expected

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from cliff_terrain.plots import rasterize_plots, read_plots
+from cliff_terrain.io.plot_polygons import read_plots
+from cliff_terrain.measure.field_plots import rasterize_plots
 
 ODM = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2" / "odm_orthophoto.tif"
 REFERENCE = REPO / "tests" / "data" / "odm_plots_by_hand.geojson"
@@ -26,7 +27,7 @@ GRID = ["--grid", "4x9", "--plot-size", "14.2x4.8"]
 def orthophoto():
     if not ODM.is_file():
         pytest.skip(f"shared OpenDroneMap orthophoto {ODM} not found (../shared is absent)")
-    from cliff_terrain.georaster import read_orthophoto
+    from cliff_terrain.io.geotiff import read_orthophoto
 
     return read_orthophoto(ODM)
 
@@ -57,8 +58,8 @@ def outer_corners(plots):
 
 
 def test_the_hand_drawn_reference_covers_the_crop():
-    from cliff_terrain.canopy import plant_mask
-    from cliff_terrain.plot_files import check_plots_fit
+    from cliff_terrain.io.plot_files import check_plots_fit
+    from cliff_terrain.measure.canopy import plant_mask
 
     ortho = orthophoto()
     reference = read_plots(REFERENCE)
@@ -86,7 +87,7 @@ def test_the_hand_drawn_reference_covers_the_crop():
     ],
 )
 def test_fit_finds_every_hand_drawn_plot(tmp_path, start):
-    from cliff_terrain.canopy import plant_mask
+    from cliff_terrain.measure.canopy import plant_mask
 
     ortho = orthophoto()
     reference = read_plots(REFERENCE)

@@ -13,9 +13,16 @@ import pytest
 from conftest import REPO, SHARED_UAV
 
 from cliff_terrain.errors import CliffTerrainError, PlotFileError
-from cliff_terrain.plot_files import read_field_book, write_plots
-from cliff_terrain.plot_grid import Placement, grid_layout, placement_from_corners, plot_grid, plots_from
-from cliff_terrain.plots import polygon_area, rasterize_plots, read_plots
+from cliff_terrain.io.plot_files import read_field_book, write_plots
+from cliff_terrain.io.plot_polygons import polygon_area, read_plots
+from cliff_terrain.measure.field_plots import rasterize_plots
+from cliff_terrain.measure.plot_grid import (
+    Placement,
+    grid_layout,
+    placement_from_corners,
+    plot_grid,
+    plots_from,
+)
 
 ODM = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2" / "odm_orthophoto.tif"
 SOYBEAN = SHARED_UAV / "lamberton_soybean"
@@ -149,7 +156,7 @@ def run_cli(*args):
 def odm():
     if not ODM.is_file():
         pytest.skip(f"shared OpenDroneMap pair {ODM} not found (../shared is absent)")
-    from cliff_terrain.georaster import read_orthophoto
+    from cliff_terrain.io.geotiff import read_orthophoto
 
     return read_orthophoto(ODM)
 
@@ -164,7 +171,7 @@ def _map(transform, col, row):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_fit_puts_every_plot_on_its_block_of_crop(tmp_path, seed):
-    from cliff_terrain.canopy import plant_mask
+    from cliff_terrain.measure.canopy import plant_mask
 
     ortho = odm()
     plants = plant_mask(ortho.data, valid=ortho.valid)
@@ -189,9 +196,9 @@ def test_fit_puts_every_plot_on_its_block_of_crop(tmp_path, seed):
 
 
 def test_fit_matches_the_soybean_plots_from_rough_corners_and_from_nothing():
-    from cliff_terrain.canopy import plant_mask
-    from cliff_terrain.georaster import read_orthophoto
-    from cliff_terrain.plot_fit import fit_grid
+    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.measure.canopy import plant_mask
+    from cliff_terrain.measure.plot_fit import fit_grid
 
     tif = SOYBEAN / "20180822_Lamberton_clipped.tif"
     if not tif.is_file():

@@ -70,6 +70,7 @@ def _build_relief_only_raises_its_own_error_and_returns_sane_arrays(
             exaggeration=exaggeration,
             gsd=gsd,
             two_sided=two_sided,
+            mesh="grid",  # the UV layout checked below is the grid's
         )
     except CliffTerrainError:
         OUTCOMES["refused"] += 1

@@ -113,9 +113,13 @@ def test_a_transect_through_low_plants_is_exaggerated_for_them(tmp_path):
     proc = run(str(photo), "--out", str(out), "--transect", f"rows={start}:{start + 16}", "--samples", "1")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     side = json.loads((out / "metrics.json").read_text())["side_view"]
-    # The view frames the strip's top (its highest mesh vertex: pixel corners, which average the
-    # pixels around them, so a little below the band's highest pixel), not the relief's.
-    assert 0.7 * band_top <= side["top"] <= band_top + 1e-6, (side["top"], band_top)
+    # The view frames the strip's top, not the relief's: the highest point of the mesh's surface
+    # in the strip. The default (adaptive) surface is within max_error of every pixel centre and
+    # runs straight from the band's outer pixel centres to the next rows' out to the strip's edges.
+    assert relief.mesh_kind == "adaptive"
+    near_top = float(relief.heights[max(start - 1, 0) : start + 17].max()) + relief.max_error
+    assert 0.7 * band_top <= side["top"] <= near_top + 1e-6, (side["top"], band_top, near_top)
+    assert side["top"] < 0.75 * relief.max_height
     view = read(out / "xz.png")
     drawn = top_opaque_rows(view)
     summit = side["ground_row"] - side["top"] * side["rows_per_unit"]

@@ -7,6 +7,7 @@ stamp's own pixels, the alignment against the georeference, the video by loading
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 import subprocess
@@ -15,6 +16,8 @@ import sys
 import numpy as np
 import pytest
 from conftest import REPO, SHARED_UAV
+
+from cliff_terrain.errors import CliffTerrainError
 
 pytestmark = pytest.mark.blender
 
@@ -26,7 +29,8 @@ NAMES = ("20180815_Lamberton_clipped.tif", "20180829_Lamberton_clipped.tif", "20
 def season_dir(tmp_path_factory):
     if not (SOYBEAN / "plots.geojson").is_file():
         pytest.skip(f"the Lamberton soybean season is not at {SOYBEAN} (../shared is absent)")
-    from cliff_terrain.season.runner import plan_season, run_season
+    from cliff_terrain.season.plan import plan_season
+    from cliff_terrain.season.runner import run_season
 
     photos = tmp_path_factory.mktemp("photos")
     for name in NAMES:
@@ -83,6 +87,104 @@ def test_render_season_script(season_dir, tmp_path):
     assert np.abs(corner[1][box] - corner[2][box]).max() > 100
     assert (out / "season.mp4").stat().st_size > 10_000
     assert (out / "season.blend").is_file()
+
+
+def _render(season_dir, out, *args):
+    return subprocess.run(
+        [sys.executable, str(REPO / "render_season.py"), str(season_dir), "--out", str(out)]
+        + ["--size", "320x180", "--no-video", "--engine", "CYCLES", *args],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+
+
+def test_frames_coloured_by_cover(season_dir, tmp_path):
+    """--color-by cover: inside the plots each date's cover in viridis on the season's one scale (mid-
+    August's closing canopy towards yellow-green, late September's bare stubble purple), the photo
+    outside them, the scale stamped and printed."""
+    plain = _render(season_dir, tmp_path / "plain", "--no-plots")
+    assert plain.returncode == 0, plain.stderr[-2000:]
+    done = _render(season_dir, tmp_path / "cover", "--no-plots", "--color-by", "cover")
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = list(csv.DictReader(open(season_dir / "season.csv", newline="")))
+    cover = {
+        d: [float(r["cover"]) for r in rows if r["date"] == d and r["cover"]]
+        for d in {r["date"] for r in rows}
+    }
+    low, high = min(map(min, cover.values())), max(map(max, cover.values()))
+    assert f"colour by cover (season.csv, per date): {low:.3g} (purple) to {high:.3g} (yellow)" in done.stdout
+    first = np.mean(cover["2018-08-15"])
+    last = np.mean(cover["2018-09-25"])
+    assert first > last + 0.3  # the premise: the canopy closes mid-August, gone by late September
+
+    frames = [
+        (_png(tmp_path / "plain/frames" / n), _png(tmp_path / "cover/frames" / n))
+        for n in ("date_0001.png", "date_0003.png")
+    ]
+    stamp = np.zeros(frames[0][0].shape[:2], dtype=bool)  # the stamps (date, and the scale on top)
+    stamp[:40], stamp[-40:] = True, True
+    for photo, coloured in frames:
+        changed = (np.abs(coloured - photo).max(axis=2) > 40) & ~stamp
+        # The plots are coloured: a good part of the field, within its frame and not outside it.
+        assert 0.1 < changed.mean() < 0.6
+        rows_changed, cols_changed = np.nonzero(changed)
+        outside = np.ones_like(changed)
+        outside[rows_changed.min() : rows_changed.max() + 1, cols_changed.min() : cols_changed.max() + 1] = (
+            False
+        )
+        outside &= ~stamp
+        # Outside the plots the photo is unchanged.
+        assert np.abs(coloured - photo)[outside].mean() < 1.0
+    (p1, c1), (p3, c3) = frames
+    inside1 = (np.abs(c1 - p1).max(axis=2) > 40) & ~stamp
+    inside3 = (np.abs(c3 - p3).max(axis=2) > 40) & ~stamp
+    # Viridis runs purple (blue over green) -> green -> yellow: high cover greener than low cover.
+    green1, green3 = c1[inside1].mean(axis=0), c3[inside3].mean(axis=0)
+    assert green1[1] > green3[1] + 60
+    assert green3[2] > green3[1] + 20  # late September: purple
+
+
+def test_colours_from_traits_are_per_plot_and_dates_read_as_dates(season_dir, tmp_path):
+    """A trait of traits.csv colours a plot the same on every date; a date trait reads as days, its
+    scale written as dates; text columns are not offered."""
+    from cliff_terrain.season.outputs import plot_colours, read_season
+
+    season = read_season(season_dir)
+    n = 40
+    (season_dir / "traits").mkdir(exist_ok=True)
+    try:
+        lines = ["plot,fid,max_height_m,senescence_date,flag"]
+        lines += [
+            f"{i},{i + 1},{0.5 + i / 100:.2f},2018-09-{1 + i % 20:02d},{'no growth' if i else ''}"
+            for i in range(n)
+        ]
+        (season_dir / "traits" / "traits.csv").write_text("\n".join(lines) + "\n")
+        height = plot_colours(season, "max_height_m", n_plots=n)
+        assert height.source == "traits/traits.csv" and not height.is_date
+        assert (height.values == height.values[0]).all() and (height.low, height.high) == (0.5, 0.89)
+        np.testing.assert_allclose(height.normalised(1)[[0, 39]], [0.0, 1.0])
+        senescence = plot_colours(season, "senescence_date", n_plots=n)
+        assert senescence.is_date
+        assert senescence.legend() == "senescence_date: 2018-09-01 (purple) to 2018-09-20 (yellow)"
+        with pytest.raises(CliffTerrainError) as caught:
+            plot_colours(season, "flag", n_plots=n)
+        assert str(caught.value) == (
+            "`color_by` must be one of cover, area_m2, volume_m3, height_mean, height_p50, height_p90, "
+            "height_max, max_height_m, senescence_date, got 'flag'"
+        )
+        cover = plot_colours(season, "cover", n_plots=n)
+        assert cover.source == "season.csv" and not (cover.values == cover.values[0]).all()
+    finally:
+        shutil.rmtree(season_dir / "traits")
+
+
+def test_unknown_color_by_is_one_line(season_dir, tmp_path):
+    done = _render(season_dir, tmp_path, "--color-by", "nope")
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith("render_season.py: error: `color_by` must be one of cover, area_m2, volume_m3, ")
+    assert line.endswith("got 'nope' (traits appear after `cliff-terrain traits SEASON`)")
 
 
 def test_bad_season_folder_is_one_line(tmp_path):
@@ -143,3 +245,26 @@ def test_sidebar_operator_builds_and_renders_the_season(addon, scene, season_dir
         bpy.data.movieclips.remove(clip)
     manifest = json.loads((season_dir / "season.json").read_text())
     assert [d["date"] for d in manifest["dates"]] == dates
+
+
+def test_sidebar_operator_colours_by_cover(addon, scene, season_dir):
+    import bpy
+
+    from cliff_terrain.season.outputs import read_season
+
+    result = bpy.ops.cliff_terrain.season_animation(
+        directory=str(season_dir), show_plots=False, render=False, color_by="cover"
+    )
+    assert result == {"FINISHED"}
+    for date in read_season(season_dir).dates:
+        obj = bpy.data.objects[f"Season {date.date}"]
+        colours = np.zeros(len(obj.data.vertices) * 4, dtype=np.float32)
+        obj.data.color_attributes["Cliff Terrain Colour"].data.foreach_get("color", colours)
+        alpha = colours.reshape(-1, 4)[:, 3]
+        assert 0.1 < (alpha > 0.5).mean() < 0.9  # the plots coloured, the rest left to the photo
+        mix = obj.active_material.node_tree.nodes["Cliff Terrain Colour By"]
+        factor = next(s for s in mix.inputs if s.identifier == "Factor_Float")
+        assert factor.links and factor.links[0].from_socket.name == "Alpha"
+    assert "Season plots" not in bpy.data.objects
+    with pytest.raises(RuntimeError, match=r"`color_by` must be one of cover, .* got 'nope'"):
+        bpy.ops.cliff_terrain.season_animation(directory=str(season_dir), color_by="nope")

@@ -21,7 +21,7 @@ from conftest import SHARED_UAV as UAV
 from PIL import Image
 
 from cliff_terrain import synthetic_field
-from cliff_terrain.view_figures import FIGURES, MAPS
+from cliff_terrain.figures.outputs import FIGURES, MAPS
 
 pytestmark = pytest.mark.blender
 if importlib.util.find_spec("bpy") is None:
@@ -119,9 +119,15 @@ def test_metrics_json_holds_the_table_figures_sizes_and_timings(field):
     assert metrics["units"] == "px" and metrics["gsd_m_per_px"] is None
     rows, cols = image.shape[:2]
     assert metrics["render_size"] == [cols, rows]
-    # Two-sided grid: (rows + 1) (cols + 1) front vertices plus a ring of base vertices.
-    assert metrics["vertices"] == (rows + 1) * (cols + 1) + 2 * (rows + cols)
-    assert metrics["faces"] >= rows * cols
+    # The default mesh, "auto", says what it made and why, and the bound with the rule that chose
+    # it (no scale: half a pixel).
+    assert metrics["mesh"] == "adaptive" and metrics["mesh_rule"].startswith("auto: adaptive")
+    assert metrics["max_error"] == 0.5 and metrics["max_error_rule"].startswith("half a pixel (inflated")
+    assert metrics["params"]["mesh"] == "auto"
+    # Two-sided adaptive: far fewer vertices and faces than the grid's (rows + 1) (cols + 1) and
+    # rows x cols (the grid's counts: test_bad_input_table.py).
+    assert 4 <= metrics["vertices"] < (rows + 1) * (cols + 1) // 5
+    assert 2 <= metrics["faces"] < rows * cols // 5
     timings = metrics["timings_s"]
     # Every render and the pipeline were timed (rounded to 1 ms, none of them is that fast) ...
     renders = ("render_xy", "render_xy_flat", "render_xz", "render_view3d", "render_mesh")
@@ -190,6 +196,16 @@ def test_existing_outputs_are_never_overwritten(field):
     assert proc.stdout == ""  # refused before any work, Blender not even started
     assert {name: (out / name).stat().st_mtime_ns for name in RENDER_VIEWS_OUTPUTS} == stamps
     assert {name: (out / name).read_bytes() for name in before} == before
+
+
+def test_existing_tables_are_never_overwritten(tmp_path, field):
+    """With a surface model the script also writes regions.csv (and plots.csv with --plots): an
+    earlier table in --out is refused before any work, like the views."""
+    photo = field[0]
+    (tmp_path / "regions.csv").write_text("a table from another run\n")
+    proc = run(str(SCRIPT), str(photo), "--out", str(tmp_path), "--dsm", str(tmp_path / "no-such-dsm.tif"))
+    check_error(proc, str(tmp_path / "regions.csv"), "--overwrite")
+    assert (tmp_path / "regions.csv").read_text() == "a table from another run\n"
 
 
 def srgb_area_resize(image, size):

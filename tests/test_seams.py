@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from cliff_terrain import CliffTerrainError
-from cliff_terrain.mesh import adaptive_mesh
-from cliff_terrain.seams import border, seam_triangles, stitch
+from cliff_terrain.mesh.adaptive import adaptive_mesh
+from cliff_terrain.mesh.seams import border, seam_triangles, stitch
 
 PIXEL = 0.01  # metres per pixel
 

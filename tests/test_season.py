@@ -130,6 +130,11 @@ def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
     assert "7 images computed, 0 from the cache" in done.stdout
+    # Asked for, a cluster runs however small the season, and says so.
+    assert "ran on local cluster, 2 workers: workers=2 asked for it" in done.stdout.splitlines()
+    assert (
+        json.loads((tmp_path / "season.json").read_text())["runner"]["runner"] == "local cluster, 2 workers"
+    )
     # The height grids too, to the bit (the animation reads them).
     from cliff_terrain.season.outputs import read_season
 
@@ -139,6 +144,51 @@ def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
     bars = re.findall(r"season \[([#-]{30})\] (\d)/7 images", done.stderr)
     assert [int(n) for _, n in bars] == list(range(8))
     assert bars[-1][0] == "#" * 30
+
+
+def test_small_season_runs_in_process_by_default(serial, soybean, tmp_path):
+    """No --workers: the 7 soybean dates (6.6 MP) are too little work for a cluster to pay off, so
+    they run in this process, the same table, and the command, the record and season.json say why."""
+    done = season(soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
+    line = next(line for line in done.stdout.splitlines() if line.startswith("ran "))
+    assert re.fullmatch(
+        r"ran in this process: 7 images, 6\.\d MP of work \(about \d\.\d s in one process\), under the "
+        r"4 s a local cluster needs to pay off; --workers N forces a cluster",
+        line,
+    ), line
+    runner = json.loads((tmp_path / "season.json").read_text())["runner"]
+    assert runner["runner"] == "in-process" and runner["reason"] in line
+
+
+def test_default_runner_choice(serial, soybean, monkeypatch):
+    """The choice from the headers: cached images cost nothing, enough work starts a cluster of one
+    worker per core (not below two cores), and a given setting always wins."""
+    from cliff_terrain.season import cluster as runner_module
+    from cliff_terrain.season.cluster import choose_runner
+    from cliff_terrain.season.plan import plan_season
+
+    jobs, _ = plan_season([soybean], plots=soybean / "plots.geojson")
+    for job in jobs:
+        job.cache = str(serial / "cache")
+        job.plots_hash = runner_module.file_hash(job.plots)
+        job.version = __import__("cliff_terrain").__version__
+    workers, name, reason = choose_runner(jobs)
+    assert (workers, name) == (0, "in-process")
+    assert reason.startswith("0 images (7 cached), 0.0 MP of work")
+    for job in jobs:
+        job.cache = str(serial / "no-such-cache")
+    monkeypatch.setattr(runner_module, "CLUSTER_PAYS_S", 0.5)
+    monkeypatch.setattr(runner_module, "usable_cores", lambda: 3)
+    workers, name, reason = choose_runner(jobs)
+    assert (workers, name) == (3, "local cluster, 3 workers")
+    assert reason.endswith("over the 0.5 s a local cluster needs to pay off")
+    monkeypatch.setattr(runner_module, "usable_cores", lambda: 1)
+    assert choose_runner(jobs)[:2] == (0, "in-process")
+    assert choose_runner(jobs, workers=1)[:2] == (1, "local cluster, 1 worker")
+    assert choose_runner(jobs, workers=0)[:2] == (0, "in-process")
+    assert choose_runner(jobs, scheduler="tcp://127.0.0.1:1")[1] == "the Dask scheduler tcp://127.0.0.1:1"
 
 
 def _free_port():
@@ -458,7 +508,7 @@ def test_dsm_gives_measured_heights(tmp_path):
     (row,) = read_table(tmp_path / "out" / "season.csv")
     assert (row["height_mode"], row["date_source"], row["reason"]) == ("measured", "option", "")
     # Independent reference: the relief built directly, the plot's pixels by matplotlib's point-in-polygon.
-    relief = build_relief(str(ortho), dsm=folder / "dsm.tif", heights="measured", two_sided=False)
+    relief = build_relief(str(ortho), dsm=folder / "dsm.tif", height_source="measured", two_sided=False)
     t = read_season(tmp_path / "out").dates[0].transform
     rows, cols = relief.heights.shape
     cc, rr = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
@@ -472,14 +522,15 @@ def test_dsm_gives_measured_heights(tmp_path):
 
 
 def test_opencv_distance_is_exact_with_two_threads(soybean):
-    """Why each task gives OpenCV two threads (runner._exact_opencv): its precise distance transform
+    """Why each task gives OpenCV two threads (task.exact_opencv): its precise distance transform
     then equals SciPy's exact Euclidean one, whatever happened in the process before."""
     import cv2
     from PIL import Image
     from scipy import ndimage
 
-    from cliff_terrain.pipeline import resize_longest
-    from cliff_terrain.segmentation import distance_map, region_interiors, segment
+    from cliff_terrain.relief.labels import distance_map, region_interiors
+    from cliff_terrain.relief.resize import resize_longest
+    from cliff_terrain.relief.segmentation import segment
 
     rgb = np.asarray(Image.open(soybean / "20180905_Lamberton_clipped.tif").convert("RGB"))
     labels = segment(resize_longest(rgb, 1000)).labels
@@ -500,7 +551,9 @@ def test_given_client_is_used_and_left_open(serial, soybean, tmp_path):
     the local cluster it runs on keeps glibc's adaptive allocator (no MALLOC_TRIM_THRESHOLD_)."""
     from distributed import Client
 
-    from cliff_terrain.season.runner import local_cluster, plan_season, run_season
+    from cliff_terrain.season.cluster import local_cluster
+    from cliff_terrain.season.plan import plan_season
+    from cliff_terrain.season.runner import run_season
 
     jobs, plots = plan_season([soybean], plots=soybean / "plots.geojson")
     with local_cluster(1) as cluster, Client(cluster) as client:
@@ -519,6 +572,7 @@ def test_given_client_is_used_and_left_open(serial, soybean, tmp_path):
         assert client.status == "running"
         assert client.submit(sum, [1, 2]).result() == 3
     assert done.computed == len(jobs) and not done.failures
+    assert done.runner == "the given Dask client"
     assert (tmp_path / "season.csv").read_bytes() == (serial / "season.csv").read_bytes()
     assert sum(task["key"].startswith("season-") for task in stream) == len(jobs)
     with pytest.raises(CliffTerrainError, match=r"`client` must be a distributed.Client, got 'tcp://x'"):

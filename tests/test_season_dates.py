@@ -111,7 +111,7 @@ def test_cache_key_follows_content_params_and_version(tmp_path):
 
 
 def test_each_photo_finds_its_dsm(tmp_path):
-    from cliff_terrain.season.runner import find_images, pair_dsm
+    from cliff_terrain.season.plan import find_images, pair_dsm
 
     photos, dsms = tmp_path / "photos", tmp_path / "dsm"
     photos.mkdir()

@@ -18,7 +18,7 @@ from cliff_terrain import (
     synthetic_field,
     vegetation_index,
 )
-from cliff_terrain.segmentation import split_regions
+from cliff_terrain.relief.watershed import split_regions
 
 
 def test_vegetation_mode_finds_every_synthetic_plant():
@@ -133,7 +133,7 @@ def test_cleaning_matches_scipy_and_skimage():
     # remove_small_objects: 0.26 changed its size parameter.
     from scipy import ndimage as ndi
 
-    from cliff_terrain.segmentation import _clean
+    from cliff_terrain.relief.segmentation import _clean
 
     rng = np.random.default_rng(0)
     for i in range(12):
@@ -147,7 +147,7 @@ def test_cleaning_matches_scipy_and_skimage():
 
 
 def test_colour_edges_are_the_distance_from_the_grey_axis():
-    from cliff_terrain.segmentation import colour_edges
+    from cliff_terrain.relief.watershed import colour_edges
 
     rng = np.random.default_rng(1)
     f = rng.normal(size=(9, 11, 3)).astype(np.float32)
@@ -158,7 +158,7 @@ def test_colour_edges_are_the_distance_from_the_grey_axis():
 def test_inner_boundaries_match_scikit_image():
     from skimage.segmentation import find_boundaries
 
-    from cliff_terrain.segmentation import inner_boundaries
+    from cliff_terrain.relief.labels import inner_boundaries
 
     image, _ = synthetic_field(shape=(240, 360), seed=5)
     labels = segment(image).labels
@@ -176,10 +176,10 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
     import cv2
     from skimage.segmentation import watershed
 
-    import cliff_terrain.segmentation as segmentation
+    import cliff_terrain.relief.watershed as flooding
 
-    monkeypatch.setattr(segmentation, "_FLOOD_GROUP_PIXELS", 1)
-    monkeypatch.setattr(segmentation, "_FLOOD_THREADS", threads)
+    monkeypatch.setattr(flooding, "_FLOOD_GROUP_PIXELS", 1)
+    monkeypatch.setattr(flooding, "_FLOOD_THREADS", threads)
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(60, 160)), int(rng.integers(60, 160)))
     landscape = rng.integers(0, 3, shape).astype(np.float64)
@@ -198,30 +198,27 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
     flooded = rng.random(count) < 0.8
     flooded[0] = False
     assert flooded.sum() >= 4, "enough components for four groups"
-    calls = []
-    with segmentation._before_watershed(lambda: calls.append("kernels")):
-        result = segmentation._flood_components(landscape, markers, components, flooded, stats)
+    result = flooding._flood_components(landscape, markers, components, flooded, stats)
     expected = watershed(landscape, markers, mask=flooded[components], connectivity=1)
     np.testing.assert_array_equal(result, expected)
-    assert calls == ["kernels"]
 
 
 def test_a_real_photo_splits_the_same_with_one_thread_or_several(monkeypatch):
-    import cliff_terrain.segmentation as segmentation
+    import cliff_terrain.relief.watershed as flooding
 
     image, _ = load_image(uav_image("caliterra/IMG_9370.jpg"))
     image = resize_longest(image, 1500)
     parallel = segment(image, filtered=quaternion_filter(image))
-    monkeypatch.setattr(segmentation, "_FLOOD_THREADS", 1)
+    monkeypatch.setattr(flooding, "_FLOOD_THREADS", 1)
     np.testing.assert_array_equal(segment(image, filtered=quaternion_filter(image)).labels, parallel.labels)
     assert parallel.n_regions > 100
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_flood_is_scikit_images_watershed_with_a_hook_before_the_kernel(seed):
+def test_flood_is_scikit_images_watershed(seed):
     from skimage.segmentation import watershed
 
-    from cliff_terrain.segmentation import _before_watershed, _flood
+    from cliff_terrain.relief.watershed import _flood
 
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(1, 60)), int(rng.integers(1, 60)))
@@ -231,12 +228,8 @@ def test_flood_is_scikit_images_watershed_with_a_hook_before_the_kernel(seed):
     markers = np.zeros(shape, np.int32)
     seeds = rng.random(shape) < 0.05
     markers[seeds] = rng.integers(1, 9, int(seeds.sum()))
-    calls = []
-    with _before_watershed(lambda: calls.append("kernel")):
-        flooded = _flood(landscape, markers, mask)
-    np.testing.assert_array_equal(_flood(landscape, markers, mask), flooded)  # no hook outside the block
+    flooded = _flood(landscape, markers, mask)
     np.testing.assert_array_equal(flooded, watershed(landscape, markers, mask=mask))
-    assert calls == ["kernel"]
 
 
 def _dark_wet_soil_field(seed=0):
@@ -256,8 +249,8 @@ def _dark_wet_soil_field(seed=0):
 
 
 def test_dark_wet_soil_gets_the_photos_own_threshold():
-    from cliff_terrain.mask_quality import mask_agreement
-    from cliff_terrain.segmentation import _GREEN_BAND
+    from cliff_terrain.evaluate.mask_quality import mask_agreement
+    from cliff_terrain.relief.vegetation import _GREEN_BAND
 
     image, truth = _dark_wet_soil_field()
     vi, _ = vegetation_index(image)
@@ -285,10 +278,10 @@ def test_a_closed_canopy_is_not_split_into_sunlit_and_shaded_leaves():
     sunlit, shaded = np.array([150.0, 180.0, 60.0]), np.array([30.0, 90.0, 35.0])
     rgb = sunlit * (1 - shade[..., None]) + shaded * shade[..., None] + rng.normal(0, 3.0, (240, 320, 3))
     image = np.clip(np.round(rgb), 0, 255).astype(np.uint8)
-    from cliff_terrain.segmentation import _otsu, blurred_index
+    from cliff_terrain.relief.vegetation import blurred_index, otsu_threshold
 
     vi, _ = blurred_index(image)
-    assert _otsu(vi) > 0.3  # Otsu alone would call the sunlit half of the canopy soil
+    assert otsu_threshold(vi) > 0.3  # Otsu alone would call the sunlit half of the canopy soil
     seg = segment(image)
     assert seg.threshold_source == "band" and seg.valley > 0.5
     assert seg.mask.mean() > 0.99
@@ -309,7 +302,7 @@ def test_a_closed_canopy_is_not_split_into_sunlit_and_shaded_leaves():
 def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     # None of these photos has a two-class histogram whose own threshold lies above the band: the
     # rule leaves their masks (and every figure checked on them) as they were.
-    from cliff_terrain.segmentation import _GREEN_BAND, _NIR_BAND, _otsu, blurred_index
+    from cliff_terrain.relief.vegetation import _GREEN_BAND, _NIR_BAND, blurred_index, otsu_threshold
 
     image, meta = load_image(uav_image(name), max_size=1000)
     image = resize_longest(image, 1000)
@@ -321,5 +314,5 @@ def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     seg = segment(image, valid=valid)
     vi, index = blurred_index(image)
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
-    otsu = _otsu(vi if valid is None else vi[valid])
+    otsu = otsu_threshold(vi if valid is None else vi[valid])
     assert seg.threshold == pytest.approx(float(np.clip(otsu, low, high)), abs=1e-6)

@@ -1,7 +1,7 @@
 """The adaptive mesh: a TIN whose vertical error at every pixel centre is bounded, closed into a solid.
 
 The error is measured at every pixel centre, against the height raster, by two independent routes:
-cliff_terrain.tin.tin_error (integer edge functions, vectorised) and, on small rasters, a plain
+cliff_terrain.mesh.tin_sample.tin_error (integer edge functions, vectorised) and, on small rasters, a plain
 per-pixel loop written here.
 """
 
@@ -9,13 +9,17 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import uav_image
+from conftest import REPO, uav_image
 
-import cliff_terrain.tin as tin_module
+import cliff_terrain.mesh.tin as tin_module
 from cliff_terrain import CliffTerrainError, build_relief
-from cliff_terrain.mesh import adaptive_mesh, grid_mesh
-from cliff_terrain.settings import DEFAULT_MAX_ERROR_M, DEFAULT_MAX_ERROR_SHARE
-from cliff_terrain.tin import Tin, default_max_error, sample_tin, tin_error, triangulate
+from cliff_terrain.mesh.adaptive import adaptive_mesh, choose_mesh
+from cliff_terrain.mesh.grid import grid_mesh
+from cliff_terrain.mesh.tin import Tin, default_max_error, triangulate
+from cliff_terrain.mesh.tin_sample import sample_tin, tin_error
+from cliff_terrain.settings import DEFAULT_MAX_ERROR_FLOOR_M, DEFAULT_MAX_ERROR_PIXELS
+
+EX2 = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 
 
 def _loop_error(heights, tin):
@@ -89,8 +93,8 @@ def test_real_reliefs_stay_within_max_error_at_every_pixel_centre(relative):
     relief = build_relief(uav_image(relative), max_size=600)
     heights = relief.heights
     assert heights.max() > 0
-    for share in (DEFAULT_MAX_ERROR_SHARE, 0.002):
-        max_error = share * float(heights.max())
+    # The default (half a pixel: these photos have no scale) and a tight bound.
+    for max_error in (default_max_error()[0], 0.002 * float(heights.max())):
         tin = triangulate(heights, max_error=max_error)
         error = tin_error(heights, tin)
         assert not np.isnan(error).any(), "every pixel centre is covered"
@@ -242,11 +246,14 @@ def test_tiny_rasters_still_close_into_a_solid(shape):
 
 def test_build_relief_adaptive_has_ten_times_fewer_triangles_within_the_default_error():
     path = uav_image("broccoli/01_clip_raw_test.jpg")
-    grid = build_relief(path, max_size=600)
+    grid = build_relief(path, max_size=600, mesh="grid")
     adaptive = build_relief(path, max_size=600, mesh="adaptive")
-    assert grid.max_error is None and grid.params["mesh"] == "grid"
+    assert grid.max_error is None and grid.params["mesh"] == "grid" and grid.mesh_kind == "grid"
+    assert grid.max_error_rule is None and grid.mesh_rule == "given"
     np.testing.assert_array_equal(adaptive.heights, grid.heights)
-    assert adaptive.max_error == pytest.approx(DEFAULT_MAX_ERROR_SHARE * grid.max_height)
+    # No scale: half a pixel.
+    assert adaptive.max_error == DEFAULT_MAX_ERROR_PIXELS == 0.5
+    assert adaptive.max_error_rule.startswith("half a pixel (inflated heights")
     # The grid draws two triangles per pixel.
     assert 2 * grid.mesh.n_front_faces >= 10 * adaptive.mesh.n_front_faces
     surface = _front_at_pixel_centres(adaptive.mesh)
@@ -256,15 +263,62 @@ def test_build_relief_adaptive_has_ten_times_fewer_triangles_within_the_default_
     np.testing.assert_array_equal(grid.mesh.vertices, grid_mesh(grid.heights).vertices)
 
 
-def test_the_default_error_is_five_millimetres_with_a_gsd():
+def test_the_default_error_follows_the_source_of_the_heights():
     path = uav_image("broccoli/01_clip_raw_test.jpg")
     relief = build_relief(path, max_size=300, mesh="adaptive", gsd=0.01)
-    assert relief.units == "m" and relief.max_error == DEFAULT_MAX_ERROR_M
-    assert default_max_error(relief.heights, units="m") == DEFAULT_MAX_ERROR_M
-    # A flat relief in pixels: a share of a pixel.
-    assert default_max_error(np.zeros((3, 3))) == pytest.approx(DEFAULT_MAX_ERROR_SHARE)
-    explicit = build_relief(path, max_size=300, mesh="adaptive", gsd=0.01, max_error=0.02)
-    assert explicit.max_error == 0.02 and explicit.mesh.n_faces < relief.mesh.n_faces
+    # A shape prior holds nothing below the photo's resolution: half a processing pixel, in metres.
+    assert relief.units == "m" and relief.max_error == pytest.approx(0.5 * relief.pixel_size)
+    assert relief.max_error_rule.startswith("half a pixel (inflated heights, ")
+    assert default_max_error(units="m", pixel_size=0.02) == (
+        0.01,
+        "half a pixel (inflated heights, 2 cm pixels)",
+    )
+    assert default_max_error(height_source="calibrated", units="m", pixel_size=0.021)[0] == pytest.approx(
+        0.0105
+    )
+    assert default_max_error(pixel_size=1.0) == (0.5, "half a pixel (inflated heights, no scale: 0.5 px)")
+    # Measured heights: the DSM's noise, at least 1 cm.
+    measured = {"height_source": "measured", "units": "m", "pixel_size": 0.05}
+    assert default_max_error(**measured, dsm_noise=0.013) == (
+        0.013,
+        "DSM noise 1.3 cm (robust spread of soil residuals)",
+    )
+    assert default_max_error(**measured, dsm_noise=0.004)[0] == DEFAULT_MAX_ERROR_FLOOR_M == 0.01
+    assert default_max_error(**measured)[1] == "1 cm floor (measured heights)"
+    # A value given always wins.
+    explicit = build_relief(path, max_size=300, mesh="adaptive", gsd=0.01, max_error=0.05)
+    assert explicit.max_error == 0.05 and explicit.max_error_rule == "given"
+    assert explicit.mesh.n_faces < relief.mesh.n_faces
+
+
+def test_measured_heights_default_to_the_dsm_noise():
+    from cliff_terrain.measure.canopy import dsm_noise
+
+    relief = build_relief(
+        str(EX2 / "odm_orthophoto.tif"), max_size=300, dsm=str(EX2 / "dsm.tif"), height_source="measured"
+    )
+    noise = dsm_noise(relief.canopy, plants=relief.mask)
+    soil = ~relief.mask & np.isfinite(relief.canopy.chm)
+    residual = (relief.canopy.dsm - relief.canopy.ground)[soil].astype(np.float64)
+    assert noise == pytest.approx(1.4826 * np.median(np.abs(residual - np.median(residual))), rel=1e-6)
+    assert relief.max_error == pytest.approx(max(0.01, noise))
+    assert ("DSM noise" if noise > 0.01 else "1 cm floor") in relief.max_error_rule
+
+
+def test_auto_chooses_a_mesh_per_build_and_says_which(monkeypatch):
+    import cliff_terrain.settings as settings
+
+    assert settings.DEFAULT_MESH == "auto"
+    relief = build_relief(uav_image("broccoli/01_clip_raw_test.jpg"), max_size=200)
+    assert relief.params["mesh"] == "auto" and relief.mesh_rule.startswith("auto: ")
+    assert relief.mesh_kind == choose_mesh("auto", relief.heights.shape)[0]
+    assert (relief.max_error is not None) == (relief.mesh_kind == "adaptive")
+    assert choose_mesh("grid", (4000, 3000)) == ("grid", "given")
+    monkeypatch.setattr(settings, "AUTO_GRID_BELOW_PIXELS", 2_000_000)
+    assert choose_mesh("auto", (1000, 1000))[0] == "grid"
+    assert choose_mesh("auto", (2000, 1500))[0] == "adaptive"
+    monkeypatch.setattr(settings, "AUTO_GRID_BELOW_PIXELS", None)
+    assert choose_mesh("auto", (10, 10))[0] == "adaptive"
 
 
 @pytest.mark.parametrize("shape", [(60, 90), (300, 500)])
@@ -292,7 +346,9 @@ def test_bad_max_error_is_refused_by_name(max_error, match):
 
 
 def test_bad_mesh_choice_is_refused_by_name():
-    with pytest.raises(CliffTerrainError, match=r"`mesh` must be one of 'grid', 'adaptive', got 'tin'"):
+    with pytest.raises(
+        CliffTerrainError, match=r"`mesh` must be one of 'auto', 'grid', 'adaptive', got 'tin'"
+    ):
         build_relief(np.zeros((20, 20, 3), np.uint8), mesh="tin")
 
 

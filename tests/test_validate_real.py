@@ -13,8 +13,8 @@ from conftest import REPO
 from PIL import Image
 from test_measured_heights import FIELD_TRANSFORM, UTM16N, write_synthetic_pair
 
-from cliff_terrain.georaster import write_geotiff
-from cliff_terrain.synthetic import synthetic_field
+from cliff_terrain.data.synthetic import synthetic_field
+from cliff_terrain.io.geotiff import write_geotiff
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ For each photo (folders are searched for JPEG, PNG and TIFF files; ``synthetic-o
 ``synthetic-closed`` stand for ``synthetic_field(seed=0)`` in each canopy mode) it builds the relief
 and prints a Markdown row: plant cover of the relief's mask; against two reference masks, ExG
 (or (NIR - B) / (NIR + B) for a false-colour NIR frame) and CIELAB a*, each with Otsu's threshold
-(:mod:`cliff_terrain.mask_quality`), their IoU and the share of the relief's volume standing on
+(:mod:`cliff_terrain.evaluate.mask_quality`), their IoU and the share of the relief's volume standing on
 reference plant pixels; for the synthetic fields the share on the drawn plants and on the enclosed
 soil strips. ``--json`` also writes every figure (F1, precision, recall too) to FILE.
 """
@@ -26,9 +26,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cliff_terrain import build_relief  # noqa: E402
-from cliff_terrain.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
-from cliff_terrain.segmentation import vegetation_index  # noqa: E402
-from cliff_terrain.synthetic import synthetic_field  # noqa: E402
+from cliff_terrain.data.synthetic import synthetic_field  # noqa: E402
+from cliff_terrain.evaluate.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
+from cliff_terrain.relief.vegetation import vegetation_index  # noqa: E402
 
 SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 SYNTHETIC = ("synthetic-open", "synthetic-closed")

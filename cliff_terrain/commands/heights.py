@@ -1,12 +1,13 @@
 """``cliff-terrain heights ORTHO --dsm DSM [--dtm DTM] [--plots FILE] --out DIR``: measured canopy height.
 
-Runs the relief's own stages (:func:`cliff_terrain.pipeline.build_relief` without a mesh, heights
+Runs the relief's own stages (:func:`cliff_terrain.build.build_relief` without a mesh, heights
 measured), so its plants, cover and heights are the ones ``render_views.py --dsm`` and the sidebar
 report for the same orthophoto and grid. Writes ``chm.tif`` (float32 GeoTIFF, metres, NaN as no-data,
 the grid's georeference), ``ground_support.tif`` beside it when the ground is estimated (the share of
 bare soil that carried the ground around each pixel, 0 where it is interpolated only),
 ``regions.csv`` and ``regions.geojson`` (one row per plant), with ``--plots`` ``plots.csv`` and
-``plots.geojson`` (one row per polygon), and ``summary.json`` (the key figures, the ground's source
+``plots.geojson`` (one row per polygon), with ``--indices NDVI,NDRE`` their index columns
+(``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...), and ``summary.json`` (the key figures, the ground's source
 and the plant/soil threshold). All files appear together or none does.
 """
 
@@ -15,6 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import settings
+from .index_options import add_index_arguments
 
 HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write the CHM and tables"
 
@@ -47,6 +49,7 @@ def configure(parser):
         help=f"block size of the ground estimate in metres (default {settings.DEFAULT_GROUND_BLOCK_M})",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_index_arguments(parser)
 
 
 def grid_size(ortho, *, resolution=None, max_size=None):
@@ -55,7 +58,7 @@ def grid_size(ortho, *, resolution=None, max_size=None):
 
     from .._validate import check_float, check_int
     from ..errors import CliffTerrainError
-    from ..georaster import raster_size, read_georeference
+    from ..io.geotiff import raster_size, read_georeference
 
     if resolution is not None and max_size is not None:
         raise CliffTerrainError(
@@ -78,18 +81,20 @@ def run(args):
 
     import numpy as np
 
-    from ..canopy import relief_tables
+    from ..build import build_relief
     from ..errors import CliffTerrainError
-    from ..evaluation import json_safe
-    from ..georaster import write_geotiff
-    from ..key_figures import figures_line, key_figures
-    from ..pipeline import build_relief
-    from ..plots import read_plots
-    from ..tables import write_files
+    from ..evaluate.views import json_safe
+    from ..io.geotiff import write_geotiff
+    from ..io.plot_polygons import read_plots
+    from ..measure.canopy import relief_tables
+    from ..measure.key_figures import figures_line, key_figures
+    from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, REGIONS_CSV, REGIONS_GEOJSON, write_files
+    from ..params import ReliefParams
+    from .index_options import relief_index_maps, requested_bands
 
     out = args.out
-    outputs = ["chm.tif", "ground_support.tif", "regions.csv", "regions.geojson"]
-    outputs += ["plots.csv", "plots.geojson"] if args.plots else []
+    outputs = ["chm.tif", "ground_support.tif", REGIONS_CSV, REGIONS_GEOJSON]
+    outputs += [PLOTS_CSV, PLOTS_GEOJSON] if args.plots else []
     outputs += ["summary.json"]
     if args.dtm is not None:
         outputs.remove("ground_support.tif")
@@ -98,18 +103,21 @@ def run(args):
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     plots = read_plots(args.plots) if args.plots else None  # a bad plot file fails before the work
+    bands = requested_bands(args, args.ortho)  # and so does an index whose band the file lacks
     size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
-    relief = build_relief(
-        args.ortho,
+    params = ReliefParams(
         max_size=size,
         dsm=args.dsm,
         dtm=args.dtm,
-        heights="measured",
+        height_source="measured",
+        bands=None if args.band_files else args.bands,  # --bands names the orthophoto's own bands
         mesh=None,
         ground_block=args.block,
     )
+    relief = build_relief(args.ortho, params)
     canopy = relief.canopy
-    tables = relief_tables(relief, plots=plots, source=str(args.ortho))
+    maps = relief_index_maps(args, bands, relief.mask.shape)
+    tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps)
     files = {out / name: text for name, text in tables.items()}
     files[out / "chm.tif"] = lambda tmp: write_geotiff(
         tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan")

@@ -1,7 +1,7 @@
 """``cliff-terrain plots ORTHO --grid CxR --plot-size WxL (--corners ... | --origin X,Y) --out FILE``: plot polygons.
 
-Builds a trial's plot polygons from its layout (:mod:`cliff_terrain.plot_grid`), optionally snapped to
-the crop (``--fit``, :mod:`cliff_terrain.plot_fit`; with no placement the fit places the grid itself),
+Builds a trial's plot polygons from its layout (:mod:`cliff_terrain.measure.plot_grid`), optionally snapped to
+the crop (``--fit``, :mod:`cliff_terrain.measure.plot_fit`; with no placement the fit places the grid itself),
 checks them against the orthophoto (inside it, not overlapping) and writes GeoJSON, or an ESRI
 Shapefile when FILE ends in ``.shp``, in the orthophoto's CRS. With ``--fit`` the fit's report is also
 written beside FILE as ``FILE.fit.json``. The output feeds ``heights --plots`` and ``season --plots``.
@@ -97,9 +97,9 @@ def run(args):
     import json
 
     from ..errors import CliffTerrainError
-    from ..georaster import read_orthophoto
-    from ..plot_files import check_plots_fit, read_field_book, write_plots
-    from ..plot_grid import parse_pair, place_grid, plots_from
+    from ..io.geotiff import read_orthophoto
+    from ..io.plot_files import check_plots_fit, read_field_book, write_plots
+    from ..measure.plot_grid import parse_pair, place_grid, plots_from
 
     out = args.out
     columns, rows = _counts(args.grid)
@@ -134,8 +134,8 @@ def run(args):
         )  # fmt: skip
     report = None
     if args.fit:
-        from ..canopy import plant_mask
-        from ..plot_fit import fit_grid
+        from ..measure.canopy import plant_mask
+        from ..measure.plot_fit import fit_grid
 
         plants = plant_mask(ortho.data, valid=ortho.valid)
         fit = fit_grid(

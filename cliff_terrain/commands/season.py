@@ -2,8 +2,10 @@
 
 Writes ``DIR/season.csv`` (one row per date and plot), ``DIR/growth.png``, ``DIR/season.json`` (what
 ``render_season.py`` animates) and ``DIR/cache/`` (one entry per image; a rerun computes only what is
-missing). Runs on Dask: a local cluster by default, ``--workers 0`` serially, ``--scheduler ADDRESS``
-on an existing cluster. Exit status 1 when some images failed (their rows carry the error).
+missing). By default a small season runs in this process and a larger one on a local Dask cluster
+(one line says which, and why); ``--workers N`` forces a cluster of N, ``--workers 0`` this process,
+``--scheduler ADDRESS`` an existing cluster. ``--indices NDVI,NDRE`` adds the indices' columns per plot
+and date (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...). Exit status 1 when some images failed (their rows carry the error).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import sys
 from pathlib import Path
 
 from .. import settings
+from .index_options import add_index_arguments
 
 HELP = "per-plot growth over a season of dated orthophotos (cover, heights, volume), on Dask"
 
@@ -37,7 +40,8 @@ def configure(parser):
         "--workers",
         type=int,
         default=None,
-        help="local Dask worker processes (default: one per core); 0 runs serially in this process",
+        help="local Dask worker processes (default: this process for a small season, else one per "
+        "core); 0 runs serially in this process",
     )
     parser.add_argument(
         "--scheduler",
@@ -90,12 +94,14 @@ def configure(parser):
         "consensus is measured and corrected: season.json's shift_px and shift_m)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_index_arguments(parser, band_files=False)
 
 
 def run(args):
     from ..errors import CliffTerrainError
     from ..season.dates import parse_given_dates
-    from ..season.runner import plan_season, run_season
+    from ..season.plan import plan_season
+    from ..season.runner import run_season
     from ..season.security import scheduler_security
 
     security = None
@@ -120,6 +126,8 @@ def run(args):
         profile=args.profile,
         exaggeration=args.exaggeration,
         heights=args.heights,
+        indices=args.indices,
+        bands=args.bands,
     )
     season = run_season(
         jobs,
@@ -139,6 +147,9 @@ def run(args):
         f"{season.cached} from the cache, in {season.seconds:.1f} s; wrote {season.table}, "
         f"{season.out / 'growth.png'}, {season.out / 'season.json'}"
     )
+    where = "in this process" if season.runner == "in-process" else f"on {season.runner}"
+    hint = "; --workers N forces a cluster" if args.workers is None and season.runner == "in-process" else ""
+    print(f"ran {where}: {season.runner_reason}{hint}")
     for record in season.dates:
         if record.get("shift_flag"):
             print(f"warning: {record['date']}: {record['shift_flag']}", file=sys.stderr)

@@ -22,8 +22,8 @@ def configure(parser):
 def run(args):
     from PIL import Image
 
+    from ..data.synthetic import synthetic_field
     from ..errors import CliffTerrainError
-    from ..synthetic import synthetic_field
 
     try:
         rows, cols = (int(v) for v in args.size.lower().split("x"))

@@ -34,8 +34,8 @@ def run(args):
     import json
 
     from ..errors import CliffTerrainError
+    from ..measure.tables import table_csv, write_files
     from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, season_traits
-    from ..tables import table_csv, write_files
 
     table = args.season / "season.csv"
     if not table.is_file():
@@ -73,8 +73,8 @@ def run(args):
     files = {out / "traits.csv": table_csv(traits, columns)}
     plots = None
     if plots_path:
-        from ..plots import read_plots
-        from ..tables import polygon_geometries, table_geojson
+        from ..io.geojson import polygon_geometries, table_geojson
+        from ..io.plot_polygons import read_plots
 
         plots = read_plots(plots_path)
         by_index = {str(t["plot"]): t for t in traits}

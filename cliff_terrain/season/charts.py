@@ -11,7 +11,7 @@ import datetime as dt
 import math
 
 from ..errors import CliffTerrainError
-from .runner import LEAD_COLUMNS, VALUE_COLUMNS
+from .table import LEAD_COLUMNS, VALUE_COLUMNS
 
 # At most this many categories get their own colour, median and band.
 MAX_GROUPS = 10

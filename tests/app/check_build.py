@@ -27,10 +27,19 @@ obj = bpy.context.active_object
 stem = os.path.splitext(os.path.basename(photo))[0]
 assert obj is not None and obj.name.startswith(stem), obj
 mesh = obj.data
-assert len(mesh.vertices) > 400 * 100 and len(mesh.polygons) > 400 * 100, (
-    len(mesh.vertices),
-    len(mesh.polygons),
-)
+record = obj["cliff_terrain"]
+# The default mesh is "auto": the grid (a vertex per pixel corner) or the adaptive TIN within its
+# bound; either covers the whole processing grid of the photo (400 px on its longest side).
+assert record["grid_rows"] * record["grid_cols"] > 400 * 100, (record["grid_rows"], record["grid_cols"])
+assert record["mesh"] in ("grid", "adaptive") and record["mesh_rule"], (record["mesh"], record["mesh_rule"])
+if record["mesh"] == "grid":
+    assert len(mesh.vertices) > record["grid_rows"] * record["grid_cols"], len(mesh.vertices)
+else:
+    assert record["max_error"] > 0 and record["max_error_rule"], (
+        record["max_error"],
+        record["max_error_rule"],
+    )
+assert len(mesh.polygons) > 1000 and len(mesh.vertices) > 1000, (len(mesh.vertices), len(mesh.polygons))
 co = numpy.empty(len(mesh.vertices) * 3, dtype=numpy.float32)
 mesh.vertices.foreach_get("co", co)
 heights = co[2::3]
@@ -52,6 +61,7 @@ report = {
     "object": obj.name,
     "vertices": len(mesh.vertices),
     "faces": len(mesh.polygons),
+    "mesh": record["mesh"],
     "height_range": [float(heights.min()), float(heights.max())],
 }
 with open(out_path, "w") as file:

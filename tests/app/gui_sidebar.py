@@ -505,7 +505,7 @@ class Test:
             grid = bpy.context.view_layer.objects.active
             # Dragged roughly onto the plots (G), 1 m off: the plots' bottom-left corner read off the photo.
             plot_grid = importlib.import_module(f"{addon_package()}.scene.plot_grid")
-            georaster = importlib.import_module(f"{addon_package()}.cliff_terrain.georaster")
+            georaster = importlib.import_module(f"{addon_package()}.cliff_terrain.io.geotiff")
             transform, _ = georaster.read_georeference(ARGS.ortho)
             corner = (
                 transform[0, 2] + transform[0, 0] * 91 + 1.0,

@@ -1,0 +1,1 @@
+"""Synthetic fields the project generates itself (the demo input and the test oracles)."""

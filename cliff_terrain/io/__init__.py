@@ -1,0 +1,1 @@
+"""Reading and writing the field's files: photos, GeoTIFFs, plot polygons, camera models."""

@@ -1,0 +1,155 @@
+"""GeoTIFF tags parsed once for the package: the GeoKeys, map units, the georeference, GDAL_NODATA.
+
+One parser of each, with one behaviour everywhere:
+
+* :func:`geo_keys` reads the GeoKeyDirectoryTag's inline (SHORT) keys; a truncated or malformed
+  directory gives the keys read before the damage (so a CRS it cannot tell is refused below as
+  unknown, not guessed).
+* Map units come from :data:`LINEAR_UNITS` (EPSG unit codes, with the international foot and the US
+  survey foot told apart). A surface model or orthophoto whose map or height units are not metres is
+  refused by :func:`georeference` (heights, areas and volumes are computed in metres, and a DSM's
+  heights in feet cannot be told from its map units reliably); a photo's ground size
+  (:func:`cliff_terrain.io.camera.geotiff_pixel_size`) is a scale only, converted to metres by the
+  unit's own factor.
+* :func:`nodata_value` reads GDAL_NODATA: empty or "none" means no value; any other text that is not
+  a number is refused (:class:`RasterReadError` naming the file and the text), by every reader
+  (surface models, orthophotos, mosaics): guessing would count fill values as heights or plants.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import CliffTerrainError, GeoreferenceError, RasterReadError
+from .transform import as_affine
+
+# TIFF tags of the georeference and GDAL's no-data value.
+MODEL_PIXEL_SCALE, MODEL_TIEPOINT, MODEL_TRANSFORMATION = 33550, 33922, 34264
+GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS, GEO_ASCII_PARAMS, GDAL_NODATA = 34735, 34736, 34737, 42113
+GEO_TAGS = (MODEL_PIXEL_SCALE, MODEL_TIEPOINT, MODEL_TRANSFORMATION, GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS)
+GEO_TAGS += (GEO_ASCII_PARAMS, GDAL_NODATA)
+
+# GeoKey ids (GeoTIFF 1.1, section 7) and their codes used here.
+GT_MODEL_TYPE, GT_RASTER_TYPE, GEOGRAPHIC_TYPE = 1024, 1025, 2048
+PROJECTED_CS_TYPE, PROJ_LINEAR_UNITS, VERTICAL_UNITS = 3072, 3076, 4099
+MODEL_PROJECTED, MODEL_GEOGRAPHIC, PIXEL_IS_POINT, USER_DEFINED = 1, 2, 2, 32767
+METRE = 9001
+
+#: EPSG linear unit code -> (name, metres per unit).
+LINEAR_UNITS = {
+    9001: ("metres", 1.0),
+    9002: ("international feet", 0.3048),
+    9003: ("US survey feet", 1200.0 / 3937.0),
+    9004: ("modified American feet", 0.3048122530),
+    9005: ("Clarke's feet", 0.3047972654),
+    9036: ("kilometres", 1000.0),
+}
+
+
+def geo_keys(directory):
+    """GeoKey id -> value for the keys stored inline (SHORT values) in a GeoKeyDirectoryTag value.
+
+    Examples
+    --------
+    >>> geo_keys((1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32616))
+    {1024: 1, 3072: 32616}
+    """
+    keys = {}
+    if directory is None:
+        return keys
+    try:
+        values = [int(v) for v in directory]
+    except (TypeError, ValueError):
+        return keys
+    if len(values) < 4:
+        return keys
+    for k in range(values[3]):
+        entry = values[4 + 4 * k : 8 + 4 * k]
+        if len(entry) < 4:
+            break
+        if entry[1] == 0:
+            keys[entry[0]] = entry[3]
+    return keys
+
+
+def unit_metres(code):
+    """Metres per unit of an EPSG linear unit code, or None for an unknown (or missing) code."""
+    unit = LINEAR_UNITS.get(code)
+    return None if unit is None else unit[1]
+
+
+def georeference(tags, name):
+    """(3x3 transform, EPSG code) from the GeoTIFF tags (tag code -> value), refusing what is not a metric map."""
+    keys = geo_keys(tags.get(GEO_KEY_DIRECTORY))
+    if MODEL_TIEPOINT in tags and MODEL_PIXEL_SCALE in tags:
+        tie = [float(v) for v in tags[MODEL_TIEPOINT]]
+        sx, sy = (float(v) for v in tags[MODEL_PIXEL_SCALE][:2])
+        if len(tie) < 6 or sx <= 0 or sy <= 0:
+            raise RasterReadError(f"raster {name!r} has a malformed ModelPixelScale/ModelTiepoint")
+        i, j, x, y = tie[0], tie[1], tie[3], tie[4]
+        transform = np.array([[sx, 0.0, x - i * sx], [0.0, -sy, y + j * sy], [0.0, 0.0, 1.0]])
+    elif MODEL_TRANSFORMATION in tags:
+        m = np.asarray(tags[MODEL_TRANSFORMATION], dtype=np.float64)
+        if m.size != 16:
+            raise RasterReadError(f"raster {name!r} has a malformed ModelTransformation")
+        m = m.reshape(4, 4)
+        transform = np.array([[m[0, 0], m[0, 1], m[0, 3]], [m[1, 0], m[1, 1], m[1, 3]], [0.0, 0.0, 1.0]])
+    else:
+        raise RasterReadError(
+            f"raster {name!r} has no georeference (no ModelPixelScale+ModelTiepoint or ModelTransformation tags)"
+        )
+    try:
+        transform = as_affine(transform)
+    except CliffTerrainError:
+        raise RasterReadError(f"raster {name!r} has a degenerate georeference") from None
+    if keys.get(GT_RASTER_TYPE) == PIXEL_IS_POINT:
+        # The tie point is a pixel's centre, not its corner (GDAL shifts by half a pixel too).
+        transform[:2, 2] -= 0.5 * (transform[:2, 0] + transform[:2, 1])
+    if keys.get(GT_MODEL_TYPE) == MODEL_GEOGRAPHIC or (
+        PROJECTED_CS_TYPE not in keys and keys.get(GEOGRAPHIC_TYPE) is not None
+    ):
+        code = keys.get(GEOGRAPHIC_TYPE)
+        raise GeoreferenceError(
+            f"raster {name!r} is in degrees (geographic CRS{f' EPSG:{code}' if code else ''}); "
+            "reproject it to a projected CRS in metres (e.g. its UTM zone)"
+        )
+    units = keys.get(PROJ_LINEAR_UNITS)
+    if units not in (None, METRE):
+        what = LINEAR_UNITS[units][0] if units in LINEAR_UNITS else f"GeoTIFF unit code {units}"
+        raise GeoreferenceError(f"raster {name!r} has map units in {what}; Cliff Terrain needs metres")
+    vertical = keys.get(VERTICAL_UNITS)
+    if vertical in LINEAR_UNITS and vertical != METRE:
+        raise GeoreferenceError(
+            f"raster {name!r} has heights in {LINEAR_UNITS[vertical][0]}; Cliff Terrain needs metres"
+        )
+    code = keys.get(PROJECTED_CS_TYPE)
+    if code is None or code == USER_DEFINED:
+        raise RasterReadError(
+            f"raster {name!r} has an unknown CRS (no EPSG code in its GeoKeys); save it with an EPSG CRS"
+        )
+    return transform, code
+
+
+def nodata_value(text, name):
+    """GDAL_NODATA's value (the tag's ASCII text) as a float, or None when there is none.
+
+    Examples
+    --------
+    >>> nodata_value("-3.4028234663852886e+38\\x00", "dsm.tif")
+    -3.4028234663852886e+38
+    >>> nodata_value("no", "dsm.tif")
+    Traceback (most recent call last):
+    ...
+    cliff_terrain.errors.RasterReadError: raster 'dsm.tif' has an unreadable GDAL_NODATA value 'no'
+    """
+    if text is None:
+        return None
+    if isinstance(text, bytes):
+        text = text.decode("ascii", "replace")
+    text = str(text).strip().strip("\x00").strip()
+    if text.lower() in ("", "none"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise RasterReadError(f"raster {name!r} has an unreadable GDAL_NODATA value {text!r}") from None

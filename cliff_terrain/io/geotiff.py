@@ -1,0 +1,373 @@
+"""GeoTIFF surface models (DSM/DTM) and orthophotos, with their georeference, and resampling between grids.
+
+Photogrammetry tools (OpenDroneMap, Metashape, Pix4D) write float32 surface models and float or
+8/16-bit orthophotos as GeoTIFFs: pixel-interleaved or planar, uncompressed, LZW or Deflate, tiled or
+striped, with a GDAL_NODATA value (OpenDroneMap's -3.4e38 is not exactly a float32; tifffile warns).
+tifffile reads the pixels (with imagecodecs for LZW/Deflate); the georeference comes from the
+GeoTIFF tags: ModelPixelScale + ModelTiepoint or ModelTransformation, and the EPSG code of the
+GeoKeys, parsed by :mod:`.geokeys` (the package's one GeoKey and GDAL_NODATA parser); the pixels
+are read by :mod:`.tiff_window` (whole here, in windows for mosaics). Only projected CRSs in metres
+are accepted: heights, areas and volumes are in metres.
+
+Transforms map pixel (col, row) to map (x, y) with (0, 0) the top-left corner of the top-left
+pixel, as 3x3 arrays (see :mod:`cliff_terrain.io.transform`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import GeoreferenceError, RasterReadError
+from .geokeys import (
+    GDAL_NODATA,
+    GEO_KEY_DIRECTORY,
+    METRE,
+    MODEL_PIXEL_SCALE,
+    MODEL_TIEPOINT,
+    MODEL_TRANSFORMATION,
+    georeference,
+    nodata_value,
+)
+from .tiff_window import TiffRaster
+from .transform import affine_inverse, as_affine, grid_bounds, pixel_size
+
+# ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
+_FLOAT_NODATA_FLOOR = -1e38
+
+
+@dataclass
+class GeoRaster:
+    """A georeferenced raster.
+
+    Attributes
+    ----------
+    data : (rows, cols) float32 or (rows, cols, 3) uint8 array
+        Surface models: heights in metres, NaN where there is no data. Photos: RGB.
+    transform : (3, 3) float64 array
+        Pixel (col, row) -> map (x, y), (0, 0) being the top-left pixel's top-left corner.
+    crs : int
+        EPSG code of a projected CRS in metres.
+    nodata : float or None
+        The file's no-data value.
+    path : str
+        The file read.
+    valid : (rows, cols) bool array or None
+        Photos only: pixels with data (alpha or no-data value), None when all are.
+    """
+
+    data: np.ndarray
+    transform: np.ndarray
+    crs: int
+    nodata: float | None
+    path: str
+    valid: np.ndarray | None = None
+
+    @property
+    def shape(self):
+        return self.data.shape[:2]
+
+    @property
+    def pixel_size(self):
+        """(x, y) size of a pixel in metres."""
+        return pixel_size(self.transform)
+
+    @property
+    def pixel_area_m2(self):
+        return float(abs(np.linalg.det(self.transform[:2, :2])))
+
+    @property
+    def bounds(self):
+        """(xmin, ymin, xmax, ymax) of the raster's corners on the map."""
+        return grid_bounds(self.transform, self.shape)
+
+
+def read_surface(path):
+    """Read a digital surface (or terrain) model GeoTIFF: one band of heights in metres.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    GeoRaster
+        `data` is (rows, cols) float32 with NaN where the file has no data.
+
+    Raises
+    ------
+    RasterReadError
+        Missing or unreadable file, not one band, no georeference, an unknown CRS, or no data at all.
+    GeoreferenceError
+        A CRS in degrees or heights/coordinates in feet.
+
+    Examples
+    --------
+    >>> import tempfile, os, tifffile
+    >>> path = os.path.join(tempfile.mkdtemp(), "dsm.tif")
+    >>> write_geotiff(path, np.full((4, 5), 100.0, np.float32), transform=[[0.5, 0, 1000], [0, -0.5, 2000]], crs=32616)
+    >>> dsm = read_surface(path)
+    >>> dsm.shape, dsm.crs, dsm.pixel_size, dsm.bounds
+    ((4, 5), 32616, (0.5, 0.5), (1000.0, 1998.0, 1002.5, 2000.0))
+    """
+    name, array, tags = read_tiff(path)
+    transform, crs = georeference(tags, name)
+    if array.ndim == 3 and 1 in (array.shape[0], array.shape[2]):
+        array = array.reshape(array.shape[1:] if array.shape[0] == 1 else array.shape[:2])
+    elif array.ndim == 3:
+        bands = array.shape[0] if tags.get("planar") else array.shape[2]
+        raise RasterReadError(f"surface model {name!r} has {bands} bands, expected 1")
+    if array.ndim != 2:
+        raise RasterReadError(f"surface model {name!r} is not a single-band raster (shape {array.shape})")
+    nodata = nodata_value(tags.get(GDAL_NODATA), name)
+    data = array.astype(np.float32, copy=True)
+    invalid = ~np.isfinite(data)
+    if nodata is not None:
+        invalid |= _is_nodata(array, nodata)
+    data[invalid] = np.nan
+    if invalid.all():
+        raise RasterReadError(f"surface model {name!r} holds no data (every pixel is no-data)")
+    return GeoRaster(data=data, transform=transform, crs=crs, nodata=nodata, path=name)
+
+
+def read_orthophoto(path):
+    """Read an orthophoto GeoTIFF as RGB uint8 with its georeference.
+
+    Float photos in [0, 1] or [0, 255] (OpenDroneMap's, planar and tagged greyscale), 8- and
+    16-bit ones, interleaved or planar; a fourth band is alpha. A multispectral orthomosaic
+    (:mod:`.bands`) is rendered in true colour. Pixels that are no-data (or have
+    zero alpha) are marked in `valid`.
+
+    Returns
+    -------
+    GeoRaster
+        `data` is (rows, cols, 3) uint8.
+    """
+    from .bands import is_multispectral, read_bands, rgb_rendering
+
+    name, array, tags = read_tiff(path)
+    transform, crs = georeference(tags, name)
+    nodata = nodata_value(tags.get(GDAL_NODATA), name)
+    if array.ndim == 3 and min(array.shape) >= 3 and is_multispectral(name):
+        rgb, valid = rgb_rendering(read_bands(name))  # multispectral: a true-colour rendering
+        return GeoRaster(data=rgb, transform=transform, crs=crs, nodata=nodata, path=name, valid=valid)
+    rgb, valid = photo_bands(array, name, nodata=nodata, planar=tags["planar"])
+    return GeoRaster(data=rgb, transform=transform, crs=crs, nodata=nodata, path=name, valid=valid)
+
+
+def photo_bands(array, name, *, nodata=None, planar=False):
+    """RGB uint8 and a valid mask (or None) from a photo's decoded samples (1, 3 or 4 bands)."""
+    if array.ndim == 3 and planar:
+        array = np.moveaxis(array, 0, -1)
+    elif array.ndim == 3 and array.shape[2] > 4 and array.shape[0] <= 4:
+        array = np.moveaxis(array, 0, -1)
+    if array.ndim == 2:
+        array = array[..., None]
+    bands = array.shape[2]
+    if bands not in (1, 2, 3, 4):
+        raise RasterReadError(f"orthophoto {name!r} has {bands} bands, expected 1, 3 or 4")
+    colour = array[..., :3] if bands >= 3 else np.repeat(array[..., :1], 3, axis=2)
+    valid = np.ones(array.shape[:2], dtype=bool)
+    if array.dtype.kind == "f":
+        finite = np.all(np.isfinite(colour), axis=2)
+        valid &= finite
+        if nodata is not None:
+            valid &= ~np.all(_is_nodata(colour, nodata), axis=2)
+        # OpenDroneMap fills the area outside the flight with exact zeros in every band (no alpha).
+        valid &= np.any(colour != 0, axis=2)
+        values = colour[valid]
+        top = float(values.max()) if values.size else 1.0
+        low = float(values.min()) if values.size else 0.0
+        if low < 0.0 or top > 255.0 + 1e-3:
+            raise RasterReadError(
+                f"orthophoto {name!r} holds float values in [{low:.3g}, {top:.3g}], not a photo in [0, 1] or [0, 255]"
+            )
+        scale = 255.0 if top <= 1.0 + 1e-6 else 1.0
+        scaled = np.where(valid[..., None], colour, 0.0).astype(np.float32) * np.float32(scale) + np.float32(
+            0.5
+        )
+        rgb = np.clip(scaled, 0, 255).astype(np.uint8)
+    elif array.dtype == np.uint8:
+        rgb = np.ascontiguousarray(colour)
+        if nodata is not None and 0 <= nodata <= 255:
+            valid &= ~np.all(colour == nodata, axis=2)
+    elif array.dtype == np.uint16:
+        if nodata is not None and 0 <= nodata <= 65535:
+            valid &= ~np.all(colour == nodata, axis=2)
+        top = int(colour.max(initial=0))
+        # 12-bit cameras store 0..4095 in 16 bits: scale by the bit depth actually used.
+        full = 255 if top <= 255 else (1 << max(8, int(top).bit_length())) - 1
+        rgb = (colour.astype(np.float32) * (255.0 / full) + 0.5).astype(np.uint8)
+    else:
+        raise RasterReadError(
+            f"orthophoto {name!r} has samples of type {array.dtype}, expected uint8, uint16 or float"
+        )
+    if bands in (2, 4):
+        alpha = array[..., -1]
+        valid &= alpha > 0
+    return np.ascontiguousarray(rgb), (None if valid.all() else valid)
+
+
+def read_georeference(path):
+    """(3x3 transform, EPSG code) of a GeoTIFF from its tags alone (no pixel decoded)."""
+    name, _, tags = read_tiff(path, pixels=False)
+    return georeference(tags, name)
+
+
+def read_tiff(path, *, pixels=True):
+    """(name, samples or None, tags) of a TIFF's first image: its georeference and GDAL_NODATA tags,
+    with ``"planar"`` and ``"size"`` (rows, cols); see :class:`cliff_terrain.io.tiff_window.TiffRaster`."""
+    with TiffRaster(path) as tiff:
+        tags = dict(tiff.tags, planar=tiff.planar, size=tiff.shape)
+        return tiff.path, (tiff.read() if pixels else None), tags
+
+
+def raster_size(path):
+    """(rows, cols) of a GeoTIFF from its header alone (no pixel decoded)."""
+    _, _, tags = read_tiff(path, pixels=False)
+    return tags["size"]
+
+
+def _is_nodata(array, nodata):
+    if math.isnan(nodata):
+        return np.isnan(array)
+    if array.dtype.kind == "f" and nodata < _FLOAT_NODATA_FLOOR:
+        return array < _FLOAT_NODATA_FLOOR
+    return array == np.asarray(nodata).astype(array.dtype) if array.dtype.kind == "f" else array == nodata
+
+
+def check_same_crs(a, b):
+    """Refuse two rasters in different CRSs, naming both."""
+    if a.crs != b.crs:
+        raise GeoreferenceError(
+            f"{a.path!r} is in EPSG:{a.crs} but {b.path!r} is in EPSG:{b.crs}; reproject one"
+        )
+
+
+def overlap_fraction(transform_a, shape_a, transform_b, shape_b):
+    """Fraction of grid a's bounding box that grid b's bounding box covers."""
+    ax0, ay0, ax1, ay1 = grid_bounds(transform_a, shape_a)
+    bx0, by0, bx1, by1 = grid_bounds(transform_b, shape_b)
+    w = max(0.0, min(ax1, bx1) - max(ax0, bx0))
+    h = max(0.0, min(ay1, by1) - max(ay0, by0))
+    return w * h / max((ax1 - ax0) * (ay1 - ay0), 1e-300)
+
+
+def resample(raster, *, transform, shape, crs=None, target="the target grid"):
+    """A surface model resampled onto another grid (bilinear; NaN outside it and near no-data).
+
+    Parameters
+    ----------
+    raster : GeoRaster
+        A surface model (float32 data with NaN for no-data).
+    transform : (2, 3) or (3, 3) array
+        Pixel (col, row) -> map (x, y) of the target grid.
+    shape : (int, int)
+        (rows, cols) of the target grid.
+    crs : int, optional
+        EPSG code of the target grid; must be the raster's.
+    target : str, optional
+        Name of the target grid (a file) for error messages.
+
+    Returns
+    -------
+    (rows, cols) float32 array
+
+    Raises
+    ------
+    GeoreferenceError
+        The CRSs differ or the grids do not overlap.
+
+    Examples
+    --------
+    >>> dsm = GeoRaster(np.arange(4, dtype=np.float32).reshape(2, 2), as_affine([[2, 0, 0], [0, -2, 4]]), 32616, None, "a.tif")
+    >>> resample(dsm, transform=[[1, 0, 0], [0, -1, 4]], shape=(4, 4))[1:3, 1:3]
+    array([[0.75, 1.25],
+           [1.75, 2.25]], dtype=float32)
+    """
+    import cv2
+
+    t = as_affine(transform)
+    rows, cols = (int(n) for n in shape)
+    if crs is not None and crs != raster.crs:
+        raise GeoreferenceError(
+            f"{raster.path!r} is in EPSG:{raster.crs} but {target} is in EPSG:{crs}; reproject one"
+        )
+    if overlap_fraction(t, (rows, cols), raster.transform, raster.shape) <= 0.0:
+        raise GeoreferenceError(f"{raster.path!r} does not overlap {target}")
+    if np.allclose(t, raster.transform) and (rows, cols) == raster.shape:
+        return raster.data.copy()
+    # Target pixel index (centre at +0.5) -> map -> source pixel index (centre at +0.5).
+    shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
+    unshift = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
+    m = unshift @ affine_inverse(raster.transform) @ t @ shift
+    source = raster.data
+    scale = min(abs(np.linalg.det(m[:2, :2])) ** -0.5, 1e9)
+    if scale < 0.5:
+        # The target is much coarser: average the source first so bilinear sampling does not alias.
+        factor = max(1, int(1.0 / scale))
+        source = _block_mean(source, factor)
+        m = np.diag([1.0 / factor, 1.0 / factor, 1.0]) @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ m
+        m[:2, 2] -= 0.5
+    out = cv2.warpAffine(
+        source,
+        m[:2].astype(np.float64),
+        (cols, rows),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=float("nan"),
+    )
+    return out
+
+
+def _block_mean(data, factor):
+    """Mean of factor x factor blocks, ignoring NaN (NaN where a block holds no data)."""
+    rows, cols = data.shape
+    pad = np.full(
+        ((rows + factor - 1) // factor * factor, (cols + factor - 1) // factor * factor), np.nan, np.float32
+    )
+    pad[:rows, :cols] = data
+    blocks = pad.reshape(pad.shape[0] // factor, factor, pad.shape[1] // factor, factor)
+    valid = np.isfinite(blocks)
+    sums = np.where(valid, blocks, 0.0).sum(axis=(1, 3))
+    counts = valid.sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (sums / counts).astype(np.float32)
+
+
+def write_geotiff(path, data, *, transform, crs, nodata=None):
+    """Write a float32 (or other) single-band GeoTIFF with a georeference, atomically.
+
+    The file is written beside `path` under a temporary name and renamed, so a failure never
+    leaves a half-written raster. NaN stays NaN; `nodata` (e.g. ``float('nan')``) is recorded as
+    GDAL_NODATA. The transform must be north-up (no rotation) for the scale/tie-point tags; a
+    rotated one is written as a ModelTransformation.
+    """
+    import tifffile
+
+    t = as_affine(transform)
+    data = np.asarray(data)
+    if t[0, 1] == 0.0 and t[1, 0] == 0.0 and t[0, 0] > 0 and t[1, 1] < 0:
+        geo = [
+            (MODEL_PIXEL_SCALE, 12, 3, (t[0, 0], -t[1, 1], 0.0), True),
+            (MODEL_TIEPOINT, 12, 6, (0.0, 0.0, 0.0, t[0, 2], t[1, 2], 0.0), True),
+        ]
+    else:
+        matrix = (t[0, 0], t[0, 1], 0.0, t[0, 2], t[1, 0], t[1, 1], 0.0, t[1, 2], 0, 0, 0, 0, 0, 0, 0, 1)
+        geo = [(MODEL_TRANSFORMATION, 12, 16, tuple(float(v) for v in matrix), True)]
+    keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
+    extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
+    if nodata is not None:
+        extratags.append((GDAL_NODATA, 2, 0, ("nan" if math.isnan(nodata) else repr(float(nodata))), True))
+    path = os.fspath(path)
+    tmp = f"{path}.part-{os.getpid()}"
+    try:
+        tifffile.imwrite(tmp, data, extratags=extratags, compression="zlib" if data.size > 4096 else None)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise

@@ -1,0 +1,1 @@
+"""Numbers an agronomist reads: ground, canopy height, plants, field plots and their tables."""

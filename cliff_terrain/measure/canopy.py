@@ -1,0 +1,424 @@
+"""Measured canopy height on an orthophoto's grid: align the DSM (and DTM), find the ground, CHM.
+
+:func:`measure_canopy` is what the ``heights`` command, ``build_relief(dsm=...)`` and
+``render_views.py --dsm`` share: rasters in, everything on one georeferenced grid out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import check_float
+from ..errors import GeoreferenceError
+from ..io.geotiff import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
+from .ground import DEFAULT_BLOCK_M, canopy_height, check_enough_soil, estimate_ground, ground_support
+
+
+@dataclass
+class Canopy:
+    """Surface, ground and canopy height on one grid (metres; NaN where the DSM has no data).
+
+    Attributes
+    ----------
+    transform : (3, 3) float64
+        Pixel (col, row) -> map (x, y) of the grid.
+    crs : int
+        EPSG code.
+    dsm, ground, chm : (rows, cols) float32
+    ground_source : {"dtm", "estimated"}
+    pixel_size : float
+        Metres per pixel (mean of x and y).
+    support : (rows, cols) float32 or None
+        With an estimated ground, the share of bare soil around each pixel that carried it
+        (:func:`cliff_terrain.measure.ground.ground_support`; 0: interpolated only); None with a DTM.
+    """
+
+    transform: np.ndarray
+    crs: int
+    dsm: np.ndarray
+    ground: np.ndarray
+    chm: np.ndarray
+    ground_source: str
+    pixel_size: float
+    support: np.ndarray | None = None
+
+    @property
+    def pixel_area_m2(self):
+        return float(abs(np.linalg.det(self.transform[:2, :2])))
+
+    @property
+    def origin(self):
+        """Map (x, y) of the grid's top-left corner."""
+        return float(self.transform[0, 2]), float(self.transform[1, 2])
+
+
+def grid_for(raster, shape):
+    """The transform of `raster`'s extent divided into `shape` (rows, cols) pixels."""
+    rows0, cols0 = raster.shape
+    rows, cols = shape
+    return raster.transform @ np.diag([cols0 / cols, rows0 / rows, 1.0])
+
+
+def photo_grid(path, metadata, shape):
+    """(transform, EPSG code) of the processing grid `shape` (rows, cols) of georeferenced photo `path`."""
+    from ..io.geotiff import read_georeference
+
+    transform, crs = read_georeference(path)
+    return transform @ np.diag([*metadata.grid_scale(shape), 1.0]), crs
+
+
+def photo_valid(metadata, shape):
+    """The photo's pixels with data (an orthophoto's alpha) on the processing grid `shape`; None: all."""
+    if getattr(metadata, "valid_mask", None) is None:
+        return None
+    import cv2
+
+    rows, cols = shape
+    return cv2.resize(metadata.valid_mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
+
+
+def load_surfaces(dsm, dtm=None):
+    """Read a DSM (and DTM) path into :class:`GeoRaster` (rasters pass through), checking their CRSs."""
+    dsm = dsm if isinstance(dsm, GeoRaster) else read_surface(dsm)
+    if dtm is not None:
+        dtm = dtm if isinstance(dtm, GeoRaster) else read_surface(dtm)
+        check_same_crs(dsm, dtm)
+    return dsm, dtm
+
+
+def measure_canopy(
+    dsm,
+    *,
+    plants,
+    transform,
+    crs,
+    dtm=None,
+    grid_name="the orthophoto",
+    block_m=DEFAULT_BLOCK_M,
+    valid=None,
+    soil=None,
+):
+    """DSM (and DTM) resampled onto a grid, the ground, and the canopy height there.
+
+    Parameters
+    ----------
+    dsm : GeoRaster or path
+        The digital surface model.
+    plants : (rows, cols) bool array
+        Plant pixels of the grid (the segmentation); the rest is soil where the DSM has data.
+    transform : (3, 3) array
+        The grid's pixel -> map transform.
+    crs : int
+        The grid's EPSG code.
+    dtm : GeoRaster or path, optional
+        A terrain model: the ground, instead of estimating it.
+    grid_name : str, optional
+        Name of the grid (its file) for error messages.
+    block_m : float, optional
+        Block size of the ground's trend (see :func:`cliff_terrain.measure.ground.estimate_ground`).
+    valid : (rows, cols) bool array, optional
+        Pixels where the photo has data: only there can soil be told from plants.
+    soil : (rows, cols) bool array, optional
+        The bare soil that carries the ground (see :func:`cliff_terrain.relief.vegetation.bare_soil`);
+        default: every pixel that is not a plant.
+
+    Returns
+    -------
+    Canopy
+
+    Raises
+    ------
+    GeoreferenceError
+        CRSs differ or the rasters do not overlap the grid (the message names both).
+    GroundError
+        Without a DTM, too little bare soil with surface data to estimate the ground (the
+        message names the DSM and suggests a DTM).
+    """
+    dsm, dtm = load_surfaces(dsm, dtm)
+    plants = np.asarray(plants, dtype=bool)
+    shape = plants.shape
+    block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
+    transform = np.asarray(transform, dtype=np.float64)
+    if crs != dsm.crs:
+        raise GeoreferenceError(
+            f"{dsm.path!r} is in EPSG:{dsm.crs} but {grid_name} is in EPSG:{crs}; reproject one"
+        )
+    surface = resample(dsm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
+    if not np.isfinite(surface).any():
+        raise GeoreferenceError(f"{dsm.path!r} has no data where it overlaps {grid_name}")
+    pixel_size = float(np.mean([np.hypot(*transform[:2, 0]), np.hypot(*transform[:2, 1])]))
+    if dtm is not None:
+        if overlap_fraction(transform, shape, dtm.transform, dtm.shape) <= 0:
+            raise GeoreferenceError(f"{dtm.path!r} does not overlap {grid_name}")
+        ground = resample(dtm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
+        source = "dtm"
+        support = None
+    else:
+        has_data = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
+        soil = ~plants if soil is None else np.asarray(soil, dtype=bool)
+        soil = soil & has_data
+        check_enough_soil(soil, has_data, source=f"{dsm.path!r} over {grid_name}")
+        ground = estimate_ground(surface, soil=soil, pixel_size=pixel_size, block_m=block_m)
+        support = ground_support(soil, pixel_size=pixel_size, block_m=block_m)
+        source = "estimated"
+    chm = canopy_height(surface, ground)
+    if valid is not None:  # where the photo has no data, nothing tells plant from soil
+        chm[~np.asarray(valid, dtype=bool)] = np.nan
+    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size, support)
+
+
+def plant_mask(rgb, *, valid=None):
+    """Plant pixels of a photo by its vegetation index (the segmentation's threshold, no watershed).
+
+    Cheaper than :func:`cliff_terrain.relief.segmentation.segment` on large orthophotos, where only
+    plant/soil matters (the ground, plot cover).
+    """
+    from ..relief.vegetation import blurred_index, index_threshold
+
+    vi, name = blurred_index(rgb)
+    mask = vi > index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    if valid is not None:
+        mask &= valid
+    return mask
+
+
+def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT_BLOCK_M):
+    """Read an orthophoto GeoTIFF and measure its canopy on its grid (or a coarser one).
+
+    Parameters
+    ----------
+    ortho : path or GeoRaster
+    dsm, dtm : path or GeoRaster
+    resolution : float, optional
+        Metres per pixel of the grid (>= the orthophoto's); default the orthophoto's own.
+
+    Returns
+    -------
+    rgb : (rows, cols, 3) uint8 on the grid
+    valid : (rows, cols) bool (photo and DSM have data)
+    plants : (rows, cols) bool (vegetation pixels)
+    canopy : Canopy
+    """
+    import cv2
+
+    ortho = ortho if isinstance(ortho, GeoRaster) else read_orthophoto(ortho)
+    dsm, dtm = load_surfaces(dsm, dtm)
+    check_same_crs(ortho, dsm)
+    rgb, valid = ortho.data, ortho.valid
+    transform = ortho.transform
+    if resolution is not None:
+        resolution = check_float("resolution", resolution, minimum=0.0, strict_minimum=True)
+        rows0, cols0 = ortho.shape
+        factor = resolution / np.mean(ortho.pixel_size)
+        if factor > 1.0:
+            shape = (max(1, round(rows0 / factor)), max(1, round(cols0 / factor)))
+            transform = grid_for(ortho, shape)
+            rgb = cv2.resize(rgb, shape[::-1], interpolation=cv2.INTER_AREA)
+            if valid is not None:
+                valid = cv2.resize(valid.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    from ..relief.vegetation import bare_soil
+
+    plants = plant_mask(rgb, valid=valid)
+    canopy = measure_canopy(
+        dsm,
+        plants=plants,
+        transform=transform,
+        crs=ortho.crs,
+        dtm=dtm,
+        grid_name=ortho.path,
+        block_m=block_m,
+        valid=valid,
+        soil=None if dtm is not None else bare_soil(rgb, valid=valid),
+    )
+    has_data = np.isfinite(canopy.chm) if valid is None else (valid & np.isfinite(canopy.chm))
+    return rgb, has_data, plants, canopy
+
+
+def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAULT_BLOCK_M):
+    """The relief's heights (metres) on the processing grid of orthophoto `path` (used by build_relief).
+
+    Returns ``(canopy, heights, pixel_size, georeference)``: ``"measured"`` heights are the CHM,
+    ``"calibrated"`` ones the photo's domes scaled so each region's top is its measured p99 height,
+    ``"inflated"`` ones the domes as they are (the canopy is then only measured, for the figures);
+    all times `exaggeration`.
+    """
+    from ..relief.labels import label_max
+
+    name = str(path)
+    transform, crs = photo_grid(path, stages.metadata, stages.working.shape[:2])
+    plants = stages.segmentation.mask
+    valid = photo_valid(stages.metadata, plants.shape)  # an orthophoto's no-data is neither soil nor plant
+    from ..relief.vegetation import bare_soil
+
+    soil = None if dtm is not None else bare_soil(stages.working, valid=valid)
+    canopy = measure_canopy(
+        dsm,
+        plants=plants,
+        transform=transform,
+        crs=crs,
+        dtm=dtm,
+        grid_name=name,
+        valid=valid,
+        soil=soil,
+        block_m=block_m,
+    )
+    chm = np.nan_to_num(canopy.chm, nan=0.0)
+    pixel_size = canopy.pixel_size
+    if mode == "measured":
+        heights = chm * np.float32(exaggeration)
+    elif mode == "calibrated":
+        labels = stages.segmentation.labels
+        n = int(labels.max(initial=0))
+        dome = stages.heights_px.astype(np.float32)
+        tops = np.zeros(n + 1, dtype=np.float32)
+        if n:
+            from .field_plots import region_figures
+
+            figures = region_figures(labels, n, mask=plants, heights=canopy.chm, pixel_area_m2=1.0)
+            tops[1:] = np.nan_to_num([f["height_p99_m"] for f in figures], nan=0.0)
+        peaks = label_max(dome, labels)  # out[k] for region k, out[0] = 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(peaks > 0, tops / np.maximum(peaks, 1e-12), 0.0).astype(np.float32)
+        heights = dome * scale[labels] * np.float32(exaggeration)
+    else:
+        heights = stages.heights_px.astype(np.float32) * np.float32(pixel_size)
+    x0, y0 = canopy.origin
+    georeference = {
+        "crs": int(crs),
+        "origin": [x0, y0],
+        "transform": [float(v) for v in transform[:2].ravel()],
+        "pixel_size_m": pixel_size,
+        "ground": canopy.ground_source,
+    }
+    return canopy, np.ascontiguousarray(heights, dtype=np.float32), pixel_size, georeference
+
+
+def dsm_noise(canopy, *, plants):
+    """The DSM's noise in metres: the robust spread of the soil's residual around the ground.
+
+    1.4826 times the median absolute deviation of DSM - ground over the soil pixels (not
+    `plants`, with data in the photo and in both surfaces): the standard deviation for Gaussian
+    noise, unmoved by leaves the segmentation missed. NaN without soil pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> grid = np.eye(3)
+    >>> dsm = np.array([[0.01, 0.02, 5.0], [-0.02, -0.01, 0.03], [0.0, np.nan, -0.03]], np.float32)
+    >>> canopy = Canopy(grid, 32633, dsm, np.zeros_like(dsm), dsm, "estimated", 1.0)
+    >>> round(dsm_noise(canopy, plants=dsm > 1), 4)
+    0.0297
+    """
+    residual = np.asarray(canopy.dsm, np.float64) - np.asarray(canopy.ground, np.float64)
+    soil = ~np.asarray(plants, bool) & np.isfinite(residual) & np.isfinite(canopy.chm)
+    if not soil.any():
+        return float("nan")
+    values = residual[soil][:: max(1, int(soil.sum() // 1_000_000))]  # a sample gives the spread
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def relief_tables(relief, *, plots=None, source="", index_maps=None):
+    """The tables of a :class:`~cliff_terrain.build.Relief`: {file name: text}.
+
+    ``regions.csv`` always (heights NaN without a surface model; areas in m² with a GSD),
+    ``regions.geojson`` when georeferenced, ``plots.csv`` and ``plots.geojson`` with `plots`
+    (a :class:`~cliff_terrain.io.plot_polygons.PlotSet` in the orthophoto's CRS; needs a surface model).
+    `source` names the orthophoto in errors. `index_maps` ({index name: map on the relief's grid},
+    :func:`cliff_terrain.measure.index_figures.relief_index_maps`) adds the index columns.
+    """
+    from ..errors import CliffTerrainError
+    from ..io.geojson import point_geometries, table_geojson
+    from .tables import REGIONS_CSV, REGIONS_GEOJSON, region_columns, region_table, table_csv
+
+    columns = region_columns(tuple(index_maps or ()))
+    canopy = relief.canopy
+    if canopy is None:
+        if plots is not None:
+            raise CliffTerrainError("plot tables need a surface model (`dsm`), got none")
+        size = relief.pixel_size if relief.units == "m" else None
+        regions = region_table(relief.labels, pixel_size=size, index_maps=index_maps)
+        return {REGIONS_CSV: table_csv(regions, columns)}
+    regions = region_table(
+        relief.labels,
+        heights=canopy.chm,
+        pixel_size=canopy.pixel_size,
+        transform=canopy.transform,
+        index_maps=index_maps,
+    )
+    files = {
+        REGIONS_CSV: table_csv(regions, columns),
+        REGIONS_GEOJSON: table_geojson(regions, point_geometries(regions), crs=canopy.crs),
+    }
+    if plots is not None:
+        files.update(
+            plot_table_files(
+                plots, canopy, heights=canopy.chm, mask=relief.mask, source=source, index_maps=index_maps
+            )
+        )
+    return files
+
+
+def plot_support(canopy):
+    """The ground's support for plot tables: the estimate's, or 1 everywhere with a terrain model."""
+    return np.ones(canopy.chm.shape, np.float32) if canopy.support is None else canopy.support
+
+
+def relief_plot_rows(relief, plots, *, source, index_maps=None):
+    """One row per plot of a relief built from a georeferenced orthophoto: cover, and with a surface
+    model the canopy heights and ground support (:func:`cliff_terrain.measure.field_plots.plot_table`'s rows).
+
+    Without a surface model the height columns are NaN. `source` is the orthophoto's path (its
+    georeference places the relief's grid). `index_maps` adds the index columns (see
+    :func:`cliff_terrain.measure.field_plots.plot_table`).
+    """
+    from .field_plots import check_plot_crs, plot_table, rasterize_plots
+
+    if relief.canopy is not None:
+        canopy = relief.canopy
+        transform, crs, heights = canopy.transform, canopy.crs, canopy.chm
+        support = plot_support(canopy)
+    else:
+        transform, crs = photo_grid(source, relief.metadata, relief.mask.shape)
+        heights, support = None, None
+    check_plot_crs(plots, crs, raster=str(source))
+    labels = rasterize_plots(plots, transform=transform, shape=relief.mask.shape)
+    area = float(abs(np.linalg.det(np.asarray(transform)[:2, :2])))
+    return plot_table(
+        plots,
+        labels,
+        mask=relief.mask,
+        heights=heights,
+        pixel_area_m2=area,
+        support=support,
+        index_maps=index_maps,
+    )
+
+
+def plot_table_files(plots, canopy, *, heights, mask, source, index_maps=None):
+    """``plots.csv`` and ``plots.geojson`` ({file name: text}) of `plots` on `canopy`'s grid.
+
+    `heights` and `mask` are on that grid; `source` names the orthophoto in errors.
+    """
+    from ..io.geojson import polygon_geometries, table_geojson
+    from .field_plots import check_plot_crs, plot_table, rasterize_plots, table_columns
+    from .tables import PLOTS_CSV, PLOTS_GEOJSON, table_csv
+
+    check_plot_crs(plots, canopy.crs, raster=source)
+    labels = rasterize_plots(plots, transform=canopy.transform, shape=heights.shape)
+    if not labels.any():
+        raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
+    rows = plot_table(
+        plots,
+        labels,
+        mask=mask,
+        heights=heights,
+        pixel_area_m2=canopy.pixel_area_m2,
+        support=plot_support(canopy),
+        index_maps=index_maps,
+    )
+    return {
+        PLOTS_CSV: table_csv(rows, table_columns(plots, support=True, indices=tuple(index_maps or ()))),
+        PLOTS_GEOJSON: table_geojson(rows, polygon_geometries(plots), crs=canopy.crs),
+    }

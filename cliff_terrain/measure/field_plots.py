@@ -1,0 +1,304 @@
+"""Field plots burnt into a raster, and their height table.
+
+:func:`rasterize_plots` turns plot polygons (:func:`cliff_terrain.io.plot_polygons.read_plots`)
+into a label image on a raster's grid (pixel centres inside a polygon, even-odd rule, so holes and
+multi-part plots work), and :func:`plot_table` gives one row per plot. Transforms map pixel
+(col, row) to map (x, y), GDAL's convention (see :mod:`cliff_terrain.io.transform`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._validate import check_choice, check_float
+from ..errors import CliffTerrainError, GeoreferenceError
+from ..io.plot_polygons import polygon_area
+from ..io.transform import affine_inverse, apply_affine, as_affine
+from .index_figures import index_columns, index_figures
+
+# Metric statistics of a plot, in the order of the table's columns.
+HEIGHT_COLUMNS = ("height_mean_m", "height_p50_m", "height_p90_m", "height_p99_m", "height_max_m")
+PLOT_COLUMNS = ("plot", "area_m2", "cover", *HEIGHT_COLUMNS, "volume_m3", "error")
+HEIGHT_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+def check_plot_crs(plots, crs, *, raster):
+    """Refuse plots that do not use the raster's CRS (EPSG code `crs`, read from file `raster`).
+
+    Plots that declare no CRS are taken to be in the raster's, unless their coordinates all look
+    like longitude/latitude while the raster's are projected (GeoJSON without a ``crs`` is WGS 84).
+    """
+    if plots.crs is not None and crs is not None and plots.crs != crs:
+        raise GeoreferenceError(
+            f"plot file {plots.path!r} is in EPSG:{plots.crs} but raster {raster!r} is in EPSG:{crs}; "
+            "reproject the plots to the raster's CRS"
+        )
+    if plots.crs is None and crs is not None and crs != 4326:
+        points = np.concatenate([ring for rings in plots.polygons for ring in rings])
+        if np.all(np.abs(points[:, 0]) <= 180) and np.all(np.abs(points[:, 1]) <= 90):
+            raise GeoreferenceError(
+                f"plot file {plots.path!r} declares no CRS and looks like longitude/latitude, but raster "
+                f"{raster!r} is in EPSG:{crs}; save the plots in EPSG:{crs}"
+            )
+
+
+def rasterize_plots(plots, *, transform, shape):
+    """Burn plots into a label image on a raster's grid.
+
+    A pixel belongs to a plot when its centre lies inside the plot (even-odd rule over all its
+    rings, so holes stay out). Where plots overlap, the later one in the file wins.
+
+    Parameters
+    ----------
+    plots : PlotSet
+    transform : (2, 3) or (3, 3) array
+        Pixel (col, row) -> map (x, y) affine of the raster; (0, 0) is the top-left pixel's
+        top-left corner (GDAL's convention, see the module's docs).
+    shape : (int, int)
+        (rows, cols) of the raster.
+
+    Returns
+    -------
+    (rows, cols) int32 array
+        0 outside every plot, ``i + 1`` inside plot ``i``.
+
+    Examples
+    --------
+    >>> square = [np.array([[1.0, -1.0], [3.0, -1.0], [3.0, -3.0], [1.0, -3.0]])]
+    >>> from cliff_terrain.io.plot_polygons import PlotSet
+    >>> plots = PlotSet([square], [{}], (), None, "")
+    >>> rasterize_plots(plots, transform=[[1, 0, 0], [0, -1, 0]], shape=(4, 4))
+    array([[0, 0, 0, 0],
+           [0, 1, 1, 0],
+           [0, 1, 1, 0],
+           [0, 0, 0, 0]], dtype=int32)
+    """
+    t = as_affine(transform)
+    rows, cols = (int(n) for n in shape)
+    if rows < 1 or cols < 1:
+        raise CliffTerrainError(f"`shape` must be (rows, cols) >= 1, got {tuple(shape)}")
+    inverse = affine_inverse(t)
+    labels = np.zeros((rows, cols), dtype=np.int32)
+    for index, rings in enumerate(plots.polygons):
+        pixel_rings = [apply_affine(inverse, ring) for ring in rings]
+        inside = _fill_even_odd(pixel_rings, rows, cols)
+        if inside is not None:
+            r0, c0, block = inside
+            labels[r0 : r0 + block.shape[0], c0 : c0 + block.shape[1]][block] = index + 1
+    return labels
+
+
+def _fill_even_odd(rings, rows, cols):
+    """Pixels whose centre is inside `rings` (pixel coordinates): (row0, col0, bool block) or None."""
+    points = np.concatenate(rings)
+    # Rows and columns whose centres (index + 0.5) can lie inside the bounding box.
+    r0 = max(0, math.ceil(points[:, 1].min() - 0.5))
+    r1 = min(rows - 1, math.floor(points[:, 1].max() - 0.5))
+    c0 = max(0, math.ceil(points[:, 0].min() - 0.5))
+    c1 = min(cols - 1, math.floor(points[:, 0].max() - 0.5))
+    if r1 < r0 or c1 < c0:
+        return None
+    starts = points
+    ends = np.concatenate([np.roll(ring, -1, axis=0) for ring in rings])
+    x0, y0, x1, y1 = starts[:, 0], starts[:, 1], ends[:, 0], ends[:, 1]
+    # Each edge crosses the centre lines y = r + 0.5 with min(y0, y1) <= y < max(y0, y1) (half-open,
+    # so a vertex on a centre line counts once).
+    low, high = np.minimum(y0, y1), np.maximum(y0, y1)
+    first = np.maximum(np.ceil(low - 0.5), r0).astype(np.int64)
+    last = np.minimum(np.ceil(high - 0.5) - 1, r1).astype(np.int64)
+    counts = np.maximum(last - first + 1, 0)
+    edge = np.repeat(np.arange(len(x0)), counts)
+    if edge.size == 0:
+        return None
+    offsets = np.arange(edge.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    row = first[edge] + offsets
+    yc = row + 0.5
+    x = x0[edge] + (yc - y0[edge]) * (x1[edge] - x0[edge]) / (y1[edge] - y0[edge])
+    # A crossing at x toggles every centre to its right: the first such column is floor(x - 0.5) + 1.
+    col = np.clip(np.floor(x - 0.5).astype(np.int64) + 1, c0, c1 + 1)
+    height, width = r1 - r0 + 1, c1 - c0 + 2
+    toggles = np.bincount((row - r0) * width + (col - c0), minlength=height * width).reshape(height, width)
+    block = (np.cumsum(toggles[:, :-1], axis=1) & 1).astype(bool)
+    return r0, c0, block
+
+
+def plot_table(
+    plots, plot_labels, *, mask, heights, pixel_area_m2, height_units="m", support=None, index_maps=None
+):
+    """One row per plot: its attributes, area, plant cover and canopy heights.
+
+    Heights are taken over every pixel of the plot with a height (soil counts as its own, about
+    zero, height), which is what the difference of two flights measures; pixels without data
+    (NaN) count for neither heights nor cover.
+
+    Parameters
+    ----------
+    plots : PlotSet
+    plot_labels : (rows, cols) int array
+        :func:`rasterize_plots` on the grid of `mask` and `heights`.
+    mask : (rows, cols) bool array
+        Plant pixels (the segmentation).
+    heights : (rows, cols) float array or None
+        Canopy height (CHM) in `height_units`, NaN where there is no data. None gives the areas
+        and cover only (height columns NaN).
+    pixel_area_m2 : float
+        Ground area of one pixel in square metres (> 0).
+    height_units : {"m", "cm", "mm"}, optional
+        Units of `heights`; the table is in metres.
+    support : (rows, cols) float array, optional
+        The ground's support (:func:`cliff_terrain.measure.ground.ground_support`); adds the column
+        ``ground_support``, its mean over the plot's pixels (0: the ground under the plot was
+        interpolated from soil elsewhere; 1 with a terrain model).
+    index_maps : dict, optional
+        Vegetation index name -> (rows, cols) map on the grid (NaN = no value): adds, per index,
+        ``ndvi_mean`` and ``ndvi_median`` over the plot's pixels and ``ndvi_plant_mean`` and
+        ``ndvi_plant_median`` over its plant pixels (:mod:`cliff_terrain.measure.index_figures`).
+
+    Returns
+    -------
+    list of dict
+        Keys: ``plot`` (0-based index in the file), the plot's attributes, then ``area_m2``
+        (of the pixels inside the raster), ``cover`` (plant fraction of the plot's pixels with
+        data), ``height_mean_m``, ``height_p50_m``, ``height_p90_m``, ``height_p99_m``,
+        ``height_max_m``, ``volume_m3`` (sum of heights times the pixel area) and ``error``
+        (empty, or why the plot has no or partial figures). Missing figures are NaN.
+
+    Examples
+    --------
+    >>> square = [np.array([[0.0, 0.0], [2.0, 0.0], [2.0, -2.0], [0.0, -2.0]])]
+    >>> from cliff_terrain.io.plot_polygons import PlotSet
+    >>> plots = PlotSet([square], [{"name": "A"}], ("name",), None, "")
+    >>> labels = rasterize_plots(plots, transform=[[1, 0, 0], [0, -1, 0]], shape=(2, 2))
+    >>> h = np.array([[0.0, 0.5], [1.0, 0.0]])
+    >>> row = plot_table(plots, labels, mask=h > 0, heights=h, pixel_area_m2=1.0)[0]
+    >>> row["name"], row["area_m2"], row["cover"], row["height_max_m"], row["volume_m3"]
+    ('A', 4.0, 0.5, 1.0, 1.5)
+    """
+    plot_labels = np.asarray(plot_labels)
+    mask = np.asarray(mask, dtype=bool)
+    if plot_labels.ndim != 2 or mask.shape != plot_labels.shape:
+        raise CliffTerrainError(
+            f"`mask` must have the shape of `plot_labels` {plot_labels.shape}, got {mask.shape}"
+        )
+    if heights is not None:
+        heights = np.asarray(heights)
+        if heights.shape != plot_labels.shape:
+            raise CliffTerrainError(
+                f"`heights` must have the shape of `plot_labels` {plot_labels.shape}, got {heights.shape}"
+            )
+    pixel_area_m2 = check_float("pixel_area_m2", pixel_area_m2, minimum=0.0, strict_minimum=True)
+    check_choice("height_units", height_units, tuple(HEIGHT_UNITS))
+    to_m = HEIGHT_UNITS[height_units]
+    n = len(plots.polygons)
+    figures = region_figures(
+        plot_labels, n, mask=mask, heights=heights, pixel_area_m2=pixel_area_m2, to_m=to_m
+    )
+    if support is not None:
+        support = np.asarray(support, dtype=np.float64)
+        if support.shape != plot_labels.shape:
+            raise CliffTerrainError(
+                f"`support` must have the shape of `plot_labels` {plot_labels.shape}, got {support.shape}"
+            )
+        counts = np.bincount(plot_labels.ravel(), minlength=n + 1)[1 : n + 1]
+        sums = np.bincount(plot_labels.ravel(), weights=support.ravel(), minlength=n + 1)[1 : n + 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            plot_support = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    full_areas = [polygon_area(rings) for rings in plots.polygons]
+    indices = index_figures(plot_labels, n, maps=index_maps, mask=mask) if index_maps else None
+    rows = []
+    for index in range(n):
+        attributes = plots.attributes[index]
+        row = {"plot": index, **{_attribute_name(k): v for k, v in attributes.items()}, **figures[index]}
+        if figures[index]["pixels"] == 0:
+            row["error"] = "outside the raster (or smaller than a pixel)"
+        elif heights is not None and figures[index]["valid_pixels"] == 0:
+            row["error"] = "no height data in the plot"
+        elif row["area_m2"] < 0.9 * full_areas[index]:
+            inside = row["area_m2"] / full_areas[index]
+            row["error"] = f"partly outside the raster or its data ({inside:.0%} measured)"
+        else:
+            row["error"] = ""
+        del row["pixels"], row["valid_pixels"]
+        if support is not None:
+            row["ground_support"] = float(plot_support[index])
+        if indices:
+            row.update(indices[index])
+        rows.append(row)
+    return rows
+
+
+def _attribute_name(name):
+    """An attribute's column: its own name, unless it is one of ours (then with ``_attr``)."""
+    ours = (*PLOT_COLUMNS, "ground_support", "pixels", "valid_pixels")
+    return f"{name}_attr" if name in ours else name
+
+
+def table_columns(plots, *, support=False, indices=()):
+    """Columns of :func:`plot_table`'s rows: ``plot``, the attributes, then the figures.
+
+    An attribute named like one of the figures (a plot file's own ``plot`` field, say) keeps its
+    value under its name with ``_attr`` appended. With `support`, ``ground_support`` comes before
+    ``error``, and so do the columns of `indices` (index names, :func:`index_columns`).
+    """
+    figures = [*PLOT_COLUMNS[1:-1], *(["ground_support"] if support else []), *index_columns(indices)]
+    figures.append(PLOT_COLUMNS[-1])
+    return ["plot", *(_attribute_name(name) for name in plots.fields), *figures]
+
+
+def region_figures(labels, n, *, mask, heights, pixel_area_m2, to_m=1.0):
+    """Area, cover and height statistics of regions 1..n of `labels` (a list of n dicts).
+
+    Height statistics are over the region's pixels with a finite height; percentiles are
+    numpy's linear ones. Used for plots and for the per-region table. Each region is read in its
+    bounding box only (``scipy.ndimage.find_objects``), so the work follows the regions' extent.
+    """
+    from scipy import ndimage
+
+    labels = np.asarray(labels)
+    mask = np.asarray(mask, dtype=bool)
+    if heights is not None:
+        heights = np.asarray(heights)
+    boxes = ndimage.find_objects(labels, max_label=n) if n else []
+    result = []
+    for region, box in enumerate(boxes, start=1):
+        figure = {"pixels": 0, "valid_pixels": 0, "area_m2": 0.0, "cover": math.nan}
+        figure.update(dict.fromkeys(HEIGHT_COLUMNS, math.nan))
+        figure["volume_m3"] = math.nan
+        if box is not None:
+            inside = labels[box] == region
+            pixels = int(np.count_nonzero(inside))
+            valid = None
+            if heights is not None:
+                values = heights[box][inside].astype(np.float64) * to_m
+                valid = np.isfinite(values)
+                values = values[valid]
+            plants = mask[box][inside]
+            n_valid = pixels if valid is None else int(np.count_nonzero(valid))
+            n_plants = int(np.count_nonzero(plants if valid is None else plants[valid]))
+            figure.update(pixels=pixels, valid_pixels=n_valid, area_m2=float(pixels * pixel_area_m2))
+            if n_valid:
+                figure["cover"] = n_plants / n_valid
+            if heights is not None and values.size:
+                total = float(values.sum())
+                p50, p90, p99, top = _percentiles(values, (50.0, 90.0, 99.0, 100.0))
+                figure.update(
+                    height_mean_m=total / values.size,
+                    height_p50_m=float(p50),
+                    height_p90_m=float(p90),
+                    height_p99_m=float(p99),
+                    height_max_m=float(top),
+                    volume_m3=total * pixel_area_m2,
+                )
+        result.append(figure)
+    return result
+
+
+def _percentiles(values, percents):
+    """numpy's linear percentiles of `values`, by one partial sort (``np.partition``) for all of them."""
+    positions = np.asarray(percents) / 100.0 * (len(values) - 1)
+    low = np.floor(positions).astype(np.int64)
+    high = np.minimum(low + 1, len(values) - 1)
+    part = np.partition(values, np.unique(np.concatenate([low, high])))
+    return part[low] + (part[high] - part[low]) * (positions - low)

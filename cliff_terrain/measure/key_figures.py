@@ -1,0 +1,115 @@
+"""The crop's key figures, defined once: plants, cover, plant height and canopy height.
+
+``render_views.py`` (``metrics.json``), ``cliff-terrain heights`` (``summary.json``), the sidebar and
+the Render Views operator all take them from :func:`key_figures`, so equal inputs and settings give
+equal numbers everywhere. The definitions (also in the README):
+
+plants
+    The number of plant regions of the segmentation: the plant mask split into single plants by
+    the watershed (the rows of ``regions.csv``).
+cover
+    The share of plant pixels among the pixels with data (the photo's, and the surface model's
+    when there is one).
+plant height
+    Per plant, the highest point of its region: of the canopy height model with a surface
+    model, else of the relief's heights (before exaggeration). Reported as the median and the 90th
+    percentile over the plants.
+canopy height
+    The canopy height at every plant pixel with data: the canopy height model (DSM minus ground)
+    with a surface model, else the relief's heights (before exaggeration). Reported as its 50th
+    and 90th percentiles.
+
+Heights are in metres with a surface model or a ground sample distance (keys ending ``_m``),
+else in processing pixels (``_px``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def relief_valid(relief):
+    """Pixels of the relief's grid with data: the photo's (an orthophoto's alpha) and the DSM's."""
+    from .canopy import photo_valid
+
+    valid = photo_valid(relief.metadata, relief.mask.shape)
+    if valid is None:
+        valid = np.ones(relief.mask.shape, dtype=bool)
+    if relief.canopy is not None:
+        valid &= np.isfinite(relief.canopy.chm)
+    return valid
+
+
+def canopy_heights(relief):
+    """The height map the figures are taken from, and its unit (``"m"`` or ``"px"``).
+
+    The canopy height model with a surface model; else the relief's heights before exaggeration.
+    """
+    if relief.canopy is not None:
+        return relief.canopy.chm, "m"
+    exaggeration = float(relief.params.get("exaggeration") or 1.0)
+    return relief.heights / np.float32(exaggeration), relief.units
+
+
+def key_figures(relief):
+    """Plants, cover, canopy height p50/p90 and plant height median/p90 of a relief.
+
+    Parameters
+    ----------
+    relief : cliff_terrain.build.Relief
+
+    Returns
+    -------
+    dict
+        ``plants`` (int), ``cover`` (0-1), ``units`` (``"m"`` or ``"px"``) and, with that unit as
+        suffix, ``canopy_height_p50_m``, ``canopy_height_p90_m``, ``plant_height_median_m``,
+        ``plant_height_p90_m`` (None without plant pixels).
+
+    Examples
+    --------
+    >>> from cliff_terrain import build_relief
+    >>> img = np.full((60, 60, 3), (120, 90, 60), np.uint8); img[20:40, 20:40] = (40, 160, 40)
+    >>> figures = key_figures(build_relief(img, mesh=None))
+    >>> figures["plants"], round(figures["cover"], 3), figures["units"]
+    (1, 0.133, 'px')
+    """
+    from scipy import ndimage
+
+    heights, unit = canopy_heights(relief)
+    valid = relief_valid(relief)
+    plants = relief.mask & valid
+    n = int(relief.n_regions)
+    figures = {"plants": n, "cover": float(plants.sum() / max(1, valid.sum())), "units": unit}
+    values = heights[plants]
+    values = values[np.isfinite(values)]
+    p50, p90 = (float(v) for v in np.percentile(values, (50, 90))) if values.size else (None, None)
+    tops = np.asarray([], dtype=np.float64)
+    if n:
+        labels = np.where(valid, relief.labels, 0)
+        tops = np.asarray(ndimage.maximum(np.nan_to_num(heights), labels, np.arange(1, n + 1)), np.float64)
+        present = np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0
+        tops = tops[present]
+    figures.update(
+        {
+            f"canopy_height_p50_{unit}": p50,
+            f"canopy_height_p90_{unit}": p90,
+            f"plant_height_median_{unit}": float(np.median(tops)) if tops.size else None,
+            f"plant_height_p90_{unit}": float(np.percentile(tops, 90)) if tops.size else None,
+        }
+    )
+    return figures
+
+
+def figures_line(figures):
+    """The figures as one line of text (the CLI's and the log's)."""
+
+    def height(key):
+        value = figures.get(f"{key}_{figures['units']}")
+        if value is None:
+            return "n/a"
+        return f"{value * 100:.1f} cm" if figures["units"] == "m" else f"{value:.3g} px"
+
+    return (
+        f"{figures['plants']} plants, cover {figures['cover']:.1%}, canopy height p50 {height('canopy_height_p50')}, "
+        f"p90 {height('canopy_height_p90')}, plant height median {height('plant_height_median')}"
+    )

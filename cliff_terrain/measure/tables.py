@@ -1,0 +1,156 @@
+"""Per-region and per-plot tables, written as CSV and (when georeferenced) GeoJSON, atomically."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+
+import numpy as np
+
+from .field_plots import HEIGHT_COLUMNS, region_figures
+from .index_figures import index_columns, index_figures
+
+# The tables' file names, wherever they are written (render_views.py, the operators, the commands).
+REGIONS_CSV, REGIONS_GEOJSON = "regions.csv", "regions.geojson"
+PLOTS_CSV, PLOTS_GEOJSON = "plots.csv", "plots.geojson"
+TABLES = (REGIONS_CSV, REGIONS_GEOJSON, PLOTS_CSV, PLOTS_GEOJSON)
+
+REGION_COLUMNS = (
+    "id",
+    "row",
+    "col",
+    "x",
+    "y",
+    "area_m2",
+    "area_px",
+    "equivalent_diameter_m",
+    "cover",
+    *HEIGHT_COLUMNS,
+    "volume_m3",
+)
+
+
+def region_columns(indices=()):
+    """The columns of :func:`region_table`: :data:`REGION_COLUMNS`, then those of `indices`."""
+    return (*REGION_COLUMNS, *index_columns(indices))
+
+
+def region_table(labels, *, heights=None, pixel_size=None, transform=None, valid=None, index_maps=None):
+    """One row per region (plant) of a segmentation.
+
+    Parameters
+    ----------
+    labels : (rows, cols) int array
+        0 for soil, 1..n for the regions.
+    heights : (rows, cols) float array, optional
+        Canopy height in metres (NaN = no data); without it the height columns are NaN.
+    pixel_size : float, optional
+        Metres per pixel; without it areas are in pixels only (``area_m2`` NaN).
+    transform : (3, 3) array, optional
+        Pixel (col, row) -> map (x, y): gives the centroids' map coordinates.
+    valid : (rows, cols) bool array, optional
+        Pixels with data (for `cover`); default all.
+    index_maps : dict, optional
+        Vegetation index name -> (rows, cols) map (:func:`cliff_terrain.relief.indices.index_maps`):
+        adds ``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ... (see
+        :mod:`cliff_terrain.measure.index_figures`; a region's pixels are its plant pixels).
+
+    Returns
+    -------
+    list of dict
+        ``id``, centroid ``row``/``col`` (pixel centres at +0.5) and ``x``/``y`` (map, NaN without
+        a transform), ``area_m2``, ``area_px``, ``equivalent_diameter_m`` (of a disc of the same area;
+        in pixels when there is no GSD), ``cover`` (the region's share of the pixels with data),
+        heights over the region's pixels (``height_mean_m`` ... ``height_max_m``) and ``volume_m3``.
+
+    Examples
+    --------
+    >>> labels = np.zeros((4, 4), int); labels[1:3, 1:3] = 1
+    >>> row = region_table(labels, heights=labels * 0.5, pixel_size=0.1)[0]
+    >>> row["id"], row["row"], row["col"], round(row["area_m2"], 4), row["height_max_m"], round(row["volume_m3"], 4)
+    (1, 2.0, 2.0, 0.04, 0.5, 0.02)
+    """
+    labels = np.asarray(labels)
+    n = int(labels.max(initial=0))
+    if n == 0:
+        return []
+    area = 1.0 if pixel_size is None else float(pixel_size) ** 2
+    figures = region_figures(labels, n, mask=labels > 0, heights=heights, pixel_area_m2=area)
+    ids = labels.ravel()
+    rr, cc = np.indices(labels.shape)
+    count = np.bincount(ids, minlength=n + 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        row_c = np.bincount(ids, weights=rr.ravel() + 0.5, minlength=n + 1) / count
+        col_c = np.bincount(ids, weights=cc.ravel() + 0.5, minlength=n + 1) / count
+    total = int(labels.size if valid is None else np.count_nonzero(valid))
+    indices = index_figures(labels, n, maps=index_maps, mask=labels > 0) if index_maps else None
+    rows = []
+    for k in range(1, n + 1):
+        f = figures[k - 1]
+        x = y = math.nan
+        if transform is not None:
+            t = np.asarray(transform, dtype=np.float64)
+            x = float(t[0, 0] * col_c[k] + t[0, 1] * row_c[k] + t[0, 2])
+            y = float(t[1, 0] * col_c[k] + t[1, 1] * row_c[k] + t[1, 2])
+        diameter_px = 2.0 * math.sqrt(count[k] / math.pi)
+        rows.append(
+            {
+                "id": k,
+                "row": float(row_c[k]),
+                "col": float(col_c[k]),
+                "x": x,
+                "y": y,
+                "area_m2": f["area_m2"] if pixel_size is not None else math.nan,
+                "area_px": int(count[k]),
+                "equivalent_diameter_m": diameter_px * (pixel_size if pixel_size is not None else 1.0),
+                "cover": count[k] / total if total else math.nan,
+                **{name: f[name] for name in HEIGHT_COLUMNS},
+                "volume_m3": f["volume_m3"] if pixel_size is not None else math.nan,
+                **(indices[k - 1] if indices else {}),
+            }
+        )
+    return rows
+
+
+def _cell(value):
+    if value is None:
+        return ""
+    if isinstance(value, float | np.floating):
+        return "" if not math.isfinite(value) else repr(round(float(value), 6))
+    return str(value)
+
+
+def table_csv(rows, columns=None):
+    """CSV text of `rows` (NaN as empty cells)."""
+    columns = list(columns or (rows[0].keys() if rows else ()))
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([_cell(row.get(c)) for c in columns])
+    return out.getvalue()
+
+
+def write_files(files):
+    """Write {path: text or bytes-writer} all or nothing: each to a temporary name, then all renamed.
+
+    Values are ``str`` (written as UTF-8 text) or callables ``write(tmp_path)``.
+    """
+    temporary = []
+    try:
+        for path, content in files.items():
+            tmp = f"{os.fspath(path)}.part-{os.getpid()}"
+            temporary.append((tmp, path))
+            if callable(content):
+                content(tmp)
+            else:
+                with open(tmp, "w", encoding="utf-8", newline="") as file:
+                    file.write(content)
+        for tmp, path in temporary:
+            os.replace(tmp, path)
+    finally:
+        for tmp, _ in temporary:
+            if os.path.exists(tmp):
+                os.remove(tmp)

@@ -1,0 +1,390 @@
+"""Segmentation (the paper's Algorithm 2): which pixels rise, split into regions.
+
+Two modes:
+
+``"paper"``
+    Algorithm 2 taken literally: grey level of the quaternion-filtered image, Otsu threshold, the
+    bright class becomes the regions, holes filled, regions labelled, touching regions split by a
+    watershed of the distance map. The filter keeps the image's brightness (a uniform colour maps to
+    its grey), so this thresholds *brightness*: on bright broccoli over dark soil it finds the plants,
+    on pale soil with dark plants it raises the soil instead.
+``"vegetation"`` (default)
+    Plants rise, soil stays flat. A vegetation index decides what is plant: the excess-green index
+    ExG = 2g - r - b on chromatic coordinates for colour photos, or (NIR - B) / (NIR + B) for
+    false-colour NIR frames (detected when no pixel is green and green is the weakest channel of
+    most pixels). Otsu's threshold on the index is kept within a prior band, so that an image of
+    bare soil yields (almost) nothing and a closed canopy is not split into a bright and a dark
+    class, unless the photo shows the band is wrong (see :func:`index_threshold`): its histogram
+    is clearly two-class, Otsu's threshold lies in an almost empty valley above the band, and the
+    band's threshold cuts into a class (dark, wet soil). Then the photo's own threshold is used.
+    Touching plants are split by a
+    watershed whose markers are the distance map's peaks and whose landscape adds the quaternion
+    filter's colour-edge strength, so boundaries follow colour edges between plants. Holes are
+    filled only where they are plausibly inside a plant (see :func:`plant_holes`): soil enclosed
+    by canopy, such as the strips between rows that join at their ends, stays flat.
+
+The index and its threshold are in :mod:`.vegetation`, the watershed in :mod:`.watershed`, the
+labels, distances and boundaries in :mod:`.labels`; this module puts them together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .._validate import check_choice, check_float, check_int, check_rgb
+from ..errors import CliffTerrainError
+from ..settings import SEGMENTATIONS, ids
+from .labels import distance_map, inner_boundaries
+from .vegetation import ThresholdRule, blurred_index, index_threshold, otsu_threshold
+from .watershed import colour_edges, split_regions
+
+METHODS = ids(SEGMENTATIONS)
+
+
+@dataclass
+class Segmentation:
+    """Result of :func:`segment`.
+
+    Attributes
+    ----------
+    mask : (rows, cols) bool
+        Pixels that rise.
+    labels : (rows, cols) int32
+        0 for flat ground, 1..n for the regions.
+    boundaries : (rows, cols) bool
+        Inner boundary pixels of the regions.
+    threshold : float
+        The threshold used (on the index or on the grey level).
+    index : str
+        ``"green"``, ``"nir"`` or ``"grey"`` (paper mode).
+    threshold_source : str
+        ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"band"`` (Otsu's
+        kept within the prior band), ``"otsu"`` (paper mode: Otsu's on the grey level) or
+        ``"given"`` (the caller's, see :func:`segment`).
+    valley : float
+        The histogram at the threshold relative to its mean between the class means (see
+        :func:`index_threshold`); NaN in paper mode.
+    distance : (rows, cols) float32
+        ``distance_map(mask)``: each plant pixel's distance to flat ground (the watershed's, kept
+        for the plateau profile).
+    """
+
+    mask: np.ndarray
+    labels: np.ndarray
+    boundaries: np.ndarray
+    threshold: float
+    index: str
+    distance: np.ndarray | None = None
+    threshold_source: str = "band"
+    valley: float = float("nan")
+
+    @property
+    def n_regions(self) -> int:
+        return int(self.labels.max(initial=0))
+
+
+def segment(
+    image,
+    *,
+    method="vegetation",
+    filtered=None,
+    index="auto",
+    min_region=None,
+    valid=None,
+    threshold=None,
+    radius=None,
+    edge_scale=None,
+    soil=None,
+    index_map=None,
+    mask=None,
+):
+    """Find the regions that rise: binarize, label, fill holes, trace boundaries, split by watershed.
+
+    Parameters
+    ----------
+    image : (rows, cols, 3) uint8 array
+        RGB image at processing size.
+    method : {"vegetation", "paper"}, optional
+        How pixels are chosen; see the module documentation.
+    filtered : (rows, cols, 3) float array, optional
+        The quaternion filter's output for `image` (required by ``"paper"``; used by
+        ``"vegetation"`` for colour edges when given).
+    index : {"auto", "green", "nir"}, optional
+        Vegetation index for ``"vegetation"`` (see :func:`vegetation_index`).
+    min_region : int, optional
+        Regions (and holes) smaller than this many pixels are dropped (filled); default scales with
+        the image, 0.002 % of its pixels and at least 4.
+    valid : (rows, cols) bool array, optional
+        Pixels that hold data (an orthophoto's alpha); the others stay flat and do not count
+        for the threshold.
+    threshold : float, optional
+        The threshold to apply (to the index, or to the grey level in ``"paper"`` mode) instead of
+        the image's own; ``Segmentation.threshold_source`` is then ``"given"``. The tiles of one
+        mosaic share the whole mosaic's (:mod:`cliff_terrain.mesh.tiles`).
+    radius, edge_scale : float, optional
+        The watershed's marker radius and colour-edge scale (see :func:`split_regions`); by
+        default from this image's regions and edges. Tiles of one mosaic share the whole mosaic's.
+    soil : float, optional
+        The soil's index for the hole rule (see :func:`plant_holes`); by default this image's
+        :func:`soil_level`. Tiles of one mosaic share the whole mosaic's.
+    index_map : (rows, cols) float array, optional
+        NDVI of a multispectral orthomosaic on the image's grid (NaN = no data), used by
+        ``"vegetation"`` instead of the colour index; its threshold is the photo's own (see
+        :func:`index_threshold`). ``Segmentation.index`` is then ``"ndvi"``.
+    mask : (rows, cols) bool array, optional
+        The plants' mask as :func:`vegetation_mask` makes it (``"vegetation"``, with `threshold`
+        given): only the watershed and what follows run (a mosaic's tile, whose mask comes from its
+        whole window).
+
+    Returns
+    -------
+    Segmentation
+
+    Examples
+    --------
+    >>> img = np.full((40, 40, 3), (120, 90, 60), np.uint8)
+    >>> img[10:20, 10:20] = (40, 160, 40)
+    >>> seg = segment(img)
+    >>> seg.n_regions, int(seg.mask[10:20, 10:20].sum())
+    (1, 100)
+
+    The index is lightly blurred (sigma 1 pixel) so single noisy pixels neither rise nor punch
+    holes; a sharp edge therefore keeps a one-pixel rim (the square's 40 side neighbours):
+
+    >>> int(seg.mask.sum())
+    140
+    """
+    image = check_rgb("image", image)
+    check_choice("method", method, METHODS)
+    rows, cols = image.shape[:2]
+    if min_region is None:
+        min_region = max(4, int(2e-5 * rows * cols))
+    min_region = check_int("min_region", min_region, minimum=0)
+    threshold = check_float("threshold", threshold, allow_none=True)
+    radius = check_float("radius", radius, minimum=0.0, allow_none=True)
+    edge_scale = check_float("edge_scale", edge_scale, minimum=0.0, allow_none=True)
+    soil = check_float("soil", soil, allow_none=True)
+    if filtered is not None:
+        filtered = check_rgb("filtered", filtered)
+        if filtered.shape != image.shape:
+            raise CliffTerrainError(
+                f"`filtered` must have the shape of `image` {image.shape}, got {filtered.shape}"
+            )
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if valid.shape != image.shape[:2]:
+            raise CliffTerrainError(f"`valid` must have shape {image.shape[:2]}, got {valid.shape}")
+        if valid.all():
+            valid = None
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if method != "vegetation" or threshold is None or index not in ("green", "nir", "ndvi"):
+            raise CliffTerrainError(
+                "`mask` needs method='vegetation', the `threshold` and the `index` it was made with, "
+                f"got method={method!r}, threshold={threshold!r}, index={index!r}"
+            )
+        if mask.shape != image.shape[:2]:
+            raise CliffTerrainError(f"`mask` must have shape {image.shape[:2]}, got {mask.shape}")
+        rule = ThresholdRule(threshold, index, "given", float("nan"))
+    elif method == "paper":
+        if filtered is None:
+            raise CliffTerrainError("`filtered` is required when `method` is 'paper', got None")
+        mask, rule = _paper_mask(filtered, valid, threshold)
+    else:
+        mask, rule = vegetation_mask(
+            image,
+            index=index,
+            valid=valid,
+            threshold=threshold,
+            min_region=min_region,
+            soil=soil,
+            index_map=index_map,
+        )
+    threshold, index_name, source, valley = rule.threshold, rule.index, rule.source, rule.valley
+    if method == "paper":
+        if valid is not None:
+            mask &= valid
+        mask = _clean(mask, min_region)  # the paper fills every hole (imfill)
+    distance = distance_map(mask)
+    edges = colour_edges(filtered) if (filtered is not None and method == "vegetation") else None
+    labels = split_regions(mask, distance, edges=edges, radius=radius, edge_scale=edge_scale)
+    boundaries = inner_boundaries(labels)
+    return Segmentation(
+        mask=mask,
+        labels=labels,
+        boundaries=boundaries,
+        threshold=threshold,
+        index=index_name,
+        distance=distance,
+        threshold_source=source,
+        valley=valley,
+    )
+
+
+def vegetation_mask(
+    image, *, index="auto", valid=None, threshold=None, min_region=0, soil=None, index_map=None
+):
+    """The plants' mask of :func:`segment`'s ``"vegetation"`` mode, before the watershed.
+
+    The index thresholded, the no-data pixels dropped, specks dropped and the holes plausibly inside
+    a plant filled (see :func:`plant_holes`). Arguments as :func:`segment`'s (checked there).
+
+    Returns
+    -------
+    mask : (rows, cols) bool array
+    rule : ThresholdRule
+    """
+    if index_map is not None:
+        index_map = np.asarray(index_map, dtype=np.float32)
+        if index_map.shape != image.shape[:2]:
+            raise CliffTerrainError(f"`index_map` must have shape {image.shape[:2]}, got {index_map.shape}")
+    mask, rule, vi = _vegetation_mask(image, index, valid, threshold, index_map)
+    if valid is not None:
+        mask &= valid
+    # Vegetation mode fills only the holes plausibly inside a plant.
+    return _clean(mask, min_region, vi=vi, threshold=rule.threshold, soil=soil), rule
+
+
+def _paper_mask(filtered, valid, threshold=None):
+    """``(mask, ThresholdRule)`` of the paper mode: Otsu's threshold on the grey level, or `threshold`."""
+    grey = filtered.astype(np.float32).mean(axis=2)
+    if threshold is None:
+        rule = ThresholdRule(
+            otsu_threshold(grey if valid is None else grey[valid]), "grey", "otsu", float("nan")
+        )
+    else:
+        rule = ThresholdRule(threshold, "grey", "given", float("nan"))
+    return grey > rule.threshold, rule
+
+
+def _vegetation_mask(image, index, valid, threshold=None, index_map=None):
+    """``(mask, ThresholdRule, blurred index)`` of the vegetation mode (at `threshold` if given)."""
+    if index_map is None:
+        vi, name = blurred_index(image, index=index)
+    else:  # NDVI, blurred as the colour index is; no data lies below any plant
+        finite = np.isfinite(index_map)
+        valid = finite if valid is None else valid & finite
+        vi, name = cv2.GaussianBlur(np.where(finite, index_map, np.float32(-1.0)), (0, 0), 1.0), "ndvi"
+    if threshold is None:
+        rule = index_threshold(vi if valid is None else vi[valid], index=name)
+    else:
+        rule = ThresholdRule(threshold, name, "given", float("nan"))
+    return vi > rule.threshold, rule, vi
+
+
+def _clean(mask, min_region, *, vi=None, threshold=None, soil=None):
+    """Drop specks and fill holes (the paper's ``bwareaopen`` and ``imfill``).
+
+    Without `vi` every hole is filled (``imfill``); with it only the holes that
+    :func:`plant_holes` finds plausibly inside a plant.
+    """
+    mask = np.ascontiguousarray(mask, dtype=np.uint8)
+    components = None
+    if min_region > 0:
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        keep = stats[:, cv2.CC_STAT_AREA] >= min_region
+        keep[0] = False
+        mask = keep.astype(np.uint8)[labels]
+        # Holes lie next to kept components only: the labels and areas serve plant_holes as they are.
+        components = (labels, stats[:, cv2.CC_STAT_AREA])
+    # Holes: background that cannot be reached from the frame (flood the padded background).
+    padded = np.pad(mask, 1)
+    flood = padded.copy()
+    cv2.floodFill(flood, None, (0, 0), 1)
+    holes = flood[1:-1, 1:-1] == 0
+    if vi is None or not holes.any():
+        return holes | (mask > 0)
+    filled = plant_holes(mask, holes, vi, threshold, min_region=min_region, soil=soil, _components=components)
+    return filled | (mask > 0)
+
+
+# A hole this small against the plant region around it is a leaf gap or a highlight.
+HOLE_FRACTION = 0.02
+
+
+def plant_holes(mask, holes, vi, threshold, *, min_region=0, soil=None, _components=None):
+    """The holes of `mask` that plausibly lie inside a plant, to be filled.
+
+    A hole is kept (filled) when it is small compared with the region that encloses it (at most
+    ``HOLE_FRACTION`` = 2 % of that region's area, or smaller than `min_region`): a gap between
+    leaves, a specular highlight; or when it is not soil-coloured: its mean vegetation index lies
+    above the midpoint between the soil's (:func:`soil_level`, the median over all non-plant
+    pixels) and the threshold (shadows and pale spots inside a plant). Any other hole is soil
+    enclosed by canopy, such as the strip between two crop rows that join at their ends, and
+    stays flat.
+
+    Parameters
+    ----------
+    mask : (rows, cols) bool or uint8 array
+        Plant pixels.
+    holes : (rows, cols) bool array
+        Non-plant pixels that cannot be reached from the frame.
+    vi : (rows, cols) float array
+        The vegetation index the mask was thresholded from.
+    threshold : float
+        Its threshold.
+    min_region : int, optional
+        Holes smaller than this many pixels are always filled.
+    soil : float, optional
+        The soil's index; default ``soil_level(vi, mask)``.
+
+    Returns
+    -------
+    (rows, cols) bool array
+        The holes to fill.
+
+    Examples
+    --------
+    >>> mask = np.zeros((60, 60), bool); mask[5:55, 5:55] = True
+    >>> mask[10:12, 10:12] = False; mask[20:50, 30:34] = False   # a leaf gap and a soil strip
+    >>> vi = np.where(mask, 0.4, -0.2).astype(np.float32)
+    >>> holes = np.zeros_like(mask); holes[5:55, 5:55] = ~mask[5:55, 5:55]
+    >>> filled = plant_holes(mask, holes, vi, 0.1)
+    >>> bool(filled[10, 10]), bool(filled[30, 31])
+    (True, False)
+    """
+    mask = np.ascontiguousarray(mask, dtype=np.uint8)
+    holes = np.ascontiguousarray(holes, dtype=bool)
+    vi = np.asarray(vi, dtype=np.float32)
+    n_holes, hole_labels, hole_stats, _ = cv2.connectedComponentsWithStats(
+        holes.view(np.uint8), connectivity=4, ltype=cv2.CV_32S
+    )
+    if n_holes <= 1:
+        return np.zeros(mask.shape, dtype=bool)
+    if _components is None:
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+        _components = (labels, stats[:, cv2.CC_STAT_AREA])
+    components, component_area = _components
+    area = hole_stats[:, cv2.CC_STAT_AREA].astype(np.float64)
+    inside = np.flatnonzero(holes)
+    which = hole_labels.ravel()[inside]
+    # The pixel above a hole's first pixel (in raster order) belongs to the region around it.
+    # Assigning in reverse order leaves each hole's first pixel (the last write wins).
+    first = np.empty(n_holes, dtype=np.intp)
+    first[which[::-1]] = inside[::-1]
+    enclosing = components.ravel()[first[1:] - mask.shape[1]]
+    small = (area[1:] < min_region) | (area[1:] <= HOLE_FRACTION * component_area[enclosing])
+    if soil is None:
+        soil = soil_level(vi, mask)
+        soil = float(threshold) if soil is None else soil
+    mean_vi = np.bincount(which, weights=vi.ravel()[inside], minlength=n_holes)[1:] / area[1:]
+    not_soil = mean_vi > 0.5 * (soil + float(threshold))
+    fill = np.zeros(n_holes, dtype=bool)
+    fill[1:] = small | not_soil
+    if fill[1:].all():  # the usual case: every hole is inside a plant
+        return holes
+    return fill[hole_labels]
+
+
+def soil_level(vi, mask):
+    """The soil's vegetation index: its median over the pixels outside `mask` (a sample).
+
+    Holes count as soil. None when every pixel is in `mask`.
+    """
+    vi = np.asarray(vi, dtype=np.float32)
+    step = max(1, vi.size // 200_000)
+    ground = vi.ravel()[::step][np.asarray(mask).ravel()[::step] == 0]
+    return float(np.median(ground)) if ground.size else None

@@ -1,0 +1,289 @@
+"""Which pixels are plants: the vegetation index, its plant/soil threshold and the bare soil.
+
+ExG + NGRDI for colour photos, (NIR - B) / (NIR + B) for false-colour NIR frames (see
+:func:`vegetation_index`); Otsu's threshold kept within a prior band unless the photo is clearly
+two-class (see :func:`index_threshold`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from skimage import filters
+
+from .._validate import check_choice, check_rgb
+from ..errors import CliffTerrainError
+
+INDICES = ("auto", "green", "nir")
+
+# Threshold bands (Otsu's threshold is clipped into them unless the photo is clearly two-class):
+# bare soil and grey objects sit at or below 0, pale or bluish plants and yellow senescent canopy
+# above about 0.15. The lower end is a floor in every case.
+_GREEN_BAND = (0.06, 0.14)
+_NIR_BAND = (0.12, 0.3)
+# NDVI of a multispectral orthomosaic (reflectance): its threshold is the photo's own (Otsu's), never
+# below this floor, where bare soil, water and shade lie.
+NDVI_FLOOR = 0.1
+# A photo is clearly two-class when the histogram at Otsu's threshold is at most this fraction of
+# its mean between the two class means (0: an empty valley; about 1: no valley at all). On real
+# annotated photos (README, "Validation on real fields") dark-soil fields whose own threshold is
+# right measured 0.09-0.38, closed canopies that Otsu splits in two 0.75-1.11.
+TWO_CLASS_VALLEY = 0.5
+# Soil sure enough to carry the ground: index within this many robust standard deviations of the
+# soil class's mode (the lower side of the soil peak, which no plant pixel widens).
+SOIL_SPREAD = 5.0
+
+
+def vegetation_index(image, *, index="auto"):
+    """Per-pixel vegetation index of an RGB image.
+
+    Parameters
+    ----------
+    image : (rows, cols, 3) uint8 or float array
+        RGB image.
+    index : {"auto", "green", "nir"}, optional
+        ``"green"``: excess green on chromatic coordinates plus the normalised green-red
+        difference, ExG + NGRDI = (2g - r - b) + (G - R) / (G + R). ExG alone separates yellow
+        senescent canopy from tan soil; NGRDI alone separates pale, bluish-green plants
+        (broccoli) from brown soil; their sum does both. Grey objects (roads) score 0, brown
+        soil below 0, and pixels clearly bluer than green (tarps, panels, water) are pushed down
+        by 4 (b - g - 0.02).
+        ``"nir"``: (NIR - B) / (NIR + B) for false-colour NIR cameras whose red channel holds
+        near-infrared. ``"auto"`` picks ``"nir"`` when no pixel is green and green is the
+        weakest channel of most pixels (lilac soil, red plants), else ``"green"``.
+
+    Returns
+    -------
+    vi : (rows, cols) float32 array
+    name : str
+        The index used, ``"green"`` or ``"nir"``.
+
+    Examples
+    --------
+    >>> img = np.zeros((1, 2, 3), np.uint8); img[0, 0] = (40, 160, 40); img[0, 1] = (120, 90, 60)
+    >>> vi, name = vegetation_index(img)
+    >>> name, bool(vi[0, 0] > 0.5 > 0 > vi[0, 1])
+    ('green', True)
+    """
+    image = check_rgb("image", image)
+    check_choice("index", index, INDICES)
+    # Contiguous float32 planes, and every step below one pass written in place: fresh arrays
+    # for the temporaries would cost as much again (allocation and page faults).
+    red, green, blue = (plane.astype(np.float32) for plane in cv2.split(np.ascontiguousarray(image)))
+    inv_total = red + green
+    inv_total += blue
+    inv_total += np.float32(1e-6)
+    np.divide(np.float32(1.0), inv_total, out=inv_total)
+    # ExG = 2g - r - b = 3 G / (R + G + B) - 1 on chromatic coordinates.
+    exg = green * np.float32(3.0)
+    exg *= inv_total
+    exg -= np.float32(1.0)
+    if index == "auto":
+        index = "nir" if _looks_false_colour_nir(image, exg) else "green"
+    if index == "nir":
+        return (red - blue) / (red + blue + np.float32(1e-6)), "nir"
+    vi = exg
+    ngrdi = green - red
+    red += green
+    red += np.float32(1e-6)
+    ngrdi /= red
+    vi += ngrdi
+    # Plants are never clearly bluer than green; tarps, panels and water often are.
+    blue_excess = blue
+    blue_excess -= green
+    blue_excess *= inv_total
+    blue_excess -= np.float32(0.02)
+    np.maximum(blue_excess, np.float32(0.0), out=blue_excess)
+    blue_excess *= np.float32(4.0)
+    vi -= blue_excess
+    return vi, "green"
+
+
+def _looks_false_colour_nir(rgb, exg):
+    # A colour photo of a field has green among its pixels, and blue is its weakest channel
+    # (brown soil, green and yellow plants). A NIR-modified camera (NIR in the red channel) shows
+    # plants red and soil lilac: no green anywhere and green the weakest channel of most pixels.
+    step = max(1, exg.size // 200_000)
+    exg_s = exg.ravel()[::step]
+    px = rgb.reshape(-1, 3)[::step]
+    px = px[px.sum(axis=1) > 30]  # black no-data borders say nothing
+    if px.shape[0] == 0:
+        return False
+    green_weakest = float(np.mean(px[:, 1] <= px.min(axis=1)))
+    return float(np.percentile(exg_s, 99)) < 0.02 and green_weakest > 0.5
+
+
+def blurred_index(image, *, index="auto"):
+    """:func:`vegetation_index` lightly blurred (sigma 1 px): what the threshold applies to.
+
+    Single noisy pixels should neither rise nor punch holes. Returns ``(vi, name)``.
+    """
+    vi, name = vegetation_index(image, index=index)
+    return cv2.GaussianBlur(vi, (0, 0), 1.0), name
+
+
+@dataclass(frozen=True)
+class ThresholdRule:
+    """How the plant/soil threshold of a photo was chosen (see :func:`index_threshold`)."""
+
+    threshold: float
+    index: str
+    source: str
+    valley: float
+
+
+def index_threshold(values, *, index="green"):
+    """The plant/soil threshold of a vegetation index: the photo's own when clearly two-class.
+
+    Otsu's threshold is the photo's own. The prior is Otsu's threshold kept within the band of
+    `index`. The photo's own wins when the histogram is clearly two-class and the prior is not in
+    its valley: the density at Otsu's threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the
+    mean density between the two class means, and the density at the prior's is above that, so
+    the band would cut into a class. Dark, wet soil whose index reaches 0.3 beside green plants
+    is such a case. Otherwise the prior stands: one class (bare soil, or a closed canopy that
+    Otsu would split into sunlit and shaded leaves), or two classes whose valley holds the prior
+    too (then either threshold gives the same mask but for the blurred rims, and the prior keeps
+    every figure measured with it). The band's lower end is a floor in both cases: soil and grey
+    objects score at or below 0.
+
+    Parameters
+    ----------
+    values : array of float
+        Index values of the pixels with data (any shape; a sample is taken from large arrays).
+    index : {"green", "nir", "ndvi"}, optional
+        Which index, for its prior band. ``"ndvi"`` (a multispectral orthomosaic's NDVI, see
+        :func:`cliff_terrain.relief.indices.nir_index_map`) has none: its threshold is the photo's
+        own, Otsu's, never below ``NDVI_FLOOR`` (0.1).
+
+    Returns
+    -------
+    ThresholdRule
+        ``threshold``, ``index``, ``source`` (``"photo"`` or ``"band"``) and ``valley`` (the
+        density ratio; NaN when there is no spread).
+
+    Examples
+    --------
+    Soil around 0.2 (dark and wet) and plants around 0.8, an empty valley between them:
+
+    >>> rng = np.random.default_rng(0)
+    >>> vi = np.concatenate([rng.normal(0.2, 0.05, 9000), rng.normal(0.8, 0.1, 1000)])
+    >>> rule = index_threshold(vi)
+    >>> rule.source, bool(0.35 < rule.threshold < 0.65)
+    ('photo', True)
+
+    One class only (a closed canopy): Otsu's threshold would split it, the band keeps it whole.
+
+    >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000))
+    >>> rule.source, rule.threshold
+    ('band', 0.14)
+    """
+    check_choice("index", index, ("green", "nir", "ndvi"))
+    flat = np.asarray(values, dtype=np.float32).ravel()
+    flat = flat[np.isfinite(flat)]
+    if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
+        flat = flat[:: flat.size // 400_000]
+    # float64: numpy 2 refuses 128 histogram bins over a float32 range of a few ulps.
+    flat = flat.astype(np.float64)
+    low, high = _GREEN_BAND if index == "green" else _NIR_BAND
+    otsu = otsu_threshold(flat)
+    if index == "ndvi":
+        valley = _valley(flat, otsu, (otsu,))[0]
+        return ThresholdRule(max(otsu, NDVI_FLOOR), index, "photo", valley)
+    banded = float(np.clip(otsu, low, high))
+    valley, at_band = _valley(flat, otsu, (otsu, banded))
+    # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
+    if otsu > high and valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
+        return ThresholdRule(otsu, index, "photo", valley)
+    return ThresholdRule(banded, index, "band", valley)
+
+
+def _valley(values, split, thresholds):
+    """Histogram density at each of `thresholds` over its mean between the class means of `split`.
+
+    0 is an empty valley, about 1 no valley at all; NaN when the values have no spread.
+    """
+    nan = (float("nan"),) * len(thresholds)
+    below, above = values[values <= split], values[values > split]
+    if below.size == 0 or above.size == 0:
+        return nan
+    lo, hi = np.percentile(values, (0.5, 99.5))
+    if not hi > lo:
+        return nan
+    hist, edges = np.histogram(values, 128, range=(float(lo), float(hi)))
+    # A Gaussian of 2 bins smooths the counts' noise without filling a valley.
+    smooth = np.convolve(hist.astype(np.float64), np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2), "same")
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    between = (centres >= below.mean()) & (centres <= above.mean())
+    if not between.any() or smooth[between].mean() <= 0:
+        return nan
+    mean = smooth[between].mean()
+    return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
+
+
+def bare_soil(image, *, valid=None, index="auto"):
+    """Pixels that are surely soil, by colour: the ground's support, stricter than "not a plant".
+
+    A pixel is bare soil when its (blurred) index lies below the photo's plant threshold
+    (:func:`index_threshold`) and within ``SOIL_SPREAD`` (5) robust standard deviations of the
+    soil class's mode, measured on the lower side of the soil peak, which no plant pixel widens.
+    Shaded, yellowing or senescent leaves that fall below the plant threshold lie above that
+    limit, and would otherwise lift the ground under a canopy (on a real potato trial they stood
+    5.8 cm, median, above the early-season surface and lifted the ground by 4.5 cm; see the README). Soil seen through gaps in a plant counts: the relief fills such holes so that a
+    plant is one dome, but the ground under the plant is best seen there.
+
+    Parameters
+    ----------
+    image : (rows, cols, 3) uint8 array
+    valid : (rows, cols) bool array, optional
+        Pixels with data.
+    index : {"auto", "green", "nir"}, optional
+
+    Returns
+    -------
+    (rows, cols) bool array
+
+    Examples
+    --------
+    >>> img = np.full((40, 40, 3), (120, 90, 60), np.uint8)
+    >>> img[:, 20:] = (70, 80, 50)                      # dull, yellowing leaves: not plant, not soil
+    >>> img[10:15, 25:30] = (40, 160, 40)
+    >>> soil = bare_soil(img)
+    >>> bool(soil[:, :15].all()), bool(soil[:, 22:].any())
+    (True, False)
+    """
+    image = check_rgb("image", image)
+    vi, name = blurred_index(image, index=index)
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if valid.shape != vi.shape:
+            raise CliffTerrainError(f"`valid` must have shape {vi.shape}, got {valid.shape}")
+    threshold = index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    candidates = vi <= threshold
+    if valid is not None:
+        candidates &= valid
+    values = vi[candidates]
+    if values.size < 10:
+        return candidates
+    values = values[:: max(1, values.size // 400_000)].astype(np.float64)
+    hist, edges = np.histogram(values, 200)
+    smooth = np.convolve(hist.astype(np.float64), np.ones(3) / 3, "same")
+    mode = float(0.5 * (edges[:-1] + edges[1:])[int(np.argmax(smooth))])
+    lower = values[values <= mode]
+    spread = 1.4826 * float(np.median(mode - lower)) if lower.size else 0.0
+    spread = max(spread, float(edges[1] - edges[0]))
+    return candidates & (vi <= mode + SOIL_SPREAD * spread)
+
+
+def otsu_threshold(values):
+    """Otsu's threshold of `values` (a sample of large arrays); the value itself when all are equal."""
+    flat = values.ravel()
+    if flat.size == 0:
+        return 0.0
+    if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
+        flat = flat[:: flat.size // 400_000]
+    if float(flat.min()) == float(flat.max()):
+        return float(flat[0])
+    # float64: numpy 2 refuses 256 histogram bins over a float32 range of a few ulps.
+    return float(filters.threshold_otsu(flat.astype(np.float64)))
