@@ -148,12 +148,14 @@ def read_orthophoto(path):
     """
     from .bands import is_multispectral, read_bands, rgb_rendering
 
-    name, array, tags = read_tiff(path)
+    # The header first: a multispectral file's pixels are decoded once, by read_bands.
+    name, _, tags = read_tiff(path, pixels=False)
     transform, crs = georeference(tags, name)
     nodata = nodata_value(tags.get(GDAL_NODATA), name)
-    if array.ndim == 3 and min(array.shape) >= 3 and is_multispectral(name):
+    if min(tags["samples"], *tags["size"]) >= 3 and is_multispectral(name):
         rgb, valid = rgb_rendering(read_bands(name))  # multispectral: a true-colour rendering
         return GeoRaster(data=rgb, transform=transform, crs=crs, nodata=nodata, path=name, valid=valid)
+    _, array, _ = read_tiff(name)
     rgb, valid = photo_bands(array, name, nodata=nodata, planar=tags["planar"])
     return GeoRaster(data=rgb, transform=transform, crs=crs, nodata=nodata, path=name, valid=valid)
 
@@ -219,9 +221,9 @@ def read_georeference(path):
 
 def read_tiff(path, *, pixels=True):
     """(name, samples or None, tags) of a TIFF's first image: its georeference and GDAL_NODATA tags,
-    with ``"planar"`` and ``"size"`` (rows, cols); see :class:`cliff_terrain.io.tiff_window.TiffRaster`."""
+    with ``"planar"``, ``"size"`` (rows, cols) and ``"samples"``; see :class:`cliff_terrain.io.tiff_window.TiffRaster`."""
     with TiffRaster(path) as tiff:
-        tags = dict(tiff.tags, planar=tiff.planar, size=tiff.shape)
+        tags = dict(tiff.tags, planar=tiff.planar, size=tiff.shape, samples=tiff.samples)
         return tiff.path, (tiff.read() if pixels else None), tags
 
 

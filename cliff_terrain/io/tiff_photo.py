@@ -100,7 +100,8 @@ class TiffPhoto:
             return self._decode()
 
     def _decode(self):
-        name, array, tags = read_tiff(self._name)
+        # A multispectral file's pixels are decoded once, by read_bands; here only its tags.
+        name, array, tags = read_tiff(self._name, pixels=not self.multispectral)
         try:
             transform, _ = georeference(tags, name)
             gsd = sum(pixel_size(transform)) / 2
