@@ -83,7 +83,7 @@ RUN = textwrap.dedent(
             mesh = adaptive_mesh(tile.heights * np.float32(0.01), max_error=0.005, pixel_size=0.01, two_sided=False)
             pixels += tile.heights.size
             plants += int(tile.labels.max(initial=0))
-            triangles += mesh.n_front_faces
+            triangles += len(mesh.front_triangles())
         tiles.close()
         seconds = time.perf_counter() - start - cluster_s
         shape = reader.shape

@@ -104,7 +104,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                     obj.location = (c0 * gsd, (rows - r1) * gsd, 0.0)
                     obj["cliff_terrain_tile"] = {
                         "core": [r0, r1, c0, c1],
-                        "triangles": tile.mesh.n_front_faces,
+                        "triangles": len(tile.mesh.front_triangles()),
                     }
         except Exception as exc:
             return cancel_build(self, exc, created)

@@ -158,30 +158,38 @@ def set_top_view(context, rig, engine="CYCLES", *, samples=SAMPLES):
     scene.render.filepath = "//xy.png"
 
 
-def front_corner_heights(obj, grid_shape):
+def front_corner_heights(obj, grid_shape, n_front_faces=None):
     """Heights (z) of the relief's front grid, (rows + 1, cols + 1), in Blender units.
 
-    The front vertices come first in the mesh, row by row from the photo's top (see
-    cliff_terrain.mesh.grid).
+    A grid mesh's front vertices come first, row by row from the photo's top corner (see
+    cliff_terrain.mesh.grid). An adaptive mesh's front faces (`n_front_faces` of them, by default
+    its record's ``front_faces``) are sampled at the pixel corners, split into triangles as
+    Blender draws them (cliff_terrain.mesh.quads).
     """
     rows, cols = grid_shape
     n = (rows + 1) * (cols + 1)
     mesh = obj.data
-    if len(mesh.polygons) and mesh.polygons[0].loop_total == 3:
-        # An adaptive mesh (cliff_terrain.mesh.adaptive.adaptive_mesh): its front triangles come first;
-        # sample them at the pixel corners.
+    co = positions(mesh)
+    # A grid's first vertex is the top-left corner of the photo; an adaptive mesh's, a pixel centre.
+    is_grid = len(co) >= n and co[0, 0] == co[:, 0].min() and co[0, 1] == co[:, 1].max()
+    if not is_grid:
+        from ..cliff_terrain.mesh.quads import fan_triangles
         from ..cliff_terrain.mesh.tin_sample import sample_front
 
+        if n_front_faces is None:
+            n_front_faces = obj.get("cliff_terrain", {}).get("front_faces")
+        if n_front_faces is None:
+            raise ValueError(
+                f"{obj.name!r} is not a {rows} x {cols} grid and says nothing of its front faces"
+            )
         sizes = np.empty(len(mesh.polygons), dtype=np.int32)
         mesh.polygons.foreach_get("loop_total", sizes)
-        n_front = int(np.argmax(sizes != 3)) if (sizes != 3).any() else len(sizes)
+        sizes = sizes[: int(n_front_faces)]
         corners = np.empty(len(mesh.loops), dtype=np.int32)
         mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
-        triangles = corners[: 3 * n_front].reshape(-1, 3)
-        return sample_front(positions(mesh), triangles, grid_shape)[::2, ::2]
-    if len(mesh.vertices) < n:
-        raise ValueError(f"{obj.name!r} has {len(mesh.vertices)} vertices, fewer than a {rows} x {cols} grid")
-    return positions(mesh)[:n, 2].reshape(rows + 1, cols + 1).astype(np.float64)
+        triangles = fan_triangles(sizes, corners[: int(sizes.sum())])
+        return sample_front(co, triangles, grid_shape)[::2, ::2]
+    return co[:n, 2].reshape(rows + 1, cols + 1).astype(np.float64)
 
 
 def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):

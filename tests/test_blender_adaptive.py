@@ -68,10 +68,29 @@ def test_the_operator_builds_the_cores_adaptive_mesh(core, scene):
     assert obj.data.validate(verbose=False) is False
     assert len(obj.data.edges) == ref.mesh.edge_face_counts().size
     assert np.all(ref.mesh.edge_face_counts() == 2)
-    # Fewer triangles than the grid the same settings give (10x at the default size: test_tin.py;
-    # at 300 px the plants' edges are a larger share of the grid).
+    # Blender draws the quads the TIN's triangles were paired into as those same triangles
+    # (cliff_terrain.mesh.quads): its own triangulation of the front is the core's.
+    obj.data.calc_loop_triangles()
+    n_front_tris = len(ref.mesh.front_triangles())
+    tris = np.empty(3 * len(obj.data.loop_triangles), dtype=np.int32)
+    obj.data.loop_triangles.foreach_get("vertices", tris)
+    owner = np.empty(len(obj.data.loop_triangles), dtype=np.int32)
+    obj.data.loop_triangles.foreach_get("polygon_index", owner)
+    front = tris.reshape(-1, 3)[owner < ref.mesh.n_front_faces]
+    assert len(front) == n_front_tris and (sizes[: ref.mesh.n_front_faces] == 4).mean() > 0.6
+
+    def rotated(t):  # each triangle from its smallest vertex, orientation kept
+        k = np.argmin(t, axis=1)
+        return np.sort(
+            np.stack([t[np.arange(len(t)), (k + i) % 3] for i in range(3)], axis=1).view("i4,i4,i4"), axis=0
+        )
+
+    np.testing.assert_array_equal(rotated(front), rotated(ref.mesh.front_triangles().astype(np.int32)))
+    # Fewer triangles and faces than the grid the same settings give (10x at the default size:
+    # test_tin.py; at 300 px the plants' edges are a larger share of the grid).
     grid = build(filepath=BROCCOLI, max_size=300, mesh="grid")
-    assert 2 * grid["cliff_terrain"]["front_faces"] >= 5 * record["front_faces"]
+    assert 2 * grid["cliff_terrain"]["front_faces"] >= 5 * n_front_tris
+    assert grid["cliff_terrain"]["front_faces"] >= 5 * record["front_faces"]
     assert grid["cliff_terrain"]["max_error"] == 0.0
 
 
@@ -95,7 +114,7 @@ def test_the_slope_map_of_an_adaptive_relief_samples_its_triangles(core, scene):
     heights = np.clip(9.0 - np.hypot(rows - 15, cols - 20), 0, None).astype(np.float32)
     arrays = core.adaptive_mesh(heights, max_error=0.05)
     obj = bpy.data.objects.new("relief", mesh_data.mesh_from_arrays("relief", arrays, scale=0.25))
-    z = views.front_corner_heights(obj, heights.shape) / 0.25
+    z = views.front_corner_heights(obj, heights.shape, arrays.n_front_faces) / 0.25
     assert z.shape == (31, 41)
     # The pixel corners of a cone: within the error bound plus the cone's rise over half a diagonal.
     corner_r, corner_c = np.indices((31, 41)) - 0.5
@@ -194,7 +213,7 @@ def test_a_mosaic_comes_in_as_adaptive_tiles_under_one_georeferenced_empty(addon
     for obj in tiles:
         r0, r1, c0, c1 = obj["cliff_terrain_tile"]["core"]
         co, sizes, _, uvs = mesh_arrays(obj.data)
-        assert np.all(sizes == 3)  # adaptive, one-sided
+        assert set(np.unique(sizes)) == {3, 4}  # adaptive (triangles paired into quads), one-sided
         assert co[:, 0].max() == pytest.approx((c1 - c0) * 0.02) and co[:, 1].max() == pytest.approx(
             (r1 - r0) * 0.02
         )
@@ -213,9 +232,10 @@ def test_a_mosaic_comes_in_as_adaptive_tiles_under_one_georeferenced_empty(addon
     # The tiles close into one surface: no crack where a plant crosses a tile border.
     from test_seams import cracks, welded_open_edges
 
+    fan_triangles = importlib.import_module(f"{ADDON}.cliff_terrain.mesh.quads").fan_triangles
     parts = []
     for obj in tiles:
-        co, _, corners, _ = mesh_arrays(obj.data)
-        parts.append((co + np.array(obj.location), corners.reshape(-1, 3)))
+        co, sizes, corners, _ = mesh_arrays(obj.data)
+        parts.append((co + np.array(obj.location), fan_triangles(sizes, corners)))
     edges, points = welded_open_edges(parts, 0.02)
     assert len(edges) > 0 and len(cracks(edges, points, 700, 600)) == 0

@@ -20,6 +20,7 @@ from scipy.ndimage import label as _label
 from cliff_terrain import synthetic_field
 from cliff_terrain.errors import CliffTerrainError, ImageTooLargeError
 from cliff_terrain.io.photo import load_image
+from cliff_terrain.mesh.quads import fan_triangles
 from cliff_terrain.mesh.tiles import (
     MosaicReader,
     mosaic_settings,
@@ -317,7 +318,7 @@ def test_tile_meshes_are_the_tiles_reliefs_joined_without_cracks(tmp_path):
         parts.append(
             (
                 got.mesh.vertices + np.array([c0 * 0.02, (300 - r1) * 0.02, 0.0]),
-                got.mesh.corner_verts.reshape(-1, 3),
+                fan_triangles(got.mesh.face_sizes, got.mesh.corner_verts),
             )
         )
     edges, points = welded_open_edges(parts, 0.02)

@@ -7,6 +7,7 @@ import pytest
 
 from cliff_terrain import CliffTerrainError
 from cliff_terrain.mesh.adaptive import adaptive_mesh
+from cliff_terrain.mesh.quads import fan_triangles
 from cliff_terrain.mesh.seams import border, seam_triangles, stitch
 
 PIXEL = 0.01  # metres per pixel
@@ -46,8 +47,10 @@ def open_edges(meshes):
     """Edges used by one face only, after welding vertices at the same place (to 1/1000 pixel)."""
     parts = []
     for mesh, offset in meshes:
-        assert (mesh.face_sizes == 3).all()
-        parts.append((mesh.vertices.astype(np.float64) + offset, mesh.corner_verts.reshape(-1, 3)))
+        # One-sided: the front's triangles (paired into quads) and the seams' triangles.
+        parts.append(
+            (mesh.vertices.astype(np.float64) + offset, fan_triangles(mesh.face_sizes, mesh.corner_verts))
+        )
     return welded_open_edges(parts, PIXEL)
 
 
@@ -106,7 +109,9 @@ def test_stitch_keeps_the_front_and_its_uvs():
     stitched = stitch(right, {"left": border(left, "right")})
     n = right.n_faces
     assert stitched.n_front_faces == right.n_front_faces
-    np.testing.assert_array_equal(stitched.corner_verts[: 3 * n], right.corner_verts)
+    np.testing.assert_array_equal(stitched.corner_verts[: right.corner_verts.size], right.corner_verts)
+    np.testing.assert_array_equal(stitched.face_sizes[:n], right.face_sizes)
+    assert (stitched.face_sizes[n:] == 3).all()
     np.testing.assert_array_equal(stitched.vertices[: right.n_vertices], right.vertices)
     theirs, ours = border(left, "right"), border(right, "left")
     assert stitched.n_faces - n == len(theirs.t) + len(ours.t) - 2

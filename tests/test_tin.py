@@ -161,14 +161,12 @@ def _front_at_pixel_centres(mesh):
     """The mesh's front surface at every pixel centre: its triangles on the half-pixel lattice, where
     every vertex (pixel centres and the border's corners) has integer coordinates."""
     rows, cols = mesh.grid_shape
-    n = 3 * mesh.n_front_faces
-    assert np.all(mesh.face_sizes[: mesh.n_front_faces] == 3)
     x, y, z = mesh.vertices.astype(np.float64).T
     width, height = x.max() - x.min(), y.max() - y.min()
     lattice_c = np.rint(2 * x * cols / width).astype(np.int32)
     lattice_r = np.rint(2 * (height - y) * rows / height).astype(np.int32)
     np.testing.assert_allclose(lattice_c, 2 * x * cols / width, atol=1e-3)
-    tin = Tin(lattice_r, lattice_c, z, mesh.corner_verts[:n].reshape(-1, 3), (2 * rows + 1, 2 * cols + 1))
+    tin = Tin(lattice_r, lattice_c, z, mesh.front_triangles(), (2 * rows + 1, 2 * cols + 1))
     return sample_tin(tin)[1::2, 1::2]
 
 
@@ -185,19 +183,23 @@ def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertigh
     surface = _front_at_pixel_centres(mesh)
     assert not np.isnan(surface).any()
     assert np.abs(surface - heights).max() <= 0.01 + 1e-6  # float32 vertices
-    assert mesh.n_front_faces < (0.5 if tile != 5 else 0.9) * 2 * heights.size
+    front = mesh.front_triangles()
+    assert len(front) < (0.5 if tile != 5 else 0.9) * 2 * heights.size
+    # Paired into quads: well under a face per triangle.
+    assert mesh.n_front_faces < 0.7 * len(front)
 
     # Front faces point up and cover the image's rectangle exactly once.
     v = mesh.vertices.astype(np.float64)
-    front = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
     normal_z = np.cross(v[front[:, 1]] - v[front[:, 0]], v[front[:, 2]] - v[front[:, 0]])[:, 2]
     assert normal_z.min() > 0
     assert normal_z.sum() / 2 == pytest.approx(40 * 57 * 0.02**2, rel=1e-5)
     assert v[:, 0].min() == 0 and v[:, 0].max() == pytest.approx(57 * 0.02)
     assert v[:, 1].min() == 0 and v[:, 1].max() == pytest.approx(40 * 0.02)
     # Planar front UVs: a top view shows the texture pixel for pixel.
-    front_uv = mesh.uvs[: 3 * mesh.n_front_faces]
-    np.testing.assert_allclose(front_uv, v[front.ravel(), :2] / [57 * 0.02, 40 * 0.02], atol=1e-6)
+    n_corners = int(mesh.face_sizes[: mesh.n_front_faces].sum())
+    front_uv = mesh.uvs[:n_corners]
+    front_corners = mesh.corner_verts[:n_corners]
+    np.testing.assert_allclose(front_uv, v[front_corners, :2] / [57 * 0.02, 40 * 0.02], atol=1e-6)
 
     counts = mesh.edge_face_counts()
     if not two_sided:
@@ -210,7 +212,7 @@ def test_the_adaptive_mesh_is_within_max_error_covers_the_image_and_is_watertigh
     nxt[starts + mesh.face_sizes - 1] = starts
     directed = mesh.corner_verts.astype(np.int64) * mesh.n_vertices + mesh.corner_verts[nxt]
     assert np.unique(directed).size == directed.size
-    back = mesh.uvs[3 * mesh.n_front_faces :]
+    back = mesh.uvs[n_corners:]
     assert back[:, 0].min() > 1 and back[:, 0].max() <= 2
     base = mesh.vertices[mesh.corner_verts[starts[-1] : starts[-1] + mesh.face_sizes[-1]]]
     np.testing.assert_allclose(base[:, 2], -0.1, rtol=1e-6)
@@ -224,8 +226,12 @@ def test_level_triangles_and_the_walls_are_flat_shaded_and_the_rest_smooth():
     for two_sided in (True, False):
         mesh = adaptive_mesh(heights, max_error=0.05, two_sided=two_sided)
         n_front = mesh.n_front_faces
-        z = mesh.vertices[mesh.corner_verts[: 3 * n_front].reshape(-1, 3), 2]
-        level = (z.max(axis=1) - z.min(axis=1)) == 0
+        z = mesh.vertices[mesh.front_triangles(), 2]
+        level_triangle = (z.max(axis=1) - z.min(axis=1)) == 0
+        # A quad's two triangles are both level or both not.
+        face = np.repeat(np.arange(n_front), mesh.face_sizes[:n_front] - 2)
+        assert (np.bincount(face, level_triangle) % (mesh.face_sizes[:n_front] - 2) == 0).all()
+        level = level_triangle[np.searchsorted(face, np.arange(n_front))]
         np.testing.assert_array_equal(mesh.flat_faces[:n_front], level)
         assert mesh.flat_faces[n_front:].all() and len(mesh.flat_faces) == mesh.n_faces
         assert 0 < level.sum() < n_front
@@ -236,7 +242,7 @@ def test_tiny_rasters_still_close_into_a_solid(shape):
     heights = np.arange(np.prod(shape), dtype=np.float32).reshape(shape)
     mesh = adaptive_mesh(heights, max_error=0.01)
     assert np.all(mesh.edge_face_counts() == 2)
-    front = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
+    front = mesh.front_triangles()
     v = mesh.vertices.astype(np.float64)
     area = np.cross(v[front[:, 1]] - v[front[:, 0]], v[front[:, 2]] - v[front[:, 0]])[:, 2].sum() / 2
     assert area == pytest.approx(shape[0] * shape[1])
@@ -254,8 +260,9 @@ def test_build_relief_adaptive_has_ten_times_fewer_triangles_within_the_default_
     # No scale: half a pixel.
     assert adaptive.max_error == DEFAULT_MAX_ERROR_PIXELS == 0.5
     assert adaptive.max_error_rule.startswith("half a pixel (inflated heights")
-    # The grid draws two triangles per pixel.
-    assert 2 * grid.mesh.n_front_faces >= 10 * adaptive.mesh.n_front_faces
+    # The grid draws two triangles per pixel; a face is 1 or 2 of them.
+    assert 2 * grid.mesh.n_front_faces >= 10 * len(adaptive.mesh.front_triangles())
+    assert grid.mesh.n_front_faces >= 10 * adaptive.mesh.n_front_faces
     surface = _front_at_pixel_centres(adaptive.mesh)
     assert np.abs(surface - adaptive.heights).max() <= adaptive.max_error * (1 + 1e-6)
     assert np.all(adaptive.mesh.edge_face_counts() == 2)
@@ -325,7 +332,8 @@ def test_auto_chooses_a_mesh_per_build_and_says_which(monkeypatch):
 def test_a_flat_relief_is_two_triangles_and_its_frame(shape):
     """Also when it spans several of the TIN's blocks."""
     mesh = adaptive_mesh(np.zeros(shape, np.float32), max_error=0.01, two_sided=False)
-    assert mesh.n_faces == 2 + 4 * 2 + 4 * 2
+    assert len(mesh.front_triangles()) == 2 + 4 * 2 + 4 * 2
+    assert mesh.n_faces <= 10  # paired into quads
 
 
 @pytest.mark.parametrize(

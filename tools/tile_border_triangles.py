@@ -44,7 +44,7 @@ def write_field(path, side, seed=5, photo=None):
 
 def thin_border_triangles(mesh, *, min_length, max_error):
     """(triangle corners (n, 3, 3), side names, lengths, widths) of the thin, sloped border triangles."""
-    faces = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
+    faces = mesh.front_triangles()
     corners = mesh.vertices[faces]  # (n, 3, 3)
     x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
     width, height = mesh.vertices[:, 0].max(), mesh.vertices[:, 1].max()
@@ -88,7 +88,7 @@ def draw(tile, found, out):
     else:
         y0 = -1.0 if side == "bottom" else rows + 1.0 - across
         x0, x1, y0, y1 = cx - along / 2, cx + along / 2, y0, y0 + across
-    faces = mesh.corner_verts[: 3 * mesh.n_front_faces].reshape(-1, 3)
+    faces = mesh.front_triangles()
     tri = mesh.vertices[faces]
     near = (
         (tri[..., 0].max(1) >= x0)
@@ -187,7 +187,7 @@ def main(argv=None):
             n_inner.setdefault(side, []).append((length, width))
         print(
             tile.core,
-            f"{tile.mesh.n_front_faces} front triangles;",
+            f"{len(tile.mesh.front_triangles())} front triangles;",
             "; ".join(
                 f"{side}: {len(v)}, {min(a for a, _ in v):.0f}-{max(a for a, _ in v):.0f} px long, "
                 f"{min(b for _, b in v):.2f}-{max(b for _, b in v):.2f} px wide"

@@ -9,6 +9,7 @@ import numpy as np
 from .._validate import check_float
 from ..errors import CliffTerrainError
 from .grid import with_edges
+from .quads import pair_triangles
 from .tin import triangulate
 
 
@@ -24,6 +25,9 @@ def adaptive_mesh(heights, *, max_error, pixel_size=1.0, two_sided=True, base_de
     texture. Walls, base and back UVs (u > 1) follow the outer border as in :func:`grid_mesh`.
     Level front triangles (bare soil, a plateau's top) are in ``flat_faces`` with the walls and
     base: shaded smooth, a large level triangle would take the slope of the plant rims it touches.
+    Neighbouring triangles of the same shading whose normals agree are joined into quads that
+    Blender splits back into the same two triangles (:func:`cliff_terrain.mesh.quads.pair_triangles`):
+    about half the faces, two thirds of the corners.
 
     Parameters
     ----------
@@ -38,14 +42,17 @@ def adaptive_mesh(heights, *, max_error, pixel_size=1.0, two_sided=True, base_de
     Returns
     -------
     MeshArrays
-        Front faces are triangles (the TIN's, then the frame's); ``grid_shape`` is the height
-        grid's shape. Two-sided, the solid is watertight.
+        Front faces are the TIN's and the frame's triangles, most of them paired into quads
+        (``MeshArrays.front_triangles()`` gives the triangles back); ``grid_shape`` is the
+        height grid's shape. Two-sided, the solid is watertight.
 
     Examples
     --------
     >>> import numpy as np
     >>> mesh = adaptive_mesh(np.zeros((100, 150)), max_error=0.01, two_sided=False)
-    >>> mesh.n_faces  # two triangles, the frame's four strips and four corners
+    >>> mesh.n_faces  # two triangles, the frame's four strips and four corners, paired
+    10
+    >>> len(mesh.front_triangles())
     18
     """
     heights = np.asarray(heights)
@@ -119,20 +126,27 @@ def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
         # first projection, the inner corner.
         q, inner = projections[(k + 1) % 4][0], a[-1]
         faces.append(np.array([[p[-1], outer[k], q], [p[-1], q, inner]]))
-    front = np.concatenate(faces).astype(np.int32)
-    n_front = len(front)
+    triangles = np.concatenate(faces)
 
     # Level triangles (bare soil, a plateau's top) are shaded flat: smooth shading would spread
     # the slope of a plant's rim, through the normals of the rim's vertices, over every large
     # level triangle that touches it (a grid's level quads are a pixel wide; a TIN's are not).
-    front_z = z[front]
-    level = (front_z[:, 0] == front_z[:, 1]) & (front_z[:, 1] == front_z[:, 2])
+    tri_z = z[triangles]
+    level_tri = (tri_z[:, 0] == tri_z[:, 1]) & (tri_z[:, 1] == tri_z[:, 2])
+    # Triangles of the same shading whose normals agree are paired into quads, which Blender
+    # draws as the same two triangles (cliff_terrain.mesh.quads): about half the faces.
+    front_sizes, front, first = pair_triangles(
+        triangles, np.stack([x, y, z / pixel_size], axis=1), groups=level_tri
+    )
+    level = level_tri[first]
+    n_front = len(front_sizes)
+    n_front_corners = len(front)
     u_vertex = (x / cols).astype(np.float32)
     v_vertex = (y / rows).astype(np.float32)
     if not two_sided:
         vertices = np.stack([x * pixel_size, y * pixel_size, z], axis=1)
-        face_sizes = np.full(n_front, 3, dtype=np.int32)
-        corner_verts = front.ravel()
+        face_sizes = front_sizes
+        corner_verts = front
         uvs = np.stack([u_vertex[corner_verts], v_vertex[corner_verts]], axis=1)
         return with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols), level)
 
@@ -153,26 +167,24 @@ def tin_mesh(tin, *, pixel_size=1.0, two_sided=True, base_depth=None):
     base_idx = np.arange(n_front_vertices, n_front_vertices + n_ring, dtype=np.int32)
     nxt = np.roll(np.arange(n_ring), -1)
     walls = np.stack([ring, base_idx, base_idx[nxt], ring[nxt]], axis=1)
-    corner_verts = np.concatenate([front.ravel(), walls.ravel(), base_idx[::-1]]).astype(np.int32)
-    face_sizes = np.concatenate(
-        [np.full(n_front, 3, np.int32), np.full(n_ring, 4, np.int32), np.array([n_ring], np.int32)]
-    )
+    corner_verts = np.concatenate([front, walls.ravel(), base_idx[::-1]]).astype(np.int32)
+    face_sizes = np.concatenate([front_sizes, np.full(n_ring, 4, np.int32), np.array([n_ring], np.int32)])
     x = np.concatenate([x, x[ring]])
     y = np.concatenate([y, y[ring]])
     z = np.concatenate([z, np.full(n_ring, -base_depth, np.float32)])
     vertices = np.stack([x * pixel_size, y * pixel_size, z], axis=1)
 
     uvs = np.empty((corner_verts.size, 2), dtype=np.float32)
-    uvs[: 3 * n_front, 0] = u_vertex[front.ravel()]
-    uvs[: 3 * n_front, 1] = v_vertex[front.ravel()]
+    uvs[:n_front_corners, 0] = u_vertex[front]
+    uvs[:n_front_corners, 1] = v_vertex[front]
     # Back UVs: the front UV of the vertex (or of the border vertex a base vertex sits under), u + 1;
     # the left border moves in by half a texel so that u > 1 holds for every back corner.
-    back = corner_verts[3 * n_front :]
+    back = corner_verts[n_front_corners:]
     front_vertex = np.where(
         back >= n_front_vertices, ring[np.clip(back - n_front_vertices, 0, n_ring - 1)], back
     )
-    uvs[3 * n_front :, 0] = np.maximum(u_vertex[front_vertex], np.float32(0.5 / cols)) + 1.0
-    uvs[3 * n_front :, 1] = v_vertex[front_vertex]
+    uvs[n_front_corners:, 0] = np.maximum(u_vertex[front_vertex], np.float32(0.5 / cols)) + 1.0
+    uvs[n_front_corners:, 1] = v_vertex[front_vertex]
     flat = np.concatenate([level, np.ones(n_ring + 1, dtype=bool)])  # the walls and base too
     return with_edges(vertices, face_sizes, corner_verts, uvs, n_front, (rows, cols), flat)
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from .._validate import check_float
 from ..errors import CliffTerrainError
+from .quads import fan_triangles
 
 
 @dataclass
@@ -85,6 +86,16 @@ class MeshArrays:
         offsets = np.zeros(self.n_faces, dtype=np.int32)
         np.cumsum(self.face_sizes[:-1], out=offsets[1:])
         return offsets
+
+    def front_triangles(self) -> np.ndarray:
+        """(n, 3) vertex indices of the front's triangles as Blender draws them, face by face.
+
+        A front face of four corners is split on its 0-2 diagonal: an adaptive mesh's quads are
+        paired so that Blender splits them there (:mod:`cliff_terrain.mesh.quads`); a grid's
+        quads it may split on 1-3 where they fold.
+        """
+        n = int(self.face_sizes[: self.n_front_faces].sum())
+        return fan_triangles(self.face_sizes[: self.n_front_faces], self.corner_verts[:n])
 
     def edge_face_counts(self) -> np.ndarray:
         """Number of faces using each undirected edge (2 everywhere for a watertight mesh)."""

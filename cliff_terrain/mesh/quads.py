@@ -1,0 +1,137 @@
+"""Triangles paired into quads that Blender draws as the same two triangles, and back (no bpy).
+
+Blender splits a quad ``v0 v1 v2 v3`` on its ``v0-v2`` diagonal unless the two halves are folded
+past a right angle (``is_quad_flip_v3_first_third_fast``: their normals point apart), when it takes
+``v1-v3``. A pair of adjacent triangles whose normals agree, written with their shared edge as
+``v0-v2``, is therefore drawn, shaded and sampled exactly as the two triangles were, in one face
+with four corners instead of two faces with six: an adaptive mesh's faces about halve.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Pairs must agree in direction by at least this cosine (about 25 degrees): far from Blender's
+# folding test (cosine 0, in float32), and close enough that a smooth quad's vertex normals (from the
+# quad's mean normal) stay those of its two triangles.
+MIN_NORMAL_COSINE = 0.9
+
+
+def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_COSINE, seed=0):
+    """Pair edge-sharing triangles into quads Blender splits back into the same triangles.
+
+    Parameters
+    ----------
+    triangles : (n, 3) int array
+        Vertex indices of consistently oriented triangles (each shared edge runs opposite ways).
+    vertices : (n_vertices, 3) float array
+        Positions.
+    groups : (n,) array, optional
+        Only triangles of the same group are paired (e.g. flat- and smooth-shaded ones).
+    min_cosine : float
+        Least cosine of the angle between a pair's normals.
+    seed : int
+        The pairing is a maximal matching with random priorities (the same for the same seed).
+
+    Returns
+    -------
+    face_sizes : (n_faces,) int32
+        3 or 4: the lone triangles and the quads, in the order of their first triangle.
+    corner_verts : (sum(face_sizes),) int32
+        A quad is ``a, c2, b, c1`` for triangles ``(a, b, c1)`` and ``(b, a, c2)``: shared edge 0-2.
+    first : (n_faces,) int64
+        Index of each face's first triangle (its group is the face's).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    >>> sizes, corners, first = pair_triangles(np.array([[0, 1, 2], [0, 2, 3]]), square)
+    >>> sizes.tolist(), fan_triangles(sizes, corners).tolist()
+    ([4], [[2, 3, 0], [2, 0, 1]])
+    """
+    triangles = np.asarray(triangles, dtype=np.int64)
+    n = len(triangles)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    p = vertices[triangles]
+    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    lengths = np.linalg.norm(normals, axis=1)
+    normals /= np.where(lengths > 0, lengths, 1.0)[:, None]
+
+    # Each triangle's edge k runs from corner k to corner k+1, opposite corner k+2. A shared edge
+    # is two directed edges with the same key, next to each other once sorted.
+    a = triangles.ravel()
+    b = triangles[:, [1, 2, 0]].ravel()
+    keys = np.minimum(a, b) * (int(vertices.shape[0]) + 1) + np.maximum(a, b)
+    order = np.argsort(keys, kind="stable")
+    same = np.flatnonzero(keys[order[1:]] == keys[order[:-1]])
+    e1, e2 = order[same], order[same + 1]
+    t1, t2 = e1 // 3, e2 // 3
+    ok = (a[e1] == b[e2]) & (t1 != t2) & (lengths[t1] > 0) & (lengths[t2] > 0)
+    ok &= np.einsum("ij,ij->i", normals[t1], normals[t2]) >= min_cosine
+    if groups is not None:
+        groups = np.asarray(groups)
+        ok &= groups[t1] == groups[t2]
+    e1, t1, t2 = e1[ok], t1[ok], t2[ok]
+
+    # Maximal matching: each round, an edge whose score is the highest at both its triangles joins
+    # them. An edge to a triangle with no other candidate comes first (Karp and Sipser: that
+    # choice is never worse), the rest by random priority (which ends in O(log n) rounds).
+    partner = np.full(n, -1, dtype=np.int64)
+    via = np.full(n, -1, dtype=np.int64)  # the directed edge (of the lower triangle) of each pair
+    priority = np.random.default_rng(seed).permutation(len(t1)).astype(np.int64)
+    while len(t1):
+        degree = np.bincount(t1, minlength=n) + np.bincount(t2, minlength=n)
+        score = priority + len(priority) * (np.minimum(degree[t1], degree[t2]) == 1)
+        best = np.full(n, -1, dtype=np.int64)
+        np.maximum.at(best, t1, score)
+        np.maximum.at(best, t2, score)
+        won = (best[t1] == score) & (best[t2] == score)
+        partner[t1[won]], partner[t2[won]] = t2[won], t1[won]
+        via[t1[won]] = e1[won]
+        free = (partner[t1] < 0) & (partner[t2] < 0)
+        e1, t1, t2, priority = e1[free], t1[free], t2[free], priority[free]
+
+    lone = partner < 0
+    lead = lone | (via >= 0)  # each pair written once, at the triangle whose edge was kept
+    first = np.flatnonzero(lead)
+    sizes = np.where(lone[first], 3, 4).astype(np.int32)
+    corners = np.empty((len(first), 4), dtype=np.int64)
+    single = lone[first]
+    corners[single, :3] = triangles[first[single]]
+    edge = via[first[~single]]  # edge k of triangle t: a = corner k, b = corner k + 1, c1 = k + 2
+    t, k = edge // 3, edge % 3
+    other = partner[t]
+    # c2: the corner of the partner that is neither a nor b.
+    a_v, b_v = triangles[t, k], triangles[t, (k + 1) % 3]
+    tri2 = triangles[other]
+    c2 = tri2[np.arange(len(other)), np.argmax((tri2 != a_v[:, None]) & (tri2 != b_v[:, None]), axis=1)]
+    corners[~single] = np.stack([a_v, c2, b_v, triangles[t, (k + 2) % 3]], axis=1)
+    mask = np.arange(4) < sizes[:, None]
+    return sizes, corners[mask].astype(np.int32), first.astype(np.int64)
+
+
+def fan_triangles(face_sizes, corner_verts):
+    """(n, 3) triangles of faces of 3 or 4 corners as Blender draws unfolded ones: 0-1-2, 0-2-3.
+
+    Examples
+    --------
+    >>> fan_triangles(np.array([3, 4]), np.array([0, 1, 2, 3, 4, 5, 6])).tolist()
+    [[0, 1, 2], [3, 4, 5], [3, 5, 6]]
+    """
+    face_sizes = np.asarray(face_sizes)
+    corner_verts = np.asarray(corner_verts)
+    if len(face_sizes) and not np.isin(face_sizes, (3, 4)).all():
+        raise ValueError("only faces of 3 or 4 corners are split here")
+    starts = np.zeros(len(face_sizes), dtype=np.int64)
+    np.cumsum(face_sizes[:-1], out=starts[1:])
+    quads = starts[face_sizes == 4]
+    first = np.stack([starts, starts + 1, starts + 2], axis=1)
+    second = np.stack([quads, quads + 2, quads + 3], axis=1)
+    # Each quad's second triangle right after its first, so triangles follow their faces.
+    index = np.concatenate([first, second])
+    rank = np.concatenate([np.arange(len(starts)), np.flatnonzero(face_sizes == 4)])
+    return corner_verts[index[np.argsort(rank, kind="stable")]]
+
+
+__all__ = ["MIN_NORMAL_COSINE", "fan_triangles", "pair_triangles"]
