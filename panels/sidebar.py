@@ -139,7 +139,7 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
                 box.label(text=line)
             if info.get("max_error"):
                 box.label(
-                    text=f"Adaptive: {info.get('front_faces')} triangles, "
+                    text=f"Adaptive: {info.get('front_faces')} front faces, "
                     f"max error {info['max_error']:.3g} {info.get('units')}"
                 )
                 if info.get("max_error_rule"):
