@@ -62,6 +62,7 @@ RUN = textwrap.dedent(
     import numpy as np
     from cliff_terrain._memory import peak_rss
     from cliff_terrain.mesh.adaptive import adaptive_mesh
+    from cliff_terrain.mesh.tile_meshes import mosaic_max_error
     from cliff_terrain.mesh.tiles import MosaicReader, mosaic_settings, relief_tiles, tile_windows
     path, limit, workers = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     start = time.perf_counter()
@@ -78,9 +79,12 @@ RUN = textwrap.dedent(
         n_tiles = len(tile_windows(reader.shape))
         n_tiles = min(limit, n_tiles) if limit else n_tiles
         pixels = plants = triangles = 0
+        max_error, _ = mosaic_max_error(0.01)  # Import Mosaic's default: half of the 1 cm pixels, 5 mm
         tiles = relief_tiles(reader, settings=settings, client=client)
         for tile in itertools.islice(tiles, n_tiles):
-            mesh = adaptive_mesh(tile.heights * np.float32(0.01), max_error=0.005, pixel_size=0.01, two_sided=False)
+            mesh = adaptive_mesh(
+                tile.heights * np.float32(0.01), max_error=max_error, pixel_size=0.01, two_sided=False
+            )
             pixels += tile.heights.size
             plants += int(tile.labels.max(initial=0))
             triangles += len(mesh.front_triangles())

@@ -75,8 +75,6 @@ AUTO_GRID_BELOW_PIXELS = None
 # so half a pixel in height units; measured ones (a DSM) the DSM's noise, at least this floor.
 DEFAULT_MAX_ERROR_PIXELS = 0.5
 DEFAULT_MAX_ERROR_FLOOR_M = 0.01
-# Each tile of an imported orthomosaic (operators/mosaic.py): a fixed bound in metres.
-DEFAULT_MAX_ERROR_M = 0.005
 
 # Rendered views: the longest side of a view, and the shorter side that default views are enlarged
 # to (SSIM's 7x7 window needs 7 pixels on each side).

@@ -48,7 +48,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     )
     max_error: FloatProperty(
         name="Max Error",
-        description="Largest vertical error of each tile's mesh in metres (0 = 5 mm)",
+        description="Largest vertical error of each tile's mesh in metres (0 = half a mosaic pixel)",
         min=0.0,
         default=0.0,
         precision=4,
@@ -57,9 +57,8 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     def execute(self, context):
         try:
             from ..cliff_terrain import CliffTerrainError
-            from ..cliff_terrain.mesh.tile_meshes import tile_meshes
+            from ..cliff_terrain.mesh.tile_meshes import mosaic_max_error, tile_meshes
             from ..cliff_terrain.mesh.tiles import MosaicReader
-            from ..cliff_terrain.settings import DEFAULT_MAX_ERROR_M
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
             return {"CANCELLED"}
@@ -70,7 +69,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                 gsd = reader.gsd
                 if gsd is None:
                     raise CliffTerrainError(f"mosaic {path!r} has no georeference: its pixel size is unknown")
-                max_error = self.max_error if self.max_error > 0 else DEFAULT_MAX_ERROR_M
+                max_error, rule = mosaic_max_error(gsd, self.max_error if self.max_error > 0 else None)
                 tiles = tile_meshes(
                     reader, max_error=max_error, pixel_size=gsd, tile=self.tile, overlap=self.overlap
                 )
@@ -88,6 +87,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                     "gsd": gsd,
                     "shape": list(reader.shape),
                     "max_error": max_error,
+                    "max_error_rule": rule,
                 }
                 for k, tile in enumerate(tiles):
                     r0, r1, c0, c1 = tile.core
@@ -112,7 +112,9 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
             other.select_set(False)
         root.select_set(True)
         context.view_layer.objects.active = root
-        self.report({"INFO"}, f"Imported {name}: {len(root.children)} tiles")
+        self.report(
+            {"INFO"}, f"Imported {name}: {len(root.children)} tiles, max error {max_error:.3g} m ({rule})"
+        )
         return {"FINISHED"}
 
 

@@ -207,6 +207,9 @@ def test_a_mosaic_comes_in_as_adaptive_tiles_under_one_georeferenced_empty(addon
     info = root["cliff_terrain_mosaic"]
     assert root.type == "EMPTY" and info["crs"] == 32633
     assert list(info["origin"]) == [500000.0, 5200000.0] and info["gsd"] == pytest.approx(0.02)
+    # No Max Error given: half a mosaic pixel, and the rule is recorded.
+    assert info["max_error"] == pytest.approx(0.01)
+    assert info["max_error_rule"] == "half a pixel (inflated heights, 2 cm pixels)"
     tiles = sorted(root.children, key=lambda o: o.name)
     assert len(tiles) == 3 * 3
     covered = 0.0

@@ -325,6 +325,32 @@ def test_tile_meshes_are_the_tiles_reliefs_joined_without_cracks(tmp_path):
     assert len(edges) > 0 and len(cracks(edges, points, 400, 300)) == 0
 
 
+def test_mosaic_tiles_default_to_half_a_pixel_and_keep_it(tmp_path):
+    """Without `max_error`, each tile's front is within half a mosaic pixel (1 cm at 2 cm) of its
+    heights at every pixel centre, and has fewer triangles than at a 5 mm bound."""
+    from cliff_terrain.mesh.tile_meshes import mosaic_max_error, tile_meshes
+    from cliff_terrain.mesh.tin_sample import sample_front
+
+    assert mosaic_max_error(0.02) == (0.01, "half a pixel (inflated heights, 2 cm pixels)")
+    with pytest.raises(CliffTerrainError, match=r"`max_error` must be > 0.0, got -1.0"):
+        mosaic_max_error(0.02, -1)
+    rgb, _ = synthetic_field(shape=(300, 400), seed=4)
+    path = write_mosaic(tmp_path / "field.tif", rgb, gsd=0.02)
+    with MosaicReader(path) as reader:
+        settings = mosaic_settings(reader, tile=128)
+        coarse = list(tile_meshes(reader, pixel_size=0.02, tile=128, overlap=32, settings=settings))
+        fine = list(
+            tile_meshes(reader, max_error=0.005, pixel_size=0.02, tile=128, overlap=32, settings=settings)
+        )
+    for tile in coarse:
+        heights = tile.relief.heights.astype(np.float64) * 0.02
+        surface = sample_front(tile.mesh.vertices, tile.mesh.front_triangles(), heights.shape)[1::2, 1::2]
+        assert np.abs(surface - heights).max() <= 0.01 * (1 + 1e-5)
+    assert sum(len(t.mesh.front_triangles()) for t in coarse) < sum(
+        len(t.mesh.front_triangles()) for t in fine
+    )
+
+
 def test_a_client_that_is_not_one_is_refused_before_any_tile(tmp_path):
     rgb, _ = synthetic_field(shape=(100, 120), seed=4)
     with MosaicReader(write_mosaic(tmp_path / "field.tif", rgb)) as reader:

@@ -19,6 +19,7 @@ from .adaptive import adaptive_mesh
 from .grid import MeshArrays
 from .seams import border, stitch
 from .tiles import DEFAULT_OVERLAP, DEFAULT_TILE, TileRelief, relief_tiles
+from .tin import default_max_error
 
 
 @dataclass
@@ -44,10 +45,29 @@ class TileMesh:
     relief: TileRelief
 
 
+def mosaic_max_error(pixel_size, max_error=None):
+    """The bound of a mosaic's tile meshes and the rule that chose it: ``(value, rule)``.
+
+    A value given (> 0) wins; by default the tiles' heights, inflated from the mosaic, keep
+    nothing finer than half a mosaic pixel (:func:`cliff_terrain.mesh.tin.default_max_error`).
+
+    Examples
+    --------
+    >>> mosaic_max_error(0.02)
+    (0.01, 'half a pixel (inflated heights, 2 cm pixels)')
+    >>> mosaic_max_error(0.02, 0.005)
+    (0.005, 'given')
+    """
+    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    if max_error is not None:
+        return check_float("max_error", max_error, minimum=0.0, strict_minimum=True), "given"
+    return default_max_error(height_source="inflated", units="m", pixel_size=pixel_size)
+
+
 def tile_meshes(
     reader,
     *,
-    max_error,
+    max_error=None,
     pixel_size=1.0,
     tile=DEFAULT_TILE,
     overlap=DEFAULT_OVERLAP,
@@ -60,8 +80,9 @@ def tile_meshes(
     Parameters
     ----------
     reader : MosaicReader
-    max_error : float
-        Largest vertical error of each tile's mesh, in the units of `pixel_size` (> 0).
+    max_error : float, optional
+        Largest vertical error of each tile's mesh, in the units of `pixel_size` (> 0); by
+        default half a pixel (:func:`mosaic_max_error`).
     pixel_size : float, optional
         Size of a mosaic pixel (the mosaic's GSD for metres); heights are scaled by it too.
     tile, overlap, settings, client, kwargs
@@ -73,8 +94,8 @@ def tile_meshes(
         Each tile's right and bottom borders are kept until the tile that shares them comes.
     """
     # Not a generator itself, so that bad arguments and the overview fail here, not at the first tile.
-    max_error = check_float("max_error", max_error, minimum=0.0, strict_minimum=True)
     pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    max_error, _ = mosaic_max_error(pixel_size, max_error)
     tiles = relief_tiles(reader, tile=tile, overlap=overlap, settings=settings, client=client, **kwargs)
     return _stitched(reader, tiles, max_error, pixel_size)
 
