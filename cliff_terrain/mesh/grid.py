@@ -10,9 +10,9 @@ Conventions shared with the Blender side and the renderers:
   edge, x_uv = 0, the back corners take half a texel, u = 1 + 0.5 / cols, so the rule is strict).
 * Faces are stored the Blender way: ``face_sizes`` and a flat ``corner_verts`` array; the first
   ``n_front_faces`` faces are the front: quads in row-major pixel order for :func:`grid_mesh`,
-  triangles for :func:`cliff_terrain.mesh.adaptive.adaptive_mesh` (a TIN with its vertices at pixel centres, within a
-  vertical error of every pixel's height, and a half-pixel frame out to the pixel corners of the
-  border).
+  triangles and quads for :func:`cliff_terrain.mesh.adaptive.adaptive_mesh` (a TIN with its vertices
+  at pixel centres, within a vertical error of every pixel's height, and a half-pixel frame out to
+  the pixel corners of the border; most triangles paired into quads Blender splits back into them).
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ class MeshArrays:
     uvs : (n_corners, 2) float32
         Texture coordinates per corner; u > 1 marks the back/base.
     n_front_faces : int
-        The first faces are the front (textured) quads.
+        The first faces are the front (textured) ones: a grid's quads, or an adaptive mesh's
+        triangles, most of them paired into quads (:meth:`front_triangles` splits them).
     grid_shape : tuple of int
         (rows, cols) of the height grid the front was built from.
     edges : (n_edges, 2) int32, optional
