@@ -15,7 +15,8 @@ def _terrain(n=600, seed=4):
     triangles = Delaunay(xy).simplices
     vertices = np.column_stack([xy, z])
     p = vertices[triangles]
-    clockwise = np.cross(p[:, 1, :2] - p[:, 0, :2], p[:, 2, :2] - p[:, 0, :2]) < 0
+    (ax, ay), (bx, by) = (p[:, 1, :2] - p[:, 0, :2]).T, (p[:, 2, :2] - p[:, 0, :2]).T
+    clockwise = ax * by - ay * bx < 0  # (numpy 2 has no 2-D np.cross)
     triangles[clockwise] = triangles[clockwise][:, ::-1]
     return triangles, vertices
 
