@@ -53,10 +53,13 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
     triangles = np.asarray(triangles, dtype=np.int64)
     n = len(triangles)
     vertices = np.asarray(vertices, dtype=np.float64)
-    p = vertices[triangles]
-    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    lengths = np.linalg.norm(normals, axis=1)
-    normals /= np.where(lengths > 0, lengths, 1.0)[:, None]
+    # Unnormalised normals, component by component (np.cross on a (n, 3, 3) gather costs twice this).
+    x, y, z = (np.ascontiguousarray(vertices[:, k]) for k in range(3))
+    i0, i1, i2 = (np.ascontiguousarray(triangles[:, k]) for k in range(3))
+    ax, ay, az = x[i1] - x[i0], y[i1] - y[i0], z[i1] - z[i0]
+    bx, by, bz = x[i2] - x[i0], y[i2] - y[i0], z[i2] - z[i0]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    lengths = np.sqrt(nx * nx + ny * ny + nz * nz)
 
     # Each triangle's edge k runs from corner k to corner k+1, opposite corner k+2. A shared edge
     # is two directed edges with the same key, next to each other once sorted.
@@ -64,14 +67,19 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
     b = triangles[:, [1, 2, 0]].ravel()
     keys = np.minimum(a, b) * (int(vertices.shape[0]) + 1) + np.maximum(a, b)
     order = np.argsort(keys, kind="stable")
-    same = np.flatnonzero(keys[order[1:]] == keys[order[:-1]])
+    sorted_keys = keys[order]
+    same = np.flatnonzero(sorted_keys[1:] == sorted_keys[:-1])
     e1, e2 = order[same], order[same + 1]
     t1, t2 = e1 // 3, e2 // 3
-    ok = (a[e1] == b[e2]) & (t1 != t2) & (lengths[t1] > 0) & (lengths[t2] > 0)
-    ok &= np.einsum("ij,ij->i", normals[t1], normals[t2]) >= min_cosine
+    ok = (a[e1] == b[e2]) & (t1 != t2)
     if groups is not None:
         groups = np.asarray(groups)
         ok &= groups[t1] == groups[t2]
+    e1, t1, t2 = e1[ok], t1[ok], t2[ok]
+    # cos(angle) >= min_cosine without normalising: dot >= min_cosine * |n1| |n2|.
+    l1, l2 = lengths[t1], lengths[t2]
+    dot = nx[t1] * nx[t2] + ny[t1] * ny[t2] + nz[t1] * nz[t2]
+    ok = (l1 > 0) & (l2 > 0) & (dot >= min_cosine * (l1 * l2))
     e1, t1, t2 = e1[ok], t1[ok], t2[ok]
 
     # Maximal matching: each round, an edge whose score is the highest at both its triangles joins
@@ -99,14 +107,15 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
     corners = np.empty((len(first), 4), dtype=np.int64)
     single = lone[first]
     corners[single, :3] = triangles[first[single]]
-    edge = via[first[~single]]  # edge k of triangle t: a = corner k, b = corner k + 1, c1 = k + 2
-    t, k = edge // 3, edge % 3
-    other = partner[t]
+    # Edge e = 3 t + k of triangle t: a = corner k, b = corner k + 1, c1 = corner k + 2 (flat indices).
+    edge = via[first[~single]]
+    base = edge - edge % 3
+    a_v, b_v = a[edge], b[edge]
+    c1 = a[base + (edge + 2) % 3]
     # c2: the corner of the partner that is neither a nor b.
-    a_v, b_v = triangles[t, k], triangles[t, (k + 1) % 3]
-    tri2 = triangles[other]
-    c2 = tri2[np.arange(len(other)), np.argmax((tri2 != a_v[:, None]) & (tri2 != b_v[:, None]), axis=1)]
-    corners[~single] = np.stack([a_v, c2, b_v, triangles[t, (k + 2) % 3]], axis=1)
+    tri2 = triangles[partner[edge // 3]]
+    c2 = tri2.sum(axis=1) - a_v - b_v
+    corners[~single] = np.stack([a_v, c2, b_v, c1], axis=1)
     mask = np.arange(4) < sizes[:, None]
     return sizes, corners[mask].astype(np.int32), first.astype(np.int64)
 
