@@ -15,8 +15,9 @@ The ODM pair (orthophoto and DSM) is measured twice: heights inflated from the o
 measured from the DSM (``height_source="measured"``, whose default bound is the DSM's noise).
 
 With ``--auto``, the end-to-end comparison behind ``mesh="auto"``: the Build Relief operator (core
-and Blender) on the 12 MP photo at ``max_size`` 1000, 2000 and 4000, grid and adaptive alternating
-in the same run, `--repeats` times each.
+and Blender) on the 12 MP photo at ``max_size`` 500 to 4000 and on a 1500 x 1500 broccoli photo at
+500 to 1500, grid and adaptive alternating in the same run, `--repeats` times each, and what
+``auto`` chooses at each size against which was faster.
 
 Then a 12 MP photo at full resolution (``max_size=4000``) through the operator with the adaptive
 mesh. The photos are read from ../shared and never copied.
@@ -62,7 +63,11 @@ MEASURED = (
     {"dsm": "dsm/fieldimager_ex2/dsm.tif", "height_source": "measured"},
 )
 FULL_RES = "uav/caliterra/IMG_9370.jpg"  # 4000 x 3000
-AUTO_SIZES = (1000, 2000, 4000)
+# --auto: the photos and processing sizes of the end-to-end comparison behind mesh="auto".
+AUTO_CASES = (
+    ("uav/caliterra/IMG_9370.jpg", (500, 1000, 1250, 1500, 2000, 4000)),
+    ("uav/broccoli/01_clip_raw_test.jpg", (500, 700, 1000, 1250, 1500)),
+)
 GOALS = {"triangle_ratio": 10.0, "blend_ratio": 5.0, "full_res_s": 3.0}
 
 
@@ -219,11 +224,12 @@ def measure(path, tmp, *, peer, max_size=None, dsm=None, height_source="inflated
     return row
 
 
-def compare_end_to_end(path, tmp, *, repeats):
-    """Build Relief operator seconds (core and Blender) with each mesh at each of AUTO_SIZES,
-    alternating grid and adaptive; `repeats` runs each, and the faces."""
+def compare_end_to_end(path, sizes, tmp, *, repeats):
+    """Build Relief operator seconds (core and Blender) with each mesh at each of `sizes`,
+    alternating grid and adaptive; `repeats` runs each, the faces, and what ``auto`` chooses."""
+    choose_mesh = importlib.import_module(f"{ADDON}.cliff_terrain.mesh.adaptive").choose_mesh
     rows = []
-    for size in AUTO_SIZES:
+    for size in sizes:
         seconds = {"grid": [], "adaptive": []}
         faces = {}
         for _ in range(repeats):
@@ -231,13 +237,30 @@ def compare_end_to_end(path, tmp, *, repeats):
                 s, n, _size = run_operator(path, mesh, tmp, max_size=size)
                 seconds[mesh].append(s)
                 faces[mesh] = n
-        row = {"photo": str(path.relative_to(SHARED)), "max_size": size, "seconds": seconds, "faces": faces}
-        rows.append(row)
+        shape = (
+            sys.modules[f"{ADDON}.cliff_terrain"]
+            .build_relief(str(path), max_size=size, mesh=None)
+            .heights.shape
+        )
         g, a = seconds["grid"], seconds["adaptive"]
+        ratio = float(np.median(g) / np.median(a))
+        auto, rule = choose_mesh("auto", shape)
+        row = {
+            "photo": str(path.relative_to(SHARED)),
+            "max_size": size,
+            "shape": list(shape),
+            "seconds": seconds,
+            "faces": faces,
+            "grid_over_adaptive": ratio,
+            "auto": auto,
+            "auto_rule": rule,
+        }
+        rows.append(row)
         print(
-            f"end to end at max_size={size}: grid {min(g):.2f}-{max(g):.2f} s, adaptive {min(a):.2f}-"
-            f"{max(a):.2f} s (median {np.median(g):.2f} vs {np.median(a):.2f}); faces {faces['grid']} / "
-            f"{faces['adaptive']}",
+            f"{path.name} at max_size={size} ({shape[1]}x{shape[0]}, {shape[0] * shape[1] / 1e6:.2f} MP): grid "
+            f"{min(g):.2f}-{max(g):.2f} s, adaptive {min(a):.2f}-{max(a):.2f} s (median {np.median(g):.2f} vs "
+            f"{np.median(a):.2f}: grid/adaptive {ratio:.2f}); faces {faces['grid']} / {faces['adaptive']}; "
+            f"auto makes the {auto}",
             flush=True,
         )
     return rows
@@ -262,9 +285,11 @@ def main(argv=None):
     try:
         with tempfile.TemporaryDirectory(prefix="cliff_terrain_bench_") as tmp:
             if args.auto:
-                full_path = SHARED / FULL_RES
-                bpy.ops.cliff_terrain.build_relief(filepath=str(full_path), max_size=64)  # warm-up
-                auto = compare_end_to_end(full_path, tmp, repeats=args.repeats)
+                bpy.ops.cliff_terrain.build_relief(filepath=str(SHARED / FULL_RES), max_size=64)  # warm-up
+                auto = []
+                for photo, sizes in AUTO_CASES:
+                    if not args.only or args.only in photo:
+                        auto += compare_end_to_end(SHARED / photo, sizes, tmp, repeats=args.repeats)
                 return {"machine": info, "blender": bpy.app.version_string, "auto": auto}
             cases = [(p, {}) for p in PHOTOS] + [(MEASURED[0], {k: v for k, v in MEASURED[1].items()})]
             cases = [(SHARED / p, kw) for p, kw in cases if not args.only or args.only in p]

@@ -57,7 +57,7 @@ MESHES = (
     (
         "auto",
         "Auto",
-        "Adaptive wherever it builds at least as fast as the grid (see the README); the build says which",
+        "The adaptive mesh from 1.5 MP up, where it builds faster; the grid below (see the README); the build says which",
     ),
     ("grid", "Grid", "One vertex per pixel corner: every pixel's height, and the most triangles"),
     (
@@ -67,9 +67,11 @@ MESHES = (
     ),
 )
 DEFAULT_MESH = "auto"
-# "auto": processing grids of fewer pixels than this get the grid (None: always adaptive); from
-# bench/bench_adaptive_mesh.py's end-to-end timings (README "Adaptive mesh and big orthomosaics").
-AUTO_GRID_BELOW_PIXELS = None
+# "auto": processing grids of fewer pixels than this get the grid (None: always adaptive). From
+# bench/bench_adaptive_mesh.py --auto (README "`mesh="auto"`, the default"): below about 1.5 MP the
+# TIN costs the core more than the grid's faces cost Blender (grid/adaptive Build time 0.69-1.02
+# at 0.19-1.2 MP on two photos), from there up the adaptive mesh is not slower (1.02-1.30).
+AUTO_GRID_BELOW_PIXELS = 1_500_000
 # The adaptive mesh's default maximum vertical error (cliff_terrain.mesh.tin.default_max_error):
 # heights from a shape prior (inflated, calibrated) hold nothing below the photo's resolution,
 # so half a pixel in height units; measured ones (a DSM) the DSM's noise, at least this floor.

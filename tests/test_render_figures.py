@@ -103,18 +103,28 @@ def test_a_transect_through_low_plants_is_exaggerated_for_them(tmp_path):
     image, _ = synthetic_field(shape=(240, 320), seed=1)
     photo = tmp_path / "field.png"
     Image.fromarray(image).save(photo)
-    relief = build_relief(str(photo))
+    relief = build_relief(str(photo), mesh="adaptive")
     # The 16-row band whose plants are lowest (but present): well below the relief's top.
     tops = [relief.heights[r : r + 16].max() for r in range(0, 224, 4)]
     start = int(np.argmin([t if t > 0.1 * relief.max_height else np.inf for t in tops])) * 4
     band_top = float(tops[start // 4])
     assert band_top < 0.5 * relief.max_height
     out = tmp_path / "views"
-    proc = run(str(photo), "--out", str(out), "--transect", f"rows={start}:{start + 16}", "--samples", "1")
+    proc = run(
+        str(photo),
+        "--out",
+        str(out),
+        "--transect",
+        f"rows={start}:{start + 16}",
+        "--samples",
+        "1",
+        "--mesh",
+        "adaptive",
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     side = json.loads((out / "metrics.json").read_text())["side_view"]
     # The view frames the strip's top, not the relief's: the highest point of the mesh's surface
-    # in the strip. The default (adaptive) surface is within max_error of every pixel centre and
+    # in the strip. The adaptive surface is within max_error of every pixel centre and
     # runs straight from the band's outer pixel centres to the next rows' out to the strip's edges.
     assert relief.mesh_kind == "adaptive"
     near_top = float(relief.heights[max(start - 1, 0) : start + 17].max()) + relief.max_error

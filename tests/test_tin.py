@@ -302,7 +302,11 @@ def test_measured_heights_default_to_the_dsm_noise():
     from cliff_terrain.measure.canopy import dsm_noise
 
     relief = build_relief(
-        str(EX2 / "odm_orthophoto.tif"), max_size=300, dsm=str(EX2 / "dsm.tif"), height_source="measured"
+        str(EX2 / "odm_orthophoto.tif"),
+        max_size=300,
+        dsm=str(EX2 / "dsm.tif"),
+        height_source="measured",
+        mesh="adaptive",
     )
     noise = dsm_noise(relief.canopy, plants=relief.mask)
     soil = ~relief.mask & np.isfinite(relief.canopy.chm)
@@ -321,6 +325,13 @@ def test_auto_chooses_a_mesh_per_build_and_says_which(monkeypatch):
     assert relief.mesh_kind == choose_mesh("auto", relief.heights.shape)[0]
     assert (relief.max_error is not None) == (relief.mesh_kind == "adaptive")
     assert choose_mesh("grid", (4000, 3000)) == ("grid", "given")
+    # The measured rule: the grid below 1.5 MP (the default 1000 px), the adaptive mesh from there.
+    assert settings.AUTO_GRID_BELOW_PIXELS == 1_500_000
+    assert choose_mesh("auto", (1000, 750)) == (
+        "grid",
+        "auto: grid (0.75 MP < 1.5 MP, where the grid builds at least as fast)",
+    )
+    assert choose_mesh("auto", (1500, 1000))[0] == "adaptive"
     monkeypatch.setattr(settings, "AUTO_GRID_BELOW_PIXELS", 2_000_000)
     assert choose_mesh("auto", (1000, 1000))[0] == "grid"
     assert choose_mesh("auto", (2000, 1500))[0] == "adaptive"

@@ -193,26 +193,27 @@ def choose_mesh(mesh, shape):
     """The mesh a build makes of a processing grid of `shape`, and why: ``(mesh, rule)``.
 
     ``"grid"`` and ``"adaptive"`` are taken as given. ``"auto"`` is the adaptive mesh wherever it
-    builds at least as fast as the grid end to end (core and Blender); grids of fewer than
-    ``settings.AUTO_GRID_BELOW_PIXELS`` pixels, if set, get the grid.
+    builds at least as fast as the grid end to end (core and Blender): grids of fewer than
+    ``settings.AUTO_GRID_BELOW_PIXELS`` pixels (1.5 MP) get the grid, larger ones the adaptive mesh.
 
     Examples
     --------
     >>> choose_mesh("grid", (100, 100))
     ('grid', 'given')
-    >>> choose_mesh("auto", (1000, 750))[0]
-    'adaptive'
+    >>> choose_mesh("auto", (1000, 750))
+    ('grid', 'auto: grid (0.75 MP < 1.5 MP, where the grid builds at least as fast)')
+    >>> choose_mesh("auto", (2000, 1500))
+    ('adaptive', 'auto: adaptive (3 MP >= 1.5 MP, where it builds faster than the grid)')
     """
     from ..settings import AUTO_GRID_BELOW_PIXELS
 
     if mesh != "auto":
         return mesh, "given"
-    pixels = int(shape[0]) * int(shape[1])
-    if AUTO_GRID_BELOW_PIXELS is not None and pixels < AUTO_GRID_BELOW_PIXELS:
-        return (
-            "grid",
-            f"auto: grid ({pixels / 1e6:.2g} MP < {AUTO_GRID_BELOW_PIXELS / 1e6:g} MP, where the grid builds faster)",
-        )
     if AUTO_GRID_BELOW_PIXELS is None:
         return "adaptive", "auto: adaptive (not slower than the grid at any size measured)"
-    return "adaptive", f"auto: adaptive ({pixels / 1e6:.2g} MP >= {AUTO_GRID_BELOW_PIXELS / 1e6:g} MP)"
+    pixels = int(shape[0]) * int(shape[1])
+    size = f"{pixels / 1e6:.2g} MP"
+    limit = f"{AUTO_GRID_BELOW_PIXELS / 1e6:g} MP"
+    if pixels < AUTO_GRID_BELOW_PIXELS:
+        return "grid", f"auto: grid ({size} < {limit}, where the grid builds at least as fast)"
+    return "adaptive", f"auto: adaptive ({size} >= {limit}, where it builds faster than the grid)"
