@@ -209,7 +209,8 @@ class ReliefParams:
             choices=settings.ids(settings.MESHES),
             default=settings.DEFAULT_MESH,
             help="grid: a vertex per pixel corner; adaptive: a TIN within --max-error; auto: adaptive "
-            f"wherever it builds at least as fast, and says which (default {settings.DEFAULT_MESH})",
+            "wherever it builds at least as fast (processing grids of 1.5 MP and more), else the grid, and "
+            f"says which (default {settings.DEFAULT_MESH})",
         )
         parser.add_argument(
             "--max-error",
