@@ -69,8 +69,9 @@ MESHES = (
 DEFAULT_MESH = "auto"
 # "auto": processing grids of fewer pixels than this get the grid (None: always adaptive). From
 # bench/bench_adaptive_mesh.py --auto (README "`mesh="auto"`, the default"): below about 1.5 MP the
-# TIN costs the core more than the grid's faces cost Blender (grid/adaptive Build time 0.69-1.02
-# at 0.19-1.2 MP on two photos), from there up the adaptive mesh is not slower (1.02-1.30).
+# TIN costs the core about what the grid's faces cost Blender or more (grid/adaptive Build time
+# 0.70-0.96, once 1.12, at 0.19-1.17 MP on two photos); from there up the adaptive mesh is faster
+# (1.05-1.35 at 1.56-12 MP).
 AUTO_GRID_BELOW_PIXELS = 1_500_000
 # The adaptive mesh's default maximum vertical error (cliff_terrain.mesh.tin.default_max_error):
 # heights from a shape prior (inflated, calibrated) hold nothing below the photo's resolution,
