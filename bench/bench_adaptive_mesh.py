@@ -228,6 +228,7 @@ def compare_end_to_end(path, sizes, tmp, *, repeats):
     """Build Relief operator seconds (core and Blender) with each mesh at each of `sizes`,
     alternating grid and adaptive; `repeats` runs each, the faces, and what ``auto`` chooses."""
     choose_mesh = importlib.import_module(f"{ADDON}.cliff_terrain.mesh.adaptive").choose_mesh
+    grid_shape = importlib.import_module(f"{ADDON}.cliff_terrain.build").grid_shape
     rows = []
     for size in sizes:
         seconds = {"grid": [], "adaptive": []}
@@ -237,11 +238,7 @@ def compare_end_to_end(path, sizes, tmp, *, repeats):
                 s, n, _size = run_operator(path, mesh, tmp, max_size=size)
                 seconds[mesh].append(s)
                 faces[mesh] = n
-        shape = (
-            sys.modules[f"{ADDON}.cliff_terrain"]
-            .build_relief(str(path), max_size=size, mesh=None)
-            .heights.shape
-        )
+        shape = grid_shape(str(path), max_size=size)  # from the photo's header, as the operator does
         g, a = seconds["grid"], seconds["adaptive"]
         ratio = float(np.median(g) / np.median(a))
         auto, rule = choose_mesh("auto", shape)
