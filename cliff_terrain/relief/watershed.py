@@ -17,6 +17,7 @@ try:  # scikit-image's flooding kernel, for _flood (pinned version; the public f
 except ImportError:  # pragma: no cover
     _watershed_raveled = None
 
+from .disk_max import disk_maximum
 from .labels import label4, label_max
 
 
@@ -71,8 +72,7 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     # of one long plant stays one marker. Much cheaper than h-maxima by reconstruction.
     smooth = cv2.GaussianBlur(distance.astype(np.float32), (0, 0), 1.0)
     radius = int(np.clip(np.median(dmax) if radius is None else radius, 3, 200))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    local_max = cv2.dilate(smooth, kernel)
+    local_max = disk_maximum(smooth, radius)
     peaks = mask & (smooth >= local_max - 1.0) & (smooth >= 1.0)
     markers, n_markers = label4(peaks)
     if n_markers <= n:  # nothing to split
