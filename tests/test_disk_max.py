@@ -6,6 +6,7 @@ import pytest
 from conftest import uav_image
 from scipy import ndimage
 
+import cliff_terrain._threads as threads
 import cliff_terrain.relief.disk_max as disk_max
 from cliff_terrain import CliffTerrainError, load_image, segment
 from cliff_terrain.relief.disk_max import disk_maximum
@@ -50,7 +51,7 @@ def test_on_a_real_fields_distance_map_one_thread_or_many(monkeypatch):
     for radius in (8, 20):
         expected = cv2.dilate(smooth, _ellipse(radius))
         np.testing.assert_array_equal(disk_maximum(smooth, radius), expected)
-        monkeypatch.setattr(disk_max, "_THREADS", 1)
+        monkeypatch.setattr(threads, "MAX_THREADS", 1)
         np.testing.assert_array_equal(disk_maximum(smooth, radius), expected)
         monkeypatch.undo()
 

@@ -6,18 +6,17 @@ kernel's ~3r^2 points: at r = 20 (plants 40 px across, usual in a mosaic's 1 cm 
 (one per distinct row width, a staircase), and rectangles are separable, so the same maximum is a
 short chain of thin horizontal and vertical dilations: H_w for each width w in turn, each from the
 previous one, and V between them (Horner's scheme for max over rectangles). Done in bands of rows
-that stay in the cache, on threads (OpenCV releases the GIL). The numbers are OpenCV's, exactly.
+that stay in the cache, on threads. The numbers are OpenCV's, exactly.
 """
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import cv2
 import numpy as np
 
+from .._threads import map_row_bands
 from .._validate import check_int
 from ..errors import CliffTerrainError
 
@@ -25,7 +24,6 @@ from ..errors import CliffTerrainError
 _DIRECT_BELOW = 5
 # Output rows per band (at least twice the radius, so the margins read stay below half the work).
 _BAND_ROWS = 96
-_THREADS = min(os.cpu_count() or 1, 4)
 
 
 def disk_maximum(image, radius):
@@ -69,20 +67,13 @@ def disk_maximum(image, radius):
     band = max(_BAND_ROWS, 2 * radius)
     out = np.empty_like(image)
 
-    def one_band(r0):
-        r1 = min(rows, r0 + band)
+    def one_band(r0, r1):
         # Each band reads `radius` rows beyond its own on both sides: every vertical step below
         # reaches at most that far in all, so the band's own rows come out exact.
         a0, a1 = max(0, r0 - radius), min(rows, r1 + radius)
         out[r0:r1] = _staircase_max(image[a0:a1], steps)[r0 - a0 : r1 - a0]
 
-    starts = range(0, rows, band)
-    if len(starts) > 1 and _THREADS > 1:
-        with ThreadPoolExecutor(_THREADS, thread_name_prefix="cliff_terrain_disk") as pool:
-            list(pool.map(one_band, starts))
-    else:
-        for r0 in starts:
-            one_band(r0)
+    map_row_bands(one_band, rows, band)
     return out
 
 

@@ -7,12 +7,12 @@ OpenCV passes over cache-sized strips instead of quaternion products per pixel.
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
 
+from .._threads import usable_cores
 from .._validate import check_choice, check_float, check_rgb
 
 __all__ = ["DEFAULT_SCALE", "ORIENTATIONS", "colour_matrices", "quaternion_filter"]
@@ -157,7 +157,7 @@ def quaternion_filter(image, *, scale=DEFAULT_SCALE, orientation="horizontal"):
     strip = max(1, _STRIP_BYTES // (cols * 12))
     run = _horizontal_strips if orientation == "horizontal" else _vertical_strips
     workers = max(
-        1, min(_MAX_WORKERS, _usable_cores(), rows * cols // _MIN_PIXELS_PER_WORKER, -(-rows // strip))
+        1, min(_MAX_WORKERS, usable_cores(), rows * cols // _MIN_PIXELS_PER_WORKER, -(-rows // strip))
     )
     if workers == 1:
         run(image, out, below, above, 0, rows, strip)
@@ -172,13 +172,6 @@ def quaternion_filter(image, *, scale=DEFAULT_SCALE, orientation="horizontal"):
         for job in jobs:
             job.result()
     return out
-
-
-def _usable_cores():
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 _FILTER_DTYPES = (np.dtype(np.uint8), np.dtype(np.float32))

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 from skimage import filters
 
+from .._threads import map_row_bands
 from .._validate import check_choice, check_rgb
 from ..errors import CliffTerrainError
 
@@ -67,24 +68,48 @@ def vegetation_index(image, *, index="auto"):
     >>> name, bool(vi[0, 0] > 0.5 > 0 > vi[0, 1])
     ('green', True)
     """
-    image = check_rgb("image", image)
+    image = np.ascontiguousarray(check_rgb("image", image))
     check_choice("index", index, INDICES)
-    # Contiguous float32 planes, and every step below one pass written in place: fresh arrays
-    # for the temporaries would cost as much again (allocation and page faults).
-    red, green, blue = (plane.astype(np.float32) for plane in cv2.split(np.ascontiguousarray(image)))
+    if index == "auto":
+        index = "nir" if _looks_false_colour_nir(image) else "green"
+    kernel = _green_index if index == "green" else _nir_index
+    vi = np.empty(image.shape[:2], np.float32)
+
+    def band(r0, r1):
+        vi[r0:r1] = kernel(image[r0:r1])
+
+    # In bands of about 256k pixels: the chain of steps below stays in the cache (3x faster than
+    # whole-image passes at 12 MP), on threads.
+    map_row_bands(band, image.shape[0], _BAND_PIXELS // max(1, image.shape[1]))
+    return vi, index
+
+
+_BAND_PIXELS = 262_144
+
+
+def _planes(image):
+    """Contiguous float32 red, green and blue planes, and 1 / (R + G + B)."""
+    red, green, blue = (plane.astype(np.float32) for plane in cv2.split(image))
     inv_total = red + green
     inv_total += blue
     inv_total += np.float32(1e-6)
     np.divide(np.float32(1.0), inv_total, out=inv_total)
+    return red, green, blue, inv_total
+
+
+def _excess_green(green, inv_total):
     # ExG = 2g - r - b = 3 G / (R + G + B) - 1 on chromatic coordinates.
     exg = green * np.float32(3.0)
     exg *= inv_total
     exg -= np.float32(1.0)
-    if index == "auto":
-        index = "nir" if _looks_false_colour_nir(image, exg) else "green"
-    if index == "nir":
-        return (red - blue) / (red + blue + np.float32(1e-6)), "nir"
-    vi = exg
+    return exg
+
+
+def _green_index(image):
+    # Every step one pass written in place: fresh arrays for the temporaries would cost as much
+    # again (allocation and page faults).
+    red, green, blue, inv_total = _planes(image)
+    vi = _excess_green(green, inv_total)
     ngrdi = green - red
     red += green
     red += np.float32(1e-6)
@@ -98,16 +123,23 @@ def vegetation_index(image, *, index="auto"):
     np.maximum(blue_excess, np.float32(0.0), out=blue_excess)
     blue_excess *= np.float32(4.0)
     vi -= blue_excess
-    return vi, "green"
+    return vi
 
 
-def _looks_false_colour_nir(rgb, exg):
+def _nir_index(image):
+    red, _, blue = (plane.astype(np.float32) for plane in cv2.split(image))
+    return (red - blue) / (red + blue + np.float32(1e-6))
+
+
+def _looks_false_colour_nir(rgb):
     # A colour photo of a field has green among its pixels, and blue is its weakest channel
     # (brown soil, green and yellow plants). A NIR-modified camera (NIR in the red channel) shows
     # plants red and soil lilac: no green anywhere and green the weakest channel of most pixels.
-    step = max(1, exg.size // 200_000)
-    exg_s = exg.ravel()[::step]
+    n = rgb.shape[0] * rgb.shape[1]
+    step = max(1, n // 200_000)
     px = rgb.reshape(-1, 3)[::step]
+    _, green, _, inv_total = _planes(np.ascontiguousarray(px).reshape(-1, 1, 3))
+    exg_s = _excess_green(green, inv_total).ravel()
     px = px[px.sum(axis=1) > 30]  # black no-data borders say nothing
     if px.shape[0] == 0:
         return False
