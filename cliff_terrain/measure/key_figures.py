@@ -73,7 +73,7 @@ def key_figures(relief):
     >>> figures["plants"], round(figures["cover"], 3), figures["units"]
     (1, 0.133, 'px')
     """
-    from scipy import ndimage
+    from ..relief.labels import label_max
 
     heights, unit = canopy_heights(relief)
     valid = relief_valid(relief)
@@ -86,7 +86,9 @@ def key_figures(relief):
     tops = np.asarray([], dtype=np.float64)
     if n:
         labels = np.where(valid, relief.labels, 0)
-        tops = np.asarray(ndimage.maximum(np.nan_to_num(heights), labels, np.arange(1, n + 1)), np.float64)
+        # Each plant's highest point (any sign: a canopy height model dips below the ground).
+        tops = label_max(np.nan_to_num(heights), labels, initial=-np.inf, dtype=heights.dtype)
+        tops = np.pad(tops, (0, max(0, n + 1 - len(tops))))[1 : n + 1].astype(np.float64)
         present = np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0
         tops = tops[present]
     figures.update(

@@ -85,15 +85,16 @@ def label4(mask, *, stats=False):
     return labels, count - 1
 
 
-def label_max(values, labels):
-    """Largest value of each region: ``out[k] = max(values[labels == k])`` for k >= 1.
+def label_max(values, labels, *, initial=0.0, dtype=np.float32):
+    """Largest value of each region: ``out[k] = max(initial, max(values[labels == k]))`` for k >= 1.
 
-    For values >= 0 (distances). ``out[0]`` (ground, not a region) and labels without pixels
-    are 0. Ground is skipped: on a field it is most of the pixels. ``np.maximum.at`` is some
-    40x faster than ``scipy.ndimage.maximum`` (which sorts).
+    ``out[0]`` (ground, not a region) and labels without pixels are `initial`: 0 by default, for
+    values >= 0 (distances); ``-np.inf`` gives any region's own maximum. Ground is skipped: on a
+    field it is most of the pixels. ``np.maximum.at`` is some 40x faster than
+    ``scipy.ndimage.maximum`` (which sorts).
     """
     labels = np.asarray(labels).ravel()
-    out = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.float32)
+    out = np.full(int(labels.max(initial=0)) + 1, initial, dtype=dtype)
     inside = np.flatnonzero(labels)
-    np.maximum.at(out, labels[inside], np.asarray(values, dtype=np.float32).ravel()[inside])
+    np.maximum.at(out, labels[inside], np.asarray(values, dtype=dtype).ravel()[inside])
     return out
