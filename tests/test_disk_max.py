@@ -38,9 +38,15 @@ def test_every_radius_the_watershed_uses_takes_the_fast_path():
     for radius in range(disk_max._DIRECT_BELOW, 201):
         steps = disk_max._staircase(radius)
         assert steps is not None, radius
+        # By increasing width and decreasing height: the order _staircase_max chains them in.
         widths, heights = zip(*steps, strict=True)
-        assert widths[0] == 0 and heights[0] == radius and widths[-1] == radius and heights[-1] >= 0
+        assert widths[0] == 0 and heights[0] == radius and widths[-1] == radius
         assert list(widths) == sorted(widths) and list(heights) == sorted(heights, reverse=True)
+        # The union of the staircase's centred rectangles is OpenCV's kernel, point for point.
+        union = np.zeros((2 * radius + 1, 2 * radius + 1), bool)
+        for w, h in steps:
+            union[radius - h : radius + h + 1, radius - w : radius + w + 1] = True
+        np.testing.assert_array_equal(union, _ellipse(radius).astype(bool), err_msg=f"radius {radius}")
 
 
 def test_on_a_real_fields_distance_map_one_thread_or_many(monkeypatch):

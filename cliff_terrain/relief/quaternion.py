@@ -7,12 +7,10 @@ OpenCV passes over cache-sized strips instead of quaternion products per pixel.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import cv2
 import numpy as np
 
-from .._threads import usable_cores
+from .._threads import map_row_bands, usable_cores
 from .._validate import check_choice, check_float, check_rgb
 
 __all__ = ["DEFAULT_SCALE", "ORIENTATIONS", "colour_matrices", "quaternion_filter"]
@@ -159,18 +157,9 @@ def quaternion_filter(image, *, scale=DEFAULT_SCALE, orientation="horizontal"):
     workers = max(
         1, min(_MAX_WORKERS, usable_cores(), rows * cols // _MIN_PIXELS_PER_WORKER, -(-rows // strip))
     )
-    if workers == 1:
-        run(image, out, below, above, 0, rows, strip)
-        return out
-    # Contiguous blocks of strips, one per thread (OpenCV releases the GIL); each reuses its buffers.
+    # Contiguous blocks of strips, one per worker (OpenCV releases the GIL); each reuses its buffers.
     step = -(-rows // (workers * strip)) * strip
-    with ThreadPoolExecutor(workers) as pool:
-        jobs = [
-            pool.submit(run, image, out, below, above, b0, min(b0 + step, rows), strip)
-            for b0 in range(0, rows, step)
-        ]
-        for job in jobs:
-            job.result()
+    map_row_bands(lambda r0, r1: run(image, out, below, above, r0, r1, strip), rows, step)
     return out
 
 

@@ -35,6 +35,8 @@ TWO_CLASS_VALLEY = 0.5
 # Soil sure enough to carry the ground: index within this many robust standard deviations of the
 # soil class's mode (the lower side of the soil peak, which no plant pixel widens).
 SOIL_SPREAD = 5.0
+# The index is computed in bands of about this many pixels (see vegetation_index).
+_BAND_PIXELS = 262_144
 
 
 def vegetation_index(image, *, index="auto"):
@@ -82,9 +84,6 @@ def vegetation_index(image, *, index="auto"):
     # whole-image passes at 12 MP), on threads.
     map_row_bands(band, image.shape[0], _BAND_PIXELS // max(1, image.shape[1]))
     return vi, index
-
-
-_BAND_PIXELS = 262_144
 
 
 def _planes(image):
