@@ -9,7 +9,6 @@ is, naming the package and its version, never as a fault of the user's photo.
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
 import re
 import sys
 
@@ -48,6 +47,8 @@ def installed_version(module):
     version = getattr(loaded, "__version__", None)
     if isinstance(version, str):
         return version
+    import importlib.metadata  # here: only messages need it, and it costs a fresh Blender 35 ms
+
     try:
         return importlib.metadata.version(distribution(top))
     except importlib.metadata.PackageNotFoundError:

@@ -135,3 +135,32 @@ def test_stages_import_only_earlier_stages():
             if there is not None and there != here and order[there] > order[here]:
                 backwards.append(f"{m} (line {line}) imports {t}")
     assert not backwards, "\n".join(backwards)
+
+
+def test_a_build_does_not_import_scipys_or_scikit_images_heavy_packages(tmp_path):
+    """A fresh Blender pays for every import on its first Build. The default Build needs none of
+    SciPy's `ndimage`, `optimize`, `interpolate` or `sparse`, nor scikit-image's `segmentation`,
+    `morphology` or `filters` packages, whose eager imports cost it 0.35 s on a 2-core VM (README,
+    "Big fields"): the watershed kernel is loaded on its own and Otsu's threshold is computed here."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, cv2\n"
+        "from cliff_terrain import build_relief, synthetic_field\n"
+        f"path = {str(tmp_path / 'field.png')!r}\n"
+        "cv2.imwrite(path, synthetic_field(shape=(300, 400))[0][..., ::-1])\n"
+        "relief = build_relief(path)\n"
+        "build_relief(path, mesh='adaptive')\n"
+        "assert relief.n_regions > 10, relief.n_regions\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('scipy.', 'skimage.'))))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], cwd=CORE.parent, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    loaded = eval(done.stdout.strip().splitlines()[-1])  # a list of module names
+    heavy = ("scipy.ndimage", "scipy.optimize", "scipy.interpolate", "scipy.sparse")
+    heavy += ("skimage.segmentation", "skimage.morphology", "skimage.filters")
+    assert [m for m in loaded if m in heavy] == [], loaded
+    assert "skimage.segmentation._watershed_cy" in loaded  # the kernel, loaded on its own

@@ -232,6 +232,51 @@ def test_flood_is_scikit_images_watershed(seed):
     np.testing.assert_array_equal(flooded, watershed(landscape, markers, mask=mask))
 
 
+def test_the_flood_kernel_is_scikit_images_own_and_its_neighbour_order():
+    # The kernel is loaded from its file (not through skimage.segmentation's slow __init__): it must
+    # be the compiled kernel itself, not the public fallback, and visit neighbours in skimage's order.
+    from skimage.morphology._util import _offsets_to_raveled_neighbors, _validate_connectivity
+    from skimage.segmentation import _watershed_cy
+
+    import cliff_terrain.relief.watershed as flooding
+
+    assert flooding._watershed_raveled is not None
+    assert flooding._watershed_raveled.__module__ == _watershed_cy.__name__
+    assert flooding._watershed_raveled.__qualname__ == _watershed_cy.watershed_raveled.__qualname__
+    footprint, centre = _validate_connectivity(2, 1, None)
+    for shape in [(3, 3), (5, 7), (100, 3), (3, 100), (4098, 3002)]:
+        np.testing.assert_array_equal(
+            flooding._neighbour_offsets(shape), _offsets_to_raveled_neighbors(shape, footprint, center=centre)
+        )
+
+
+def test_otsu_is_scikit_images_on_real_indices_and_odd_histograms(shared_uav):
+    from skimage.filters import threshold_otsu
+
+    from cliff_terrain.relief.vegetation import _otsu, blurred_index
+
+    samples = []
+    for path in sorted(shared_uav.rglob("*")):
+        if path.suffix.lower() in (".jpg", ".jpeg", ".png", ".tif", ".tiff"):
+            try:
+                image, _ = load_image(path, max_size=600)
+            except CliffTerrainError:
+                continue  # not an RGB photo (a DSM, a single band)
+            samples.append(blurred_index(resize_longest(image, 600))[0].ravel())
+    assert len(samples) >= 10
+    rng = np.random.default_rng(3)
+    samples += [
+        rng.normal(0, 1, 5000),  # one class
+        np.concatenate([rng.normal(-1, 0.2, 3000), rng.normal(2, 0.5, 800)]),  # two
+        np.array([0.0, 1.0]),  # two values
+        np.concatenate([np.zeros(500), np.full(3, 1e-9)]),  # a range of a few ulps around 0
+        rng.integers(0, 5, 1000).astype(np.float64),  # few levels: empty bins between
+    ]
+    for values in samples:
+        values = values.astype(np.float64)
+        assert _otsu(values) == float(threshold_otsu(values))
+
+
 def _dark_wet_soil_field(seed=0):
     """Green plants on dark, wet soil whose excess green is high (0.2-0.4): the band's clamp raises it."""
     rng = np.random.default_rng(seed)

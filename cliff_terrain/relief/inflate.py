@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import linalg as splinalg
 
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
@@ -288,6 +286,10 @@ def poisson_profile(mask):
 
     A sparse linear system over the masked pixels only, solved directly.
     """
+    # Imported here: SciPy's sparse solvers cost every Build 0.1 s to import, only this profile uses them.
+    from scipy import sparse
+    from scipy.sparse import linalg as splinalg
+
     mask = np.asarray(mask, dtype=bool)
     rows, cols = mask.shape
     # The frame is not ground: a region cut by the border is not pinned to 0 there (zero flux,

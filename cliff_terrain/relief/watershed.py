@@ -4,21 +4,47 @@ distance and colour edges, components flooded in groups on threads by scikit-ima
 
 from __future__ import annotations
 
+import importlib.machinery
+import importlib.util
 import os
+import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
-from skimage import segmentation
-
-try:  # scikit-image's flooding kernel, for _flood (pinned version; the public function otherwise)
-    from skimage.morphology._util import _offsets_to_raveled_neighbors, _validate_connectivity
-    from skimage.segmentation._watershed_cy import watershed_raveled as _watershed_raveled
-except ImportError:  # pragma: no cover
-    _watershed_raveled = None
 
 from .disk_max import disk_maximum
 from .labels import label4, label_max
+
+
+def _load_flood_kernel():
+    """scikit-image's compiled flooding kernel, ``watershed_raveled``; None if it has moved.
+
+    Loaded from its file, without running ``skimage.segmentation``'s ``__init__``: that imports
+    every segmentation method, and through the active contours SciPy's ``optimize`` and
+    ``interpolate``, which cost a fresh Blender's first Build 0.25 s. The kernel is a compiled
+    module that imports nothing of its package. If it is not where scikit-image keeps it, the
+    usual import is tried, then the public function (see :func:`_flood_kernel`).
+    """
+    name = "skimage.segmentation._watershed_cy"
+    module = sys.modules.get(name)
+    if module is None:
+        try:
+            package = importlib.util.find_spec("skimage")
+            folder = os.path.join(package.submodule_search_locations[0], "segmentation")
+            loader = (importlib.machinery.ExtensionFileLoader, importlib.machinery.EXTENSION_SUFFIXES)
+            spec = importlib.machinery.FileFinder(folder, loader).find_spec(name)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        except (ImportError, AttributeError, TypeError, OSError):
+            try:
+                module = importlib.import_module(name)
+            except ImportError:  # pragma: no cover
+                return None
+    return getattr(module, "watershed_raveled", None)
+
+
+_watershed_raveled = _load_flood_kernel()
 
 
 def colour_edges(filtered):
@@ -93,7 +119,6 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
         landscape -= smooth
     else:
         landscape = np.negative(smooth)
-    flooded = _flood_components(landscape, markers, components, split, stats)
     # Number the result 1..n without gaps: the components left whole first, in their order, then
     # the watershed's basins in marker order (each basin holds at least its marker).
     whole = ~split
@@ -104,10 +129,8 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     basin[0] = False
     basin_label = np.zeros(n_markers + 1, dtype=np.int32)
     basin_label[basin] = np.arange(1, int(basin.sum()) + 1, dtype=np.int32) + int(whole.sum())
-    # Outside the flooded area `flooded` is 0; inside it the component's own label is 0.
-    labels = component_label[components]
-    labels += basin_label[flooded]
-    return labels
+    labels = component_label[components]  # 0 on the components to flood
+    return _flood_components(landscape, markers, components, split, stats, into=labels, relabel=basin_label)
 
 
 # The flooded components go in groups of at least this many pixels (at most _FLOOD_GROUPS groups):
@@ -118,7 +141,7 @@ _FLOOD_GROUPS = 4
 _FLOOD_THREADS = min(os.cpu_count() or 1, _FLOOD_GROUPS)
 
 
-def _flood_components(landscape, markers, components, flooded, stats):
+def _flood_components(landscape, markers, components, flooded, stats, *, into=None, relabel=None):
     """``_flood(landscape, markers, flooded[components])``, groups of components in parallel.
 
     The watershed floods each connected component of its mask from that component's own markers,
@@ -128,42 +151,50 @@ def _flood_components(landscape, markers, components, flooded, stats):
     (a heap) breaks the tie by its layout, which depends on every marker in the call. So the
     components are flooded in groups chosen from the image alone (about equal numbers of pixels,
     in order of each component's top row, so that the groups' bands of rows overlap little), each
-    group in its own thread on its band (the kernel releases the GIL): the labels do not depend on
-    the machine's number of cores, and each group's are exactly scikit-image's watershed of it
-    (tested, plateaus included).
+    group in its own thread on its band, prepared there too (the kernel and numpy's copies release
+    the GIL): the labels do not depend on the machine's number of cores, and each group's are
+    exactly scikit-image's watershed of it (tested, plateaus included).
 
     `flooded` marks the component labels to flood (index 0, the ground, False); `stats` is
-    ``cv2.connectedComponentsWithStats``'s for `components`.
+    ``cv2.connectedComponentsWithStats``'s for `components`. Each flooded pixel's basin (its
+    marker's label, or ``relabel[label]``) is written into `into` (by default a new array of
+    zeros), which is returned; `into`'s other pixels are left as they are.
     """
+    if into is None:
+        into = np.zeros(components.shape, dtype=np.int32)
     labels = np.flatnonzero(flooded)
+    if len(labels) == 0:
+        return into
     area = stats[labels, cv2.CC_STAT_AREA].astype(np.int64)
     n_groups = min(_FLOOD_GROUPS, len(labels), max(1, int(area.sum()) // _FLOOD_GROUP_PIXELS))
     if n_groups < 2:
-        return _flood(landscape, markers, flooded[components])
-    order = np.argsort(stats[labels, cv2.CC_STAT_TOP], kind="stable")
-    share = np.cumsum(area[order]) / area.sum()
-    cuts = np.searchsorted(share, np.arange(1, n_groups) / n_groups)
-    bands = []
-    for group in np.split(labels[order], cuts):
-        if len(group):
-            top = stats[group, cv2.CC_STAT_TOP]
-            bands.append((group, int(top.min()), int((top + stats[group, cv2.CC_STAT_HEIGHT]).max())))
+        bands = [(labels, 0, components.shape[0])]
+    else:
+        order = np.argsort(stats[labels, cv2.CC_STAT_TOP], kind="stable")
+        share = np.cumsum(area[order]) / area.sum()
+        cuts = np.searchsorted(share, np.arange(1, n_groups) / n_groups)
+        bands = []
+        for group in np.split(labels[order], cuts):
+            if len(group):
+                top = stats[group, cv2.CC_STAT_TOP]
+                bands.append((group, int(top.min()), int((top + stats[group, cv2.CC_STAT_HEIGHT]).max())))
 
-    # Every group is prepared here, in this thread (the preparation needs the GIL); the kernels
-    # need none and run in parallel.
-    kernels = []
-    for group, r0, r1 in bands:
+    def flood_group(band):
+        group, r0, r1 = band
         in_group = np.zeros(len(flooded), dtype=bool)
         in_group[group] = True
-        kernels.append(_flood_kernel(landscape[r0:r1], markers[r0:r1], in_group[components[r0:r1]]))
-    with ThreadPoolExecutor(
-        min(_FLOOD_THREADS, len(bands)), thread_name_prefix="cliff_terrain_flood"
-    ) as pool:
-        list(pool.map(lambda kernel: kernel[0](), kernels))
-    out = np.zeros(components.shape, dtype=np.int32)
-    for (_, r0, r1), (_, part) in zip(bands, kernels, strict=True):
-        out[r0:r1] += part  # the groups' masks are disjoint; each part is 0 outside its own
-    return out
+        basins = _flood(landscape[r0:r1], markers[r0:r1], in_group[components[r0:r1]])
+        # The groups' masks are disjoint but their bands of rows may overlap: write only its own.
+        np.copyto(into[r0:r1], basins if relabel is None else relabel[basins], where=basins > 0)
+
+    if len(bands) == 1:
+        flood_group(bands[0])
+    else:
+        with ThreadPoolExecutor(
+            min(_FLOOD_THREADS, len(bands)), thread_name_prefix="cliff_terrain_flood"
+        ) as pool:
+            list(pool.map(flood_group, bands))
+    return into
 
 
 def _flood(landscape, markers, mask):
@@ -187,6 +218,8 @@ def _flood_kernel(landscape, markers, mask):
         output = np.zeros(mask.shape, dtype=np.int32)
 
         def run_public():
+            from skimage import segmentation
+
             output[...] = segmentation.watershed(landscape, markers, mask=mask)
 
         return run_public, output
@@ -198,8 +231,7 @@ def _flood_kernel(landscape, markers, mask):
     flat_mask = flat_mask.ravel()
     output = np.zeros((rows + 2, cols + 2), dtype=np.int32)
     np.multiply(markers, mask, out=output[1:-1, 1:-1], casting="unsafe")
-    footprint, offset = _validate_connectivity(2, 1, None)
-    neighbours = _offsets_to_raveled_neighbors(image.shape, footprint, center=offset)
+    neighbours = _neighbour_offsets(image.shape)
     marker_locations = np.flatnonzero(output)
     strides = np.array(image.strides, dtype=np.intp) // image.itemsize
 
@@ -209,3 +241,13 @@ def _flood_kernel(landscape, markers, mask):
         )
 
     return run, output[1:-1, 1:-1]
+
+
+def _neighbour_offsets(shape):
+    """The 4 neighbours' offsets in a raveled C-order image of `shape`, in the order scikit-image's
+    watershed visits them (``skimage.morphology._util._offsets_to_raveled_neighbors`` with
+    connectivity 1, tested equal): the order decides ties. Not imported, because
+    ``skimage.morphology`` imports SciPy's ``ndimage`` (0.15 s of a fresh Blender's first Build).
+    """
+    cols = shape[1]
+    return np.array([-cols, -1, 1, cols], dtype=np.intp)
