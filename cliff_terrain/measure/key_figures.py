@@ -85,12 +85,14 @@ def key_figures(relief):
     p50, p90 = (float(v) for v in np.percentile(values, (50, 90))) if values.size else (None, None)
     tops = np.asarray([], dtype=np.float64)
     if n:
-        labels = np.where(valid, relief.labels, 0)
-        # Each plant's highest point (any sign: a canopy height model dips below the ground).
-        tops = label_max(np.nan_to_num(heights), labels, initial=-np.inf, dtype=heights.dtype)
-        tops = np.pad(tops, (0, max(0, n + 1 - len(tops))))[1 : n + 1].astype(np.float64)
-        present = np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0
-        tops = tops[present]
+        labels = relief.labels if valid.all() else np.where(valid, relief.labels, 0)
+        if not np.isfinite(heights).all():
+            heights = np.nan_to_num(heights)
+        # Each plant's highest point (any sign: a canopy height model dips below the ground). The
+        # heights are finite, so a plant with a pixel has a top above -inf.
+        tops = label_max(heights, labels, initial=-np.inf, dtype=heights.dtype)
+        tops = np.pad(tops, (0, max(0, n + 1 - len(tops))), constant_values=-np.inf)[1 : n + 1]
+        tops = tops[tops > -np.inf].astype(np.float64)
     figures.update(
         {
             f"canopy_height_p50_{unit}": p50,
