@@ -169,7 +169,7 @@ def test_inner_boundaries_match_scikit_image():
 
 @pytest.mark.parametrize(("seed", "threads"), [(seed, threads) for seed in range(4) for threads in (1, 2, 4)])
 def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threads, monkeypatch):
-    """Groups of components flooded in threads, each on its band of rows, give exactly
+    """Components flooded one at a time in threads, each on its bounding box, give exactly
     scikit-image's single watershed: plateaus (few levels) are where the queue's order decides.
     The markers' own levels differ: between equal ones the heap's layout decides (see
     _flood_components)."""
@@ -178,7 +178,7 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
 
     import cliff_terrain.relief.watershed as flooding
 
-    monkeypatch.setattr(flooding, "_FLOOD_GROUP_PIXELS", 1)
+    monkeypatch.setattr(flooding, "_POOL_PIXELS", 1)
     monkeypatch.setattr(flooding, "_FLOOD_THREADS", threads)
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(60, 160)), int(rng.integers(60, 160)))
@@ -197,7 +197,7 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
     landscape[seeds] = -rng.permutation(int(seeds.sum()))  # below the plateaus, all different
     flooded = rng.random(count) < 0.8
     flooded[0] = False
-    assert flooded.sum() >= 4, "enough components for four groups"
+    assert flooded.sum() >= 4, "enough components for the threads"
     result = flooding._flood_components(landscape, markers, components, flooded, stats)
     expected = watershed(landscape, markers, mask=flooded[components], connectivity=1)
     np.testing.assert_array_equal(result, expected)
