@@ -95,6 +95,50 @@ def test_a_window_decodes_only_the_tiles_it_overlaps(tmp_path, monkeypatch):
         np.testing.assert_array_equal(overview, rgb[::step, ::step])
 
 
+@pytest.mark.parametrize("tile", [(64, 64), None])
+def test_windows_read_from_several_threads_at_once_are_the_pixels(tmp_path, tile):
+    # The next tile of a mosaic is read in a thread while this one's texture is read here.
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (600, 700, 3), dtype=np.uint8)
+    path = write_mosaic(tmp_path / "m.tif", rgb, tile=tile)
+    windows = [(r, r + 150, c, c + 200) for r in range(0, 450, 37) for c in range(0, 500, 41)]
+    with MosaicReader(path) as reader, ThreadPoolExecutor(4) as pool:
+        for (r0, r1, c0, c1), (window, _) in zip(
+            windows, pool.map(lambda w: reader.read(*w), windows), strict=True
+        ):
+            np.testing.assert_array_equal(window, rgb[r0:r1, c0:c1])
+
+
+def test_tiles_computed_one_ahead_come_in_order_raise_in_place_and_stop_when_dropped():
+    from cliff_terrain.mesh.tiles import _one_ahead
+
+    assert list(_one_ahead(iter(range(5)))) == [0, 1, 2, 3, 4]
+    assert list(_one_ahead(iter([]))) == []
+
+    def failing():
+        yield 1
+        raise CliffTerrainError("tile 2 is broken")
+
+    tiles = _one_ahead(failing())
+    assert next(tiles) == 1
+    with pytest.raises(CliffTerrainError, match="tile 2 is broken"):
+        next(tiles)
+
+    started = []
+
+    def counted():
+        for k in range(100):
+            started.append(k)
+            yield k
+
+    tiles = _one_ahead(counted())
+    assert next(tiles) == 0
+    tiles.close()  # the caller stops: the tile in progress is finished, no other is started
+    assert started == [0, 1]
+
+
 def test_a_striped_mosaic_too_big_to_read_in_windows_says_how_to_tile_it(tmp_path):
     rgb = np.zeros((300, 400, 3), np.uint8)
     path = write_mosaic(tmp_path / "striped.tif", rgb, tile=None)

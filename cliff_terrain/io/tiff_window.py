@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import threading
 from contextlib import contextmanager
 
 import numpy as np
@@ -23,14 +24,30 @@ from .geokeys import GEO_TAGS
 
 @contextmanager
 def quiet_tifffile():
-    """tifffile logs a warning for OpenDroneMap's GDAL_NODATA (-3.4e38 is not a float32); we parse it."""
+    """tifffile logs a warning for OpenDroneMap's GDAL_NODATA (-3.4e38 is not a float32); we parse it.
+
+    Safe from several threads at once (a mosaic's next tile is read while this one is meshed): the
+    logger's own level comes back when the last of them leaves.
+    """
+    global _quiet_depth, _quiet_level
     logger = logging.getLogger("tifffile")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
+    with _quiet_lock:
+        if _quiet_depth == 0:
+            _quiet_level = logger.level
+            logger.setLevel(logging.ERROR)
+        _quiet_depth += 1
     try:
         yield
     finally:
-        logger.setLevel(level)
+        with _quiet_lock:
+            _quiet_depth -= 1
+            if _quiet_depth == 0:
+                logger.setLevel(_quiet_level)
+
+
+_quiet_lock = threading.Lock()
+_quiet_depth = 0
+_quiet_level = logging.NOTSET
 
 
 class TiffRaster:
@@ -83,6 +100,8 @@ class TiffRaster:
         self.tiled = bool(page.is_tiled)
         self.tile_shape = (int(page.tilelength), int(page.tilewidth)) if self.tiled else self.shape
         self._whole = None
+        # The file handle's position is shared: one window's reads at a time (decoding is not).
+        self._file_lock = threading.Lock()
 
     def __enter__(self):
         return self
@@ -102,10 +121,11 @@ class TiffRaster:
     def read_window(self, r0, r1, c0, c1):
         """Samples [r0:r1, c0:c1] as (rows, cols, samples), decoding only the TIFF tiles they overlap."""
         if not self.tiled:
-            if self._whole is None:
-                whole = self.read()
-                whole = np.moveaxis(whole, 0, -1) if self.planar else whole
-                self._whole = whole if whole.ndim == 3 else whole[..., None]
+            with self._file_lock:
+                if self._whole is None:
+                    whole = self.read()
+                    whole = np.moveaxis(whole, 0, -1) if self.planar else whole
+                    self._whole = whole if whole.ndim == 3 else whole[..., None]
             return self._whole[r0:r1, c0:c1]
         page = self.page
         th, tw = self.tile_shape
@@ -127,8 +147,9 @@ class TiffRaster:
     def decode_tile(self, index):
         """Read and decode TIFF tile `index` (row-major) alone."""
         page, fh = self.page, self._tif.filehandle
-        fh.seek(page.dataoffsets[index])
-        data = fh.read(page.databytecounts[index])
+        with self._file_lock:
+            fh.seek(page.dataoffsets[index])
+            data = fh.read(page.databytecounts[index])
         segment, _, _ = page.decode(data, index, jpegtables=page.jpegtables)
         return segment
 

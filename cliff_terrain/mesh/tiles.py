@@ -381,7 +381,8 @@ def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings
 
     Memory follows the tile (about 1 GB for 4096-pixel tiles with a 512-pixel margin), not the
     mosaic: a caller that keeps only what it needs of each tile (an adaptive mesh, statistics)
-    processes a mosaic of any size.
+    processes a mosaic of any size. Without a `client`, the next tile is computed in a thread while
+    the caller works on this one (so two tiles' worth at most).
 
     Parameters
     ----------
@@ -418,8 +419,33 @@ def relief_tiles(reader, *, tile=DEFAULT_TILE, overlap=DEFAULT_OVERLAP, settings
     if settings is None:
         settings = mosaic_settings(reader, tile=tile, **kwargs)
     if client is None:
-        return (relief_tile(reader, window, settings) for window in windows)
+        return _one_ahead(relief_tile(reader, window, settings) for window in windows)
     return _tiles_on_dask(client, reader.path, windows, settings)
+
+
+_END = object()
+
+
+def _one_ahead(tiles):
+    """The items of the iterator `tiles`, each next one computed in a thread while the caller works
+    on this one.
+
+    A tile's relief is mostly OpenCV and numpy calls, which release the GIL, so it runs beside what
+    the caller does with the previous tile (its TIN, its Blender objects): on two cores the 419 MP
+    benchmark's mosaic went from 2.7 to 3.2-3.3 MP/s, its peak memory from 1.5 to 1.8 GB (README,
+    "Adaptive mesh and big orthomosaics").
+    If the caller stops early, the tile in progress is finished and dropped.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1, thread_name_prefix="cliff_terrain_tile") as pool:
+        ahead = pool.submit(next, tiles, _END)
+        while True:
+            tile = ahead.result()  # a tile's exception is raised here, as in a loop
+            if tile is _END:
+                return
+            ahead = pool.submit(next, tiles, _END)
+            yield tile
 
 
 def _tiles_on_dask(client, path, windows, settings):

@@ -13,7 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 import cv2
 import numpy as np
 
-from .._threads import MAX_THREADS, usable_cores
+from .._threads import MAX_THREADS, map_row_bands, usable_cores
 from .disk_max import disk_maximum
 from .labels import label4, label_max
 
@@ -63,11 +63,25 @@ def colour_edges(filtered):
     (rows, cols) float32 array
     """
     filtered = np.ascontiguousarray(filtered, dtype=np.float32)
-    # The chroma vector (I - J) p with J the projection on the grey axis, then its length.
-    chroma = cv2.transform(filtered, (np.eye(3) - 1.0 / 3.0).astype(np.float32))
-    np.multiply(chroma, chroma, out=chroma)  # in place: no second image-sized array
-    length = cv2.transform(chroma, np.ones((1, 3), np.float32))
-    return np.sqrt(length, out=length)
+    rows, cols = filtered.shape[:2]
+    out = np.empty((rows, cols), dtype=np.float32)
+    to_chroma = (np.eye(3) - 1.0 / 3.0).astype(np.float32)
+    summed = np.ones((1, 3), np.float32)
+
+    def band(r0, r1):
+        # The chroma vector (I - J) p with J the projection on the grey axis, then its length; in
+        # bands of rows that stay in the cache (a 26 MP mosaic window: 0.63 -> 0.2 s).
+        chroma = cv2.transform(filtered[r0:r1], to_chroma)
+        np.multiply(chroma, chroma, out=chroma)
+        length = cv2.transform(chroma, summed)
+        np.sqrt(length, out=out[r0:r1])
+
+    map_row_bands(band, rows, max(1, _EDGE_BAND_PIXELS // max(1, cols)))
+    return out
+
+
+# colour_edges works in bands of about this many pixels.
+_EDGE_BAND_PIXELS = 131_072
 
 
 def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
