@@ -9,6 +9,7 @@ code and the map coordinates of the mosaic's top-left corner, as custom properti
 in metres are too large for Blender's single-precision positions).
 """
 
+from contextlib import ExitStack, closing
 from pathlib import Path
 
 import bpy
@@ -65,14 +66,19 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
         path = bpy.path.abspath(self.filepath)
         created = []
         try:
-            with MosaicReader(path) as reader:
+            with ExitStack() as stack:
+                reader = stack.enter_context(MosaicReader(path))
                 gsd = reader.gsd
                 if gsd is None:
                     raise CliffTerrainError(f"mosaic {path!r} has no georeference: its pixel size is unknown")
                 max_error, rule = mosaic_max_error(gsd, self.max_error if self.max_error > 0 else None)
-                tiles = tile_meshes(
-                    reader, max_error=max_error, pixel_size=gsd, tile=self.tile, overlap=self.overlap
-                )
+                tiles = stack.enter_context(
+                    closing(
+                        tile_meshes(
+                            reader, max_error=max_error, pixel_size=gsd, tile=self.tile, overlap=self.overlap
+                        )
+                    )
+                )  # closed before the reader: the tile computed ahead ends while the file is open
                 rows = reader.shape[0]
                 name = Path(path).stem or "mosaic"
                 root = bpy.data.objects.new(name, None)

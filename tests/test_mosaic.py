@@ -139,6 +139,26 @@ def test_tiles_computed_one_ahead_come_in_order_raise_in_place_and_stop_when_dro
     assert started == [0, 1]
 
 
+def test_tile_meshes_closed_early_end_the_tile_computed_ahead_while_the_reader_is_open(tmp_path):
+    # The Import Mosaic operator closes them before the reader when a tile fails in Blender.
+    import threading
+
+    from cliff_terrain.mesh.tile_meshes import tile_meshes
+
+    def tile_threads():
+        return [t for t in threading.enumerate() if t.name.startswith("cliff_terrain_tile")]
+
+    rgb, _ = synthetic_field(shape=(300, 400), seed=4)
+    path = write_mosaic(tmp_path / "field.tif", rgb, gsd=0.02)
+    with MosaicReader(path) as reader:
+        tiles = tile_meshes(reader, pixel_size=0.02, tile=128, overlap=32)
+        assert next(tiles).core == (0, 128, 0, 128)
+        assert tile_threads(), "the next tile is being computed"
+        tiles.close()
+        assert tile_threads() == []
+        np.testing.assert_array_equal(reader.read(0, 10, 0, 10)[0], rgb[:10, :10])
+
+
 def test_a_striped_mosaic_too_big_to_read_in_windows_says_how_to_tile_it(tmp_path):
     rgb = np.zeros((300, 400, 3), np.uint8)
     path = write_mosaic(tmp_path / "striped.tif", rgb, tile=None)

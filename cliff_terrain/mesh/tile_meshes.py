@@ -102,13 +102,21 @@ def tile_meshes(
 
 def _stitched(reader, tiles, max_error, pixel_size):
     right, bottom = {}, {}
-    for part in tiles:
-        r0, r1, c0, c1 = part.core
-        mesh = adaptive_mesh(
-            part.heights * np.float32(pixel_size), max_error=max_error, pixel_size=pixel_size, two_sided=False
-        )
-        right[(r0, c1)], bottom[(r1, c0)] = border(mesh, "right"), border(mesh, "bottom")
-        shared = {"left": right.pop((r0, c0), None), "top": bottom.pop((r0, c0), None)}
-        mesh = stitch(mesh, {side: b for side, b in shared.items() if b is not None})
-        rgb, _ = reader.read(r0, r1, c0, c1)
-        yield TileMesh(part.core, mesh, rgb, part)
+    try:
+        for part in tiles:
+            r0, r1, c0, c1 = part.core
+            mesh = adaptive_mesh(
+                part.heights * np.float32(pixel_size),
+                max_error=max_error,
+                pixel_size=pixel_size,
+                two_sided=False,
+            )
+            right[(r0, c1)], bottom[(r1, c0)] = border(mesh, "right"), border(mesh, "bottom")
+            shared = {"left": right.pop((r0, c0), None), "top": bottom.pop((r0, c0), None)}
+            mesh = stitch(mesh, {side: b for side, b in shared.items() if b is not None})
+            rgb, _ = reader.read(r0, r1, c0, c1)
+            yield TileMesh(part.core, mesh, rgb, part)
+    finally:
+        # Closed early (the caller stopped or failed): the tile computed ahead is finished (or its
+        # Dask tasks cancelled) now, while the reader is still open.
+        tiles.close()
