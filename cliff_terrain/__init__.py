@@ -34,6 +34,7 @@ _EXPORTS = {
     "height_points": "evaluate.metrics",
     "inflate": "relief.inflate",
     "load_image": "io.photo",
+    "mesh_relief": "build",
     "open_image": "io.photo",
     "psnr": "evaluate.metrics",
     "quaternion_filter": "relief.quaternion",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import warnings
@@ -20,7 +21,6 @@ from .mesh.tin import default_max_error
 from .params import ReliefParams
 from .relief.indices import nir_index_map
 from .relief.inflate import inflate, resolve_profile
-from .relief.labels import distance_map
 from .relief.quaternion import quaternion_filter
 from .relief.resize import resize_longest, resized_shape
 from .relief.segmentation import Segmentation, segment
@@ -249,29 +249,7 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
             block_m=DEFAULT_GROUND_BLOCK_M if params.ground_block is None else params.ground_block,
         )
         units = "m"
-    max_error, max_error_rule = params.max_error, "given"
-    mesh_kind, mesh_rule = (None, "") if params.mesh is None else choose_mesh(params.mesh, heights.shape)
-    if mesh_kind is None:
-        relief_mesh = None
-    elif mesh_kind == "grid":
-        topology = grid_topology(heights.shape, two_sided=params.two_sided)
-        relief_mesh = place_vertices(topology, heights, pixel_size=pixel_size)
-    else:
-        if max_error is None:
-            noise = None
-            if canopy is not None and params.height_source == "measured":
-                from .measure.canopy import dsm_noise
-
-                noise = dsm_noise(canopy, plants=seg.mask)
-            max_error, max_error_rule = default_max_error(
-                height_source=params.height_source, units=units, pixel_size=pixel_size, dsm_noise=noise
-            )
-        relief_mesh = adaptive_mesh(
-            heights, max_error=max_error, pixel_size=pixel_size, two_sided=params.two_sided
-        )
-    clock.start(None, 1.0)
-
-    return Relief(
+    relief = Relief(
         image=stages.image,
         metadata=metadata,
         working=stages.working,
@@ -281,17 +259,87 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         boundaries=seg.boundaries,
         distance=stages.distance,
         heights=heights,
-        mesh=relief_mesh,
+        mesh=None,
         units=units,
         pixel_size=pixel_size,
         params={**params.as_record(), "threshold": threshold},
         timings=timings,
-        max_error=max_error if mesh_kind == "adaptive" else None,
-        max_error_rule=max_error_rule if mesh_kind == "adaptive" else None,
-        mesh_kind=mesh_kind,
-        mesh_rule=mesh_rule,
         canopy=canopy,
         georeference=georeference,
+    )
+    if params.mesh is not None:
+        relief = mesh_relief(relief, mesh=params.mesh, max_error=params.max_error, two_sided=params.two_sided)
+    clock.start(None, 1.0)
+    return relief
+
+
+def mesh_relief(relief, *, mesh="auto", max_error=None, two_sided=True):
+    """`relief` with the mesh of its heights, as :func:`build_relief` makes it with these settings.
+
+    ``build_relief(..., mesh=None)`` and then this give the relief ``build_relief(..., mesh=...)``
+    gives, so a caller can work on the heights (their key figures, say) while the mesh is built.
+
+    Parameters
+    ----------
+    relief : Relief
+        A relief from :func:`build_relief`, with or without a mesh: its heights, pixel size, units
+        and, with measured heights, its canopy (for the DSM's noise) are used.
+    mesh : {"auto", "grid", "adaptive"}, optional
+    max_error : float, optional
+        The adaptive mesh's bound; by default the rule of
+        :func:`cliff_terrain.mesh.tin.default_max_error` for the relief's heights.
+    two_sided : bool, optional
+
+    Returns
+    -------
+    Relief
+        A copy with ``mesh``, ``mesh_kind`` and ``mesh_rule`` set (and, for the adaptive mesh,
+        ``max_error`` and ``max_error_rule``), its ``params`` recording the three settings.
+
+    Examples
+    --------
+    >>> from cliff_terrain.data.synthetic import synthetic_field
+    >>> img, _ = synthetic_field(shape=(240, 360), n_rows=2, seed=3)
+    >>> heights_only = build_relief(img, max_size=360, mesh=None)
+    >>> relief = mesh_relief(heights_only, mesh="adaptive")
+    >>> relief.mesh.n_faces == build_relief(img, max_size=360, mesh="adaptive").mesh.n_faces
+    True
+    >>> relief.max_error_rule
+    'half a pixel (inflated heights, no scale: 0.5 px)'
+    """
+    if mesh is None:
+        raise CliffTerrainError("`mesh` must be 'auto', 'grid' or 'adaptive', got None")
+    params = ReliefParams(mesh=mesh, max_error=max_error, two_sided=two_sided)  # checked as build_relief's
+    heights, pixel_size = relief.heights, relief.pixel_size
+    height_source = relief.params.get("heights", "inflated")
+    max_error, max_error_rule = params.max_error, "given"
+    mesh_kind, mesh_rule = choose_mesh(params.mesh, heights.shape)
+    if mesh_kind == "grid":
+        topology = grid_topology(heights.shape, two_sided=params.two_sided)
+        relief_mesh = place_vertices(topology, heights, pixel_size=pixel_size)
+        max_error = max_error_rule = None
+    else:
+        if max_error is None:
+            noise = None
+            if relief.canopy is not None and height_source == "measured":
+                from .measure.canopy import dsm_noise
+
+                noise = dsm_noise(relief.canopy, plants=relief.mask)
+            max_error, max_error_rule = default_max_error(
+                height_source=height_source, units=relief.units, pixel_size=pixel_size, dsm_noise=noise
+            )
+        relief_mesh = adaptive_mesh(
+            heights, max_error=max_error, pixel_size=pixel_size, two_sided=params.two_sided
+        )
+    recorded = {"mesh": params.mesh, "max_error": params.max_error, "two_sided": params.two_sided}
+    return dataclasses.replace(
+        relief,
+        mesh=relief_mesh,
+        mesh_kind=mesh_kind,
+        mesh_rule=mesh_rule,
+        max_error=max_error,
+        max_error_rule=max_error_rule,
+        params={**relief.params, **recorded},
     )
 
 
@@ -347,7 +395,7 @@ def _image_stages(image, metadata, params, *, clock, bands=None):
     seg = segment(working, method=params.segmentation, filtered=filtered, valid=valid, index_map=ndvi)
 
     clock.start("heights", 0.6)
-    distance = distance_map(seg.labels)
+    distance = seg.region_distance  # distance_map(seg.labels), computed with the watershed
     max_height = params.max_height
     pixel_size = metadata.grid_pixel_size(working.shape[:2])
     if max_height is not None and pixel_size is not None:  # metres -> processing pixels

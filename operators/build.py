@@ -82,9 +82,13 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 def on_progress(fraction, stage):
                     progress(PIPELINE_SHARE * fraction, stage)
 
-                relief, mesh = build_beside_the_mesh(build_relief, path, params, on_progress, created)
+                relief, mesh, figures = build_beside_the_mesh(
+                    build_relief, path, params, on_progress, created
+                )
                 progress(PIPELINE_SHARE, "building the mesh")
-                obj = build_relief_object(context, relief, path, params, created=created, mesh=mesh)
+                obj = build_relief_object(
+                    context, relief, path, params, created=created, mesh=mesh, figures=figures
+                )
                 progress(1.0, "done")
         except Exception as exc:
             return cancel_build(self, exc, created)
@@ -181,25 +185,43 @@ def _fit_visible_part(space, regions, region, rv3d, per_pixel):
 
 
 def build_beside_the_mesh(build_relief, path, params, progress, created):
-    """``(relief, mesh)``: `build_relief` run in a worker thread while this thread makes the mesh.
+    """``(relief, mesh, figures)``: `build_relief` run in a worker thread while this thread makes the mesh.
 
     The worker computes the relief without a mesh (``mesh=None``); meanwhile this thread, the one
     Blender's calls need, allocates the Blender mesh (the grid's size comes from the photo's
     header) while the worker decodes the photo, and writes the faces, edges and UVs in once it
     computes the heights (long calls that release the GIL, which Blender's bulk writes hold; its
     progress tells when). The vertices are placed by the caller (:func:`build_relief_object`). The
-    worker's `progress` is relayed to `progress` in this thread. `mesh` is None for an adaptive mesh, whose size is known only at the
-    end: it is built with the relief, in this thread. The mesh goes into `created` as soon as it
-    exists; an exception of either thread propagates once the worker has finished.
+    worker's `progress` is relayed to `progress` in this thread. The mesh goes into `created` as
+    soon as it exists; an exception of either thread propagates once the worker has finished.
+
+    An adaptive mesh's size is known only at its end, so there is nothing to allocate early: the
+    relief is built in this thread without a mesh, then its mesh in this thread while a worker
+    works out the key figures of the object's record (`figures`, for :func:`build_record`;
+    ``pydelatin`` holds the GIL, but the figures' array steps run without it); `mesh` is then
+    None. For the grid, `figures` is None: :func:`build_record` works them out.
     """
-    from ..cliff_terrain.build import grid_shape
+    from ..cliff_terrain.build import grid_shape, mesh_relief
     from ..cliff_terrain.mesh.adaptive import choose_mesh
     from ..cliff_terrain.mesh.grid import grid_sizes, grid_topology, place_vertices
 
     shape = grid_shape(path, max_size=params.max_size)
     kind, rule = choose_mesh(params.mesh, shape)  # what build_relief would choose ("auto")
     if kind != "grid":
-        return build_relief(path, params, progress=progress), None
+
+        def until_the_mesh(fraction, stage):
+            if stage != "done":  # the core is done without its mesh: "done" comes after it
+                progress(fraction, stage)
+
+        relief = build_relief(path, params, mesh=None, progress=None if progress is None else until_the_mesh)
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cliff_terrain") as pool:
+            figures = pool.submit(record_figures, relief)
+            relief = mesh_relief(
+                relief, mesh=params.mesh, max_error=params.max_error, two_sided=params.two_sided
+            )
+        if progress is not None:
+            progress(1.0, "done")
+        return relief, None, figures.result()
     events = queue.SimpleQueue()
     stages = set()
 
@@ -238,7 +260,7 @@ def build_beside_the_mesh(build_relief, path, params, progress, created):
     relief = dataclasses.replace(
         relief, mesh=vertices, mesh_kind=kind, mesh_rule=rule, params={**relief.params, "mesh": params.mesh}
     )
-    return relief, mesh
+    return relief, mesh, None
 
 
 def relief_scale(relief):
@@ -254,12 +276,13 @@ def relief_name(path):
     return Path(path).stem or "relief"
 
 
-def build_relief_object(context, relief, path, params, *, created, mesh=None):
+def build_relief_object(context, relief, path, params, *, created, mesh=None, figures=None):
     """Make the relief's mesh, material and object, linked to the active collection.
 
     Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
     all if a later step fails. `mesh`, if given, is the relief's mesh with its faces, edges and UVs
-    filled (already in `created`) and only needs its vertices placed.
+    filled (already in `created`) and only needs its vertices placed. `figures`, if given, are
+    :func:`record_figures` of the relief.
     """
     name = relief_name(path)
     scale = relief_scale(relief)
@@ -272,7 +295,7 @@ def build_relief_object(context, relief, path, params, *, created, mesh=None):
     if image_created:
         created.append(image)
     obj = textured_object(name, mesh, image, context.collection or context.scene.collection, created=created)
-    obj["cliff_terrain"] = build_record(relief, path, params, scale)
+    obj["cliff_terrain"] = build_record(relief, path, params, scale, figures=figures)
     obj.location = context.scene.cursor.location
     for other in context.view_layer.objects.selected:
         other.select_set(False)
@@ -281,10 +304,15 @@ def build_relief_object(context, relief, path, params, *, created, mesh=None):
     return obj
 
 
-def build_record(relief, path, params, scale):
-    """What a relief object records about its build (its ``cliff_terrain`` custom property)."""
+def build_record(relief, path, params, scale, *, figures=None):
+    """What a relief object records about its build (its ``cliff_terrain`` custom property).
+
+    `figures`: :func:`record_figures` of the relief, if already worked out.
+    """
     from ..cliff_terrain import __version__
     from ..cliff_terrain.relief.indices import available_indices
+
+    digest, figures = record_figures(relief) if figures is None else figures
 
     return {
         "version": __version__,
@@ -309,7 +337,7 @@ def build_record(relief, path, params, scale):
         "front_faces": int(relief.mesh.n_front_faces),
         "max_height": relief.max_height,
         # Tells a rebuild of the relief from its photo (Render Views' figures) from another photo.
-        "mask_digest": mask_digest(relief.mask),
+        "mask_digest": digest,
         # A multispectral photo's bands (as named by its file or by the build) and the vegetation
         # indices they allow (Color By offers them).
         "bands": list(relief.metadata.band_names or ()),
@@ -318,8 +346,13 @@ def build_record(relief, path, params, scale):
         "image_height": int(relief.metadata.height),
         # The settings as the sidebar holds them (0 for "not given"), which a rebuild reads back.
         "params": _relief_params(params).to_properties(),
-        **key_figures(relief),
+        **figures,
     }
+
+
+def record_figures(relief):
+    """``(mask_digest, key_figures)`` of a relief, for its record: they need no mesh."""
+    return mask_digest(relief.mask), key_figures(relief)
 
 
 def _relief_params(params):
@@ -356,7 +389,7 @@ def key_figures(relief):
                 canopy_p50_cm=core["canopy_height_p50_m"] * 100.0,
                 canopy_p90_cm=core["canopy_height_p90_m"] * 100.0,
             )
-        rows = relief.mesh.grid_shape[0]
+        rows = relief.heights.shape[0]  # the mesh's grid
         t = canopy.transform
         figures["map_offset"] = [float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2])]
         figures["crs"] = int(canopy.crs)

@@ -341,6 +341,49 @@ def test_a_zip_for_another_platform_is_refused_by_blender(tmp_path):
     assert "This platform (linux-x64) isn't one of (windows-x64)" in message, out
 
 
+def test_the_operator_works_out_the_key_figures_beside_the_adaptive_mesh(addon, scene, monkeypatch):
+    """With an adaptive mesh the core runs without one, then the mesh is built in the calling
+    thread while a worker works out the record's figures: the same relief, the same figures."""
+    import importlib
+    import threading
+
+    from conftest import ADDON
+
+    build = importlib.import_module(f"{ADDON}.operators.build")
+    core = importlib.import_module(f"{ADDON}.cliff_terrain")
+    params = importlib.import_module(f"{ADDON}.cliff_terrain.params").ReliefParams(
+        max_size=300, mesh="adaptive"
+    )
+    caller, threads = threading.get_ident(), []
+    real_figures = build.record_figures
+
+    def record_figures(relief):
+        threads.append(threading.get_ident())
+        assert relief.mesh is None  # the heights are enough
+        return real_figures(relief)
+
+    monkeypatch.setattr(build, "record_figures", record_figures)
+    stages, created = [], []
+    relief, mesh, figures = build.build_beside_the_mesh(
+        core.build_relief, str(MAIZE), params, lambda f, s: stages.append((f, s)), created
+    )
+    assert mesh is None and created == [] and threads and threads[0] != caller
+    assert [s for _, s in stages] == ["load", "resize", "filter", "segment", "heights", "mesh", "done"]
+    assert [f for f, _ in stages] == sorted(f for f, _ in stages) and stages[-1][0] == 1.0
+    ref = core.build_relief(str(MAIZE), max_size=300, mesh="adaptive")
+    assert (relief.mesh_kind, relief.mesh_rule, relief.max_error, relief.max_error_rule) == (
+        ref.mesh_kind,
+        ref.mesh_rule,
+        ref.max_error,
+        ref.max_error_rule,
+    )
+    assert relief.params == ref.params
+    np.testing.assert_array_equal(relief.mesh.vertices, ref.mesh.vertices)
+    np.testing.assert_array_equal(relief.mesh.corner_verts, ref.mesh.corner_verts)
+    assert figures == real_figures(ref)
+    assert figures[1]["cover"] > 0.05, "plants in the figures"
+
+
 def test_the_operator_fills_its_mesh_in_its_own_thread_while_the_core_runs_in_a_worker(
     addon, scene, monkeypatch
 ):
@@ -376,9 +419,10 @@ def test_the_operator_fills_its_mesh_in_its_own_thread_while_the_core_runs_in_a_
         return core.build_relief(path, params, **kwargs)
 
     stages, created = [], []
-    relief, mesh = build.build_beside_the_mesh(
+    relief, mesh, figures = build.build_beside_the_mesh(
         core_build, str(MAIZE), params, lambda f, s: stages.append((s, threading.get_ident())), created
     )
+    assert figures is None  # build_record works them out
     worker = calls[0][1]
     assert calls[0] == ("core", worker, "grid", None) and worker != caller
     assert calls[1:] == [("allocate", caller), ("fill", caller)]

@@ -457,7 +457,7 @@ def test_failure_after_the_object_exists_removes_every_new_datablock(
 ):
     build_module = importlib.import_module(f"{ADDON}.operators.build")
 
-    def fail(*args):
+    def fail(*args, **kwargs):
         # By now the mesh, the photo, the material and the linked object exist.
         assert len(bpy.data.objects) == 1 and bpy.data.objects[0].users_collection
         raise RuntimeError("injected failure while recording")

@@ -210,4 +210,5 @@ def test_auto_profile_is_the_plateau_for_vegetation_and_the_papers_circle_for_pa
     np.testing.assert_array_equal(relief.heights, plateau.heights)
     paper = build_relief(image, segmentation="paper", two_sided=False)
     assert paper.params["profile"] == "circular"
-    np.testing.assert_array_equal(paper.heights, inflate(paper.labels, profile="circular"))
+    # The build's D comes with the watershed, component by component: one float32 rounding at most.
+    np.testing.assert_array_max_ulp(paper.heights, inflate(paper.labels, profile="circular"), maxulp=1)

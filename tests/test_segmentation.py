@@ -214,6 +214,76 @@ def test_a_real_photo_splits_the_same_with_one_thread_or_several(monkeypatch):
     assert parallel.n_regions > 100
 
 
+@pytest.mark.parametrize("seed", range(8))
+def test_the_region_distance_from_the_flood_is_the_whole_images_map(seed):
+    """`split_regions(return_distance=True)` measures each split component on its bounding box
+    only; blobs that touch diagonally, the frame and narrow necks are where a crop could go wrong.
+    Values may differ by one float32 rounding (OpenCV's transform of another array), no more."""
+    from cliff_terrain.relief.labels import distance_map
+
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(40, 120)), int(rng.integers(40, 120)))
+    mask = np.zeros(shape, bool)
+    for _ in range(25):  # overlapping discs and bars: necks, diagonal contacts, blobs on the frame
+        r, c, radius = rng.integers(0, shape[0]), rng.integers(0, shape[1]), rng.integers(2, 10)
+        rr, cc = np.ogrid[: shape[0], : shape[1]]
+        mask |= (rr - r) ** 2 + (cc - c) ** 2 <= radius**2
+        mask[r : r + 2, c : c + rng.integers(3, 30)] = True
+    distance = distance_map(mask)
+    labels, region_distance = split_regions(mask, distance, radius=3, return_distance=True)
+    assert labels.max() > label_count(mask), "the watershed split something"
+    np.testing.assert_array_max_ulp(region_distance, distance_map(labels), maxulp=1)
+    np.testing.assert_array_equal(labels, split_regions(mask, distance, radius=3))
+
+
+def label_count(mask):
+    from cliff_terrain.relief.labels import label4
+
+    return label4(mask)[1]
+
+
+def test_the_region_distance_without_ground_or_without_a_split():
+    from cliff_terrain.relief.labels import distance_map
+
+    # No flat pixel: the map measures to the frame, as distance_map does for a full mask.
+    full = np.ones((30, 61), bool)
+    rr, cc = np.mgrid[:30, :61]
+    peaks = np.maximum(20 - np.hypot(rr - 15, cc - 15), 20 - np.hypot(rr - 15, cc - 45)).astype(np.float32)
+    labels, region_distance = split_regions(full, peaks, radius=3, return_distance=True)
+    assert labels.max() == 2
+    # OpenCV's exact transform itself rounds differently by a float32 ulp with its buffers' alignment.
+    np.testing.assert_array_max_ulp(region_distance, distance_map(labels), maxulp=1)
+    # Nothing split: the mask's own map, not a copy.
+    one = np.zeros((30, 30), bool)
+    one[5:20, 5:20] = True
+    distance = distance_map(one)
+    labels, region_distance = split_regions(one, distance, return_distance=True)
+    assert labels.max() == 1 and region_distance is distance
+    labels, region_distance = split_regions(
+        np.zeros((9, 9), bool), np.zeros((9, 9), np.float32), return_distance=True
+    )
+    assert labels.max() == 0 and not region_distance.any()
+
+
+@pytest.mark.parametrize("method", ["vegetation", "paper"])
+def test_real_photos_region_distance_is_the_labels_distance_map(shared_uav, method):
+    """On real photos (at 1000 px, both modes) the inflation's D computed with the watershed is
+    ``distance_map(labels)`` to within one float32 rounding."""
+    from cliff_terrain.relief.labels import distance_map
+
+    photos = sorted(
+        p for p in shared_uav.rglob("*") if p.suffix.lower() in (".jpg", ".tif") and "plantcv" not in str(p)
+    )
+    assert len(photos) >= 10
+    split = 0
+    for photo in photos:
+        image = resize_longest(load_image(photo)[0], 1000)
+        seg = segment(image, method=method, filtered=quaternion_filter(image))
+        np.testing.assert_array_max_ulp(seg.region_distance, distance_map(seg.labels), maxulp=1)
+        split += seg.region_distance is not seg.distance
+    assert split >= 5, "the watershed split regions on most photos"
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_flood_is_scikit_images_watershed(seed):
     from skimage.segmentation import watershed

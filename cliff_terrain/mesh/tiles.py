@@ -337,6 +337,7 @@ def relief_tile(reader, window, settings):
         profile=settings.profile,
         exaggeration=settings.exaggeration,
         max_height=settings.max_height,
+        distance=seg.region_distance,
         mask_distance=seg.distance,
     )
     cut = (slice(core[0] - b0, core[1] - b0), slice(core[2] - d0, core[3] - d0))

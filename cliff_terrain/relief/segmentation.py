@@ -70,6 +70,10 @@ class Segmentation:
     distance : (rows, cols) float32
         ``distance_map(mask)``: each plant pixel's distance to flat ground (the watershed's, kept
         for the plateau profile).
+    region_distance : (rows, cols) float32
+        ``distance_map(labels)``: each region pixel's distance to the nearest pixel outside its
+        region (computed with the watershed; the inflation's D). The same array as `distance`
+        where the watershed split nothing.
     """
 
     mask: np.ndarray
@@ -80,6 +84,7 @@ class Segmentation:
     distance: np.ndarray | None = None
     threshold_source: str = "band"
     valley: float = float("nan")
+    region_distance: np.ndarray | None = None
 
     @property
     def n_regions(self) -> int:
@@ -210,7 +215,9 @@ def segment(
         mask = _clean(mask, min_region)  # the paper fills every hole (imfill)
     distance = distance_map(mask)
     edges = colour_edges(filtered) if (filtered is not None and method == "vegetation") else None
-    labels = split_regions(mask, distance, edges=edges, radius=radius, edge_scale=edge_scale)
+    labels, region_distance = split_regions(
+        mask, distance, edges=edges, radius=radius, edge_scale=edge_scale, return_distance=True
+    )
     boundaries = inner_boundaries(labels)
     return Segmentation(
         mask=mask,
@@ -221,6 +228,7 @@ def segment(
         distance=distance,
         threshold_source=source,
         valley=valley,
+        region_distance=region_distance,
     )
 
 

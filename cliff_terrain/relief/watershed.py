@@ -15,7 +15,7 @@ import numpy as np
 
 from .._threads import MAX_THREADS, map_row_bands, usable_cores
 from .disk_max import disk_maximum
-from .labels import label4, label_max
+from .labels import distance_map, label4, label_max, region_interiors
 
 
 def _load_flood_kernel():
@@ -84,29 +84,35 @@ def colour_edges(filtered):
 _EDGE_BAND_PIXELS = 131_072
 
 
-def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
+def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, return_distance=False):
     """Label `mask`, splitting touching blobs by a marker-controlled watershed of the distance map.
 
     Parameters
     ----------
     mask : (rows, cols) bool array
     distance : (rows, cols) float array
-        Distance map of `mask`.
+        Distance map of `mask` (``distance_map(mask)``).
     edges : (rows, cols) float array, optional
         Colour-edge strength added to the watershed landscape (scaled to the distance range).
     radius, edge_scale : float, optional
         The markers' neighbourhood radius and the edges' scale; by default from this image's
         regions and edges. Tiles of one mosaic share the whole mosaic's (cliff_terrain.mesh.tiles).
+    return_distance : bool, optional
+        Also return ``distance_map(labels)``, computed with the flood, component by component
+        (the same values; see :func:`_split_distance`).
 
     Returns
     -------
-    (rows, cols) int32 array
+    labels : (rows, cols) int32 array
         Labels 1..n, 0 on flat ground.
+    region_distance : (rows, cols) float32 array
+        Only with `return_distance`: each region pixel's distance to the nearest pixel outside its
+        region. `distance` itself where no region was split.
     """
     mask = np.asarray(mask, dtype=bool)
     components, n, stats = label4(mask, stats=True)  # with each component's bounding box and area
     if n == 0:
-        return components
+        return (components, distance) if return_distance else components
     dmax = label_max(distance, components)[1:]
     # Markers: pixels within a pixel of the largest distance around them (a grey dilation over
     # about a typical region's radius), so a necked blob splits at the neck while the flat ridge
@@ -117,8 +123,8 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     peaks = mask & (smooth >= local_max - 1.0) & (smooth >= 1.0)
     markers, n_markers = label4(peaks)
     if n_markers <= n:  # nothing to split
-        return components
-    # Only components holding two or more markers need a watershed (flooded in groups, see
+        return (components, distance) if return_distance else components
+    # Only components holding two or more markers need a watershed (each flooded alone, see
     # _flood_components); the rest keep their component.
     marker_component = np.zeros(n_markers + 1, dtype=np.int64)
     marker_component[markers[peaks]] = components[peaks]  # every marker lies in one component
@@ -145,7 +151,27 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None):
     basin_label = np.zeros(n_markers + 1, dtype=np.int32)
     basin_label[basin] = np.arange(1, int(basin.sum()) + 1, dtype=np.int32) + int(whole.sum())
     labels = component_label[components]  # 0 on the components to flood
-    return _flood_components(landscape, markers, components, split, stats, into=labels, relabel=basin_label)
+    if not return_distance:
+        return _flood_components(
+            landscape, markers, components, split, stats, into=labels, relabel=basin_label
+        )
+    if mask.all():  # no flat ground: distance_map measures to the frame, only a whole-image map knows
+        labels = _flood_components(
+            landscape, markers, components, split, stats, into=labels, relabel=basin_label
+        )
+        return labels, distance_map(labels)
+    region_distance = np.array(distance, dtype=np.float32)
+    labels = _flood_components(
+        landscape,
+        markers,
+        components,
+        split,
+        stats,
+        into=labels,
+        relabel=basin_label,
+        distance=(distance, region_distance),
+    )
+    return labels, region_distance
 
 
 # Components are flooded one at a time, each on its bounding box, on up to _FLOOD_THREADS threads
@@ -155,7 +181,9 @@ _FLOOD_THREADS = min(usable_cores(), MAX_THREADS)
 _POOL_PIXELS = 50_000
 
 
-def _flood_components(landscape, markers, components, flooded, stats, *, into=None, relabel=None):
+def _flood_components(
+    landscape, markers, components, flooded, stats, *, into=None, relabel=None, distance=None
+):
     """``_flood(landscape, markers, flooded[components])``, one component at a time, in parallel.
 
     The watershed floods each connected component of its mask from that component's own markers,
@@ -172,7 +200,9 @@ def _flood_components(landscape, markers, components, flooded, stats, *, into=No
     `flooded` marks the component labels to flood (index 0, the ground, False); `stats` is
     ``cv2.connectedComponentsWithStats``'s for `components`. Each flooded pixel's basin (its
     marker's label, or ``relabel[label]``) is written into `into` (by default a new array of
-    zeros), which is returned; `into`'s other pixels are left as they are.
+    zeros), which is returned; `into`'s other pixels are left as they are. With `distance`, a pair
+    ``(mask_distance, out)``, each flooded component's pixels of `out` get their distance to the
+    nearest pixel outside their basin (:func:`_split_distance`).
     """
     if into is None:
         into = np.zeros(components.shape, dtype=np.int32)
@@ -185,7 +215,10 @@ def _flood_components(landscape, markers, components, flooded, stats, *, into=No
         box = (slice(top, top + height), slice(left, left + width))
         basins = _flood(landscape[box], markers[box], components[box] == label)
         # Other components may share the box: write only this one's pixels.
-        np.copyto(into[box], basins if relabel is None else relabel[basins], where=basins > 0)
+        inside = basins > 0
+        np.copyto(into[box], basins if relabel is None else relabel[basins], where=inside)
+        if distance is not None:
+            np.copyto(distance[1][box], _split_distance(basins, distance[0][box]), where=inside)
 
     if int(area.sum()) < _POOL_PIXELS or _FLOOD_THREADS < 2:
         for label in labels:
@@ -194,6 +227,23 @@ def _flood_components(landscape, markers, components, flooded, stats, *, into=No
         with ThreadPoolExecutor(_FLOOD_THREADS, thread_name_prefix="cliff_terrain_flood") as pool:
             list(pool.map(flood_one, labels))
     return into
+
+
+def _split_distance(basins, mask_distance):
+    """``distance_map`` of one component's `basins` (on its bounding box), given its mask's.
+
+    Exact, though the box is a crop. Take a pixel p of the component at distance d0 from flat
+    ground (`mask_distance`). Every pixel closer to p than d0 is a mask pixel, and this open disc
+    is 4-connected, so all of them lie in p's own component. The nearest pixel outside p's region
+    is therefore either flat ground, at d0, or a pixel of a line the watershed drew in this
+    component, which lies in the box. The box's transform counts the other components' pixels
+    as outside too, but they are at least d0 away, and it cannot see ground beyond the box, which
+    d0 does. So the smaller of the two is the whole image's map (tested equal on real photos).
+    """
+    inner = region_interiors(basins)
+    return np.minimum(
+        cv2.distanceTransform(inner.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE), mask_distance
+    )
 
 
 def _flood(landscape, markers, mask):
