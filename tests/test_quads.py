@@ -96,6 +96,50 @@ def test_the_pairing_is_the_same_for_the_same_seed():
         np.testing.assert_array_equal(x, y)
 
 
+def _bumpy_grid(rows, cols):
+    """A grid of pixel centres, two triangles per cell, over domes and level soil."""
+    r, c = np.mgrid[:rows, :cols]
+    z = np.clip(np.sin(r / 7.0) * np.cos(c / 9.0) * 6, 0, None)
+    vertices = np.column_stack([c.ravel(), -r.ravel(), z.ravel()]).astype(float)
+    v = np.arange(rows * cols).reshape(rows, cols)
+    a, b, d, e = v[:-1, :-1].ravel(), v[:-1, 1:].ravel(), v[1:, :-1].ravel(), v[1:, 1:].ravel()
+    # Each cell's two triangles side by side: consecutive triangles are neighbours, as a TIN's blocks are.
+    triangles = np.stack([np.stack([a, d, b], 1), np.stack([b, d, e], 1)], axis=1).reshape(-1, 3)
+    return triangles, vertices
+
+
+def test_a_big_mesh_pairs_in_parts_the_same_on_any_number_of_threads(monkeypatch):
+    """Above 1.5 PART_TRIANGLES triangles the matching runs in parts of consecutive triangles:
+    each part as pair_triangles pairs it alone, no quad across two parts, whatever the cores."""
+    import cliff_terrain._threads as threads
+    from cliff_terrain.mesh.quads import PART_TRIANGLES, _pair_part
+
+    triangles, vertices = _bumpy_grid(300, 700)  # 418 k triangles: three parts
+    level = np.ptp(vertices[triangles, 2], axis=1) == 0
+    sizes, corners, first = pair_triangles(triangles, vertices, groups=level)
+    assert _canonical(fan_triangles(sizes, corners)) == _canonical(triangles)
+    parts = round(len(triangles) / PART_TRIANGLES)
+    assert parts == 3
+    size = -(-len(triangles) // parts)
+    cuts = [0, size, 2 * size, len(triangles)]
+    expected = [
+        pair_triangles(triangles[a:b], vertices, groups=level[a:b])
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True)
+    ]
+    np.testing.assert_array_equal(sizes, np.concatenate([e[0] for e in expected]))
+    np.testing.assert_array_equal(corners, np.concatenate([e[1] for e in expected]))
+    np.testing.assert_array_equal(
+        first, np.concatenate([e[2] + a for e, a in zip(expected, cuts[:-1], strict=True)])
+    )
+    # Only pairs across the two cuts are lost: nearly as many quads as one matching of the whole.
+    whole = _pair_part(triangles, tuple(vertices.T.copy()), level, MIN_NORMAL_COSINE, 0)[0]
+    assert (whole == 4).sum() > 0.8 * len(triangles) / 2
+    assert (sizes == 4).sum() >= 0.998 * (whole == 4).sum()
+    monkeypatch.setattr(threads, "usable_cores", lambda: 1)
+    for x, y in zip(pair_triangles(triangles, vertices, groups=level), (sizes, corners, first), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_fan_triangles_refuses_other_polygons():
     with pytest.raises(ValueError, match="3 or 4 corners"):
         fan_triangles(np.array([5]), np.arange(5))

@@ -11,10 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._threads import map_row_bands
+
 # Pairs must agree in direction by at least this cosine (about 25 degrees): far from Blender's
 # folding test (cosine 0, in float32), and close enough that a smooth quad's vertex normals (from the
 # quad's mean normal) stay those of its two triangles.
 MIN_NORMAL_COSINE = 0.9
+# Pairs are looked for within parts of about this many consecutive triangles, on threads: a 12 MP
+# relief's 490 k triangles pair in 0.20 s in four parts against 0.38-0.56 s in one (smaller sorts
+# that stay in the cache, and two cores), for 0.24 % more faces (no pair across a part's end).
+PART_TRIANGLES = 131_072
 
 
 def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_COSINE, seed=0):
@@ -32,6 +38,9 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
         Least cosine of the angle between a pair's normals.
     seed : int
         The pairing is a maximal matching with random priorities (the same for the same seed).
+        Meshes of more than 1.5 ``PART_TRIANGLES`` triangles are matched in parts of about
+        that many consecutive triangles (on threads): two triangles of different parts are not
+        paired. The parts depend on the number of triangles only, not on the machine.
 
     Returns
     -------
@@ -53,8 +62,31 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
     triangles = np.asarray(triangles, dtype=np.int64)
     n = len(triangles)
     vertices = np.asarray(vertices, dtype=np.float64)
+    xyz = tuple(np.ascontiguousarray(vertices[:, k]) for k in range(3))
+    groups = None if groups is None else np.asarray(groups)
+    parts = max(1, round(n / PART_TRIANGLES))
+    if parts == 1:
+        return _pair_part(triangles, xyz, groups, min_cosine, seed)
+    size = -(-n // parts)
+    results = {}
+
+    def part(t0, t1):
+        sizes, corners, first = _pair_part(
+            triangles[t0:t1], xyz, None if groups is None else groups[t0:t1], min_cosine, seed
+        )
+        results[t0] = sizes, corners, first + t0
+
+    map_row_bands(part, n, size)
+    # In the order of their first triangle, as one part would have them.
+    sizes, corners, first = (np.concatenate([results[t0][k] for t0 in sorted(results)]) for k in range(3))
+    return sizes, corners, first
+
+
+def _pair_part(triangles, xyz, groups, min_cosine, seed):
+    """:func:`pair_triangles` of `triangles` (int64) with vertex coordinates `xyz` (x, y, z float64)."""
+    n = len(triangles)
+    x, y, z = xyz
     # Unnormalised normals, component by component (np.cross on a (n, 3, 3) gather costs twice this).
-    x, y, z = (np.ascontiguousarray(vertices[:, k]) for k in range(3))
     i0, i1, i2 = (np.ascontiguousarray(triangles[:, k]) for k in range(3))
     ax, ay, az = x[i1] - x[i0], y[i1] - y[i0], z[i1] - z[i0]
     bx, by, bz = x[i2] - x[i0], y[i2] - y[i0], z[i2] - z[i0]
@@ -65,7 +97,7 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
     # is two directed edges with the same key, next to each other once sorted.
     a = triangles.ravel()
     b = triangles[:, [1, 2, 0]].ravel()
-    keys = np.minimum(a, b) * (int(vertices.shape[0]) + 1) + np.maximum(a, b)
+    keys = np.minimum(a, b) * (int(x.shape[0]) + 1) + np.maximum(a, b)
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
     same = np.flatnonzero(sorted_keys[1:] == sorted_keys[:-1])
@@ -73,7 +105,6 @@ def pair_triangles(triangles, vertices, *, groups=None, min_cosine=MIN_NORMAL_CO
     t1, t2 = e1 // 3, e2 // 3
     ok = (a[e1] == b[e2]) & (t1 != t2)
     if groups is not None:
-        groups = np.asarray(groups)
         ok &= groups[t1] == groups[t2]
     e1, t1, t2 = e1[ok], t1[ok], t2[ok]
     # cos(angle) >= min_cosine without normalising: dot >= min_cosine * |n1| |n2|.
@@ -143,4 +174,4 @@ def fan_triangles(face_sizes, corner_verts):
     return corner_verts[index[np.argsort(rank, kind="stable")]]
 
 
-__all__ = ["MIN_NORMAL_COSINE", "fan_triangles", "pair_triangles"]
+__all__ = ["MIN_NORMAL_COSINE", "PART_TRIANGLES", "fan_triangles", "pair_triangles"]
