@@ -210,5 +210,7 @@ def test_auto_profile_is_the_plateau_for_vegetation_and_the_papers_circle_for_pa
     np.testing.assert_array_equal(relief.heights, plateau.heights)
     paper = build_relief(image, segmentation="paper", two_sided=False)
     assert paper.params["profile"] == "circular"
-    # The build's D comes with the watershed, component by component: one float32 rounding at most.
-    np.testing.assert_array_max_ulp(paper.heights, inflate(paper.labels, profile="circular"), maxulp=1)
+    # The build's D comes with the watershed, component by component, within a float32 rounding of
+    # distance_map's (OpenCV's transform rounds by its buffers' alignment); a dome's rim, where H
+    # is steep in D, turns that into at most Dmax ulps of D.
+    np.testing.assert_allclose(paper.heights, inflate(paper.labels, profile="circular"), rtol=0, atol=1e-4)

@@ -117,3 +117,18 @@ def test_grid_sizes_are_those_of_the_built_mesh(shape, two_sided):
         CliffTerrainError, match=r"`shape` must be \(rows, cols\) with both >= 1, got \(0, 4\)"
     ):
         grid_sizes((0, 4))
+
+
+@pytest.mark.parametrize(("n_vertices", "n_keys"), [(1, 3), (10, 5), (1_000, 900_000), (300_000, 1_300_000)])
+def test_edges_sorted_out_in_ranges_of_vertices_are_numpys_unique(n_vertices, n_keys):
+    """Big meshes find their edges by ranges of the lower vertex, on threads: np.unique's result."""
+    from cliff_terrain.mesh.grid import _unique_inverse
+
+    rng = np.random.default_rng(n_keys)
+    a, b = rng.integers(0, n_vertices, (2, n_keys))
+    keys = np.minimum(a, b) * n_vertices + np.maximum(a, b)
+    unique, inverse = np.unique(keys, return_inverse=True)
+    got_unique, got_inverse = _unique_inverse(keys, n_vertices)
+    np.testing.assert_array_equal(got_unique, unique)
+    np.testing.assert_array_equal(got_inverse, inverse.ravel())
+    assert got_inverse.dtype == np.int32

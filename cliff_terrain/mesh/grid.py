@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._threads import map_row_bands
 from .._validate import check_float
 from ..errors import CliffTerrainError
 from .quads import fan_triangles
@@ -403,7 +404,39 @@ def with_edges(vertices, face_sizes, corner_verts, uvs, n_front, grid_shape, fla
         grid_shape=tuple(int(n) for n in grid_shape),
         flat_faces=None if flat_faces is None else np.ascontiguousarray(flat_faces, dtype=bool),
     )
-    keys, corner_edges = np.unique(mesh._corner_edge_keys(), return_inverse=True)
+    keys, corner_edges = _unique_inverse(mesh._corner_edge_keys(), mesh.n_vertices)
     mesh.edges = np.stack([keys // mesh.n_vertices, keys % mesh.n_vertices], axis=1).astype(np.int32)
-    mesh.corner_edges = corner_edges.astype(np.int32).ravel()
+    mesh.corner_edges = corner_edges
     return mesh
+
+
+# Edges are sorted out in parts of about this many corners, on threads.
+_EDGE_PART_CORNERS = 400_000
+
+
+def _unique_inverse(keys, n_vertices):
+    """``np.unique(keys, return_inverse=True)`` of edge keys (min * n_vertices + max), inverse as int32.
+
+    By ranges of the lower vertex, one range per thread: keys of different ranges differ, and the
+    ranges' unique keys, one after the other, are sorted, so this is np.unique's very result (a
+    12 MP relief's 1.3 M corners: 0.11 -> 0.07 s).
+    """
+    parts = max(1, round(len(keys) / _EDGE_PART_CORNERS))
+    if parts == 1:
+        unique, inverse = np.unique(keys, return_inverse=True)
+        return unique, inverse.astype(np.int32).ravel()
+    results = {}
+
+    def part(v0, v1):
+        inside = np.flatnonzero((keys >= v0 * n_vertices) & (keys < v1 * n_vertices))
+        results[v0] = (inside, *np.unique(keys[inside], return_inverse=True))
+
+    map_row_bands(part, n_vertices, -(-n_vertices // parts))
+    inverse = np.empty(len(keys), dtype=np.int32)
+    unique, offset = [], 0
+    for v0 in sorted(results):
+        inside, values, where = results[v0]
+        inverse[inside] = where.ravel() + offset
+        unique.append(values)
+        offset += len(values)
+    return np.concatenate(unique), inverse

@@ -107,7 +107,7 @@ def circular_profile(labels, distance):
     """H = sqrt(Dmax^2 - (Dmax - D)^2) per region (Dmax = the region's largest distance)."""
     labels = np.asarray(labels)
     # On the region pixels only: ground, most of a field, stays 0.
-    inside = np.flatnonzero(labels.ravel())
+    inside = np.flatnonzero(labels.ravel() != 0)
     lab = labels.ravel()[inside]
     d = np.asarray(distance, dtype=np.float32).ravel()[inside]
     dm = label_max(d, lab)[lab]
@@ -155,7 +155,7 @@ def plateau_profile(labels, canopy=None, *, region_distance=None, mask_distance=
     """
     labels = np.asarray(labels, dtype=np.int32)
     out = np.zeros(labels.shape, dtype=np.float32)
-    inside = np.flatnonzero(labels.ravel())
+    inside = np.flatnonzero(labels.ravel() != 0)
     if inside.size == 0:
         return out
     distance = distance_map(labels > 0) if mask_distance is None else mask_distance
@@ -253,7 +253,7 @@ def typical_plant_radius(labels, distance=None):
     16
     """
     labels = np.asarray(labels, dtype=np.int32)
-    inside = np.flatnonzero(labels.ravel())
+    inside = np.flatnonzero(labels.ravel() != 0)
     if inside.size == 0:
         return 0.0
     if distance is None:

@@ -281,7 +281,7 @@ def _flood_kernel(landscape, markers, mask):
     output = np.zeros((rows + 2, cols + 2), dtype=np.int32)
     np.multiply(markers, mask, out=output[1:-1, 1:-1], casting="unsafe")
     neighbours = _neighbour_offsets(image.shape)
-    marker_locations = np.flatnonzero(output)
+    marker_locations = np.flatnonzero(output != 0)
     strides = np.array(image.strides, dtype=np.intp) // image.itemsize
 
     def run():
