@@ -99,7 +99,7 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, r
         regions and edges. Tiles of one mosaic share the whole mosaic's (cliff_terrain.mesh.tiles).
     return_distance : bool, optional
         Also return ``distance_map(labels)``, computed with the flood, component by component
-        (the same values; see :func:`_split_distance`).
+        (the same values to a float32 rounding; see :func:`_split_distance`).
 
     Returns
     -------
@@ -238,7 +238,9 @@ def _split_distance(basins, mask_distance):
     is therefore either flat ground, at d0, or a pixel of a line the watershed drew in this
     component, which lies in the box. The box's transform counts the other components' pixels
     as outside too, but they are at least d0 away, and it cannot see ground beyond the box, which
-    d0 does. So the smaller of the two is the whole image's map (tested equal on real photos).
+    d0 does. So the smaller of the two is the whole image's map: the same distances, to the one
+    float32 rounding by which OpenCV's transform itself varies with its buffers' alignment (tested
+    on real photos and on blobs that touch at corners and at the frame).
     """
     inner = region_interiors(basins)
     return np.minimum(
