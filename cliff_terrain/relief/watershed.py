@@ -15,7 +15,7 @@ import numpy as np
 
 from .._threads import MAX_THREADS, map_row_bands, usable_cores
 from .disk_max import disk_maximum
-from .labels import distance_map, label4, label_max, region_interiors
+from .labels import distance_map, label4, label_max
 
 
 def _load_flood_kernel():
@@ -151,16 +151,11 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, r
     basin_label = np.zeros(n_markers + 1, dtype=np.int32)
     basin_label[basin] = np.arange(1, int(basin.sum()) + 1, dtype=np.int32) + int(whole.sum())
     labels = component_label[components]  # 0 on the components to flood
-    if not return_distance:
-        return _flood_components(
-            landscape, markers, components, split, stats, into=labels, relabel=basin_label
-        )
-    if mask.all():  # no flat ground: distance_map measures to the frame, only a whole-image map knows
-        labels = _flood_components(
-            landscape, markers, components, split, stats, into=labels, relabel=basin_label
-        )
-        return labels, distance_map(labels)
-    region_distance = np.array(distance, dtype=np.float32)
+    # With flat ground, each split component's distances come with its flood (_split_distance);
+    # without, distance_map measures to the frame, which only a whole-image map knows.
+    region_distance = None
+    if return_distance and not mask.all():
+        region_distance = np.array(distance, dtype=np.float32)
     labels = _flood_components(
         landscape,
         markers,
@@ -169,9 +164,11 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, r
         stats,
         into=labels,
         relabel=basin_label,
-        distance=(distance, region_distance),
+        distance=None if region_distance is None else (distance, region_distance),
     )
-    return labels, region_distance
+    if not return_distance:
+        return labels
+    return labels, distance_map(labels) if region_distance is None else region_distance
 
 
 # Components are flooded one at a time, each on its bounding box, on up to _FLOOD_THREADS threads
@@ -242,10 +239,7 @@ def _split_distance(basins, mask_distance):
     float32 rounding by which OpenCV's transform itself varies with its buffers' alignment (tested
     on real photos and on blobs that touch at corners and at the frame).
     """
-    inner = region_interiors(basins)
-    return np.minimum(
-        cv2.distanceTransform(inner.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE), mask_distance
-    )
+    return np.minimum(distance_map(basins), mask_distance)
 
 
 def _flood(landscape, markers, mask):
