@@ -162,14 +162,17 @@ def agreement(estimate, truth):
     }
 
 
-def field_rows(data_dir):
+def field_rows(data_dir, *, ground="auto"):
+    """Per field and date: ours, the naive baseline and plantcv-geospatial's p90 - p25 against every
+    reference the field has (the aligned and raw two-flight difference, a ruler), with the coverage
+    of ours' uncertainty (|error| <= 1.645 x height_p90_err_m)."""
     import cv2
 
-    from cliff_terrain.cli import main as cli
     from cliff_terrain.io.geotiff import read_surface, resample
     from cliff_terrain.io.plot_polygons import read_plots
     from cliff_terrain.measure.field_plots import rasterize_plots
-    from cliff_terrain.measure.ground import canopy_height, naive_block_ground
+    from cliff_terrain.measure.ground import canopy_height, fit_ground, naive_block_ground
+    from cliff_terrain.measure.ruler import read_ruler
 
     rows = []
     for spec_path in (
@@ -178,50 +181,126 @@ def field_rows(data_dir):
         folder = spec_path.parent
         spec = json.loads(spec_path.read_text())
         plots = read_plots(folder / spec["plots"])
-        reference = read_surface(folder / spec["reference"])
+        reference = read_surface(folder / spec["reference"]) if spec.get("reference") else None
+        ruler_spec = spec.get("ruler") if isinstance(spec.get("ruler"), dict) else None
+        if ruler_spec and ruler_spec.get("unit") not in ("m", "cm", "mm"):
+            ruler_spec = None  # a field book whose unit nobody knows is no ruler
         n = len(plots.polygons)
         for date, files in spec["dates"].items():
-            with tempfile.TemporaryDirectory() as out:
-                args = ["heights", str(folder / files["ortho"]), "--dsm", str(folder / files["dsm"])]
-                args += ["--plots", str(folder / spec["plots"]), "--out", out]
-                if cli(args) != 0:
-                    raise CliffTerrainError(f"cliff-terrain heights failed on {folder.name} {date}")
-                chm = read_surface(Path(out) / "chm.tif")
-                summary = json.loads((Path(out) / "summary.json").read_text())
-                with open(Path(out) / "plots.csv", newline="") as stream:
-                    table = list(csv.DictReader(stream))
-            ours = np.array([float(row["height_p90_m"]) for row in table])
-            support = np.array([float(row["ground_support"]) for row in table])
-            dsm = resample(read_surface(folder / files["dsm"]), transform=chm.transform, shape=chm.shape)
-            early = resample(reference, transform=chm.transform, shape=chm.shape)
-            labels = rasterize_plots(plots, transform=chm.transform, shape=chm.shape)
-            difference = dsm - early
-            # Stable ground: at least half a metre outside every plot.
-            pixel = float(np.mean(chm.pixel_size))
-            reach = max(1, round(0.5 / pixel))
-            near = cv2.dilate((labels > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)) > 0
-            aligned = difference - stable_alignment(difference, ~near)
-
-            truth_raw = plot_p90(labels, n, np.maximum(difference, 0))
-            truth = plot_p90(labels, n, np.maximum(aligned, 0))
-            naive_chm = canopy_height(dsm, naive_block_ground(dsm, pixel_size=pixel, percentile=2.0))
-            naive = plot_p90(labels, n, naive_chm)
-            role = "holdout" if date in spec.get("holdout", []) else "tune"
+            ruler = None
+            if ruler_spec:
+                ruler = read_ruler(
+                    folder / ruler_spec["file"],
+                    plots,
+                    id_column=ruler_spec.get("id"),
+                    height_column=ruler_spec.get("height"),
+                    units=ruler_spec["unit"],
+                )
+            dsm_raster = read_surface(folder / files["dsm"])
+            if files.get("ortho"):
+                ours, err, check, transform, shape = _run_heights(folder, files, spec, ground)
+            else:  # a surface model alone: the ground from its shape, no colour
+                transform, shape = dsm_raster.transform, dsm_raster.shape
+                pixel = float(np.mean(dsm_raster.pixel_size))
+                dsm = resample(dsm_raster, transform=transform, shape=shape)
+                fit = fit_ground(dsm, pixel_size=pixel, method=ground)
+                labels = rasterize_plots(plots, transform=transform, shape=shape)
+                ours = plot_p90(labels, n, canopy_height(dsm, fit.ground))
+                err = _plot_rms(labels, n, fit.sigma, np.isfinite(dsm))
+                check = fit.check
+            dsm = resample(dsm_raster, transform=transform, shape=shape)
+            labels = rasterize_plots(plots, transform=transform, shape=shape)
+            pixel = float(
+                np.mean([np.hypot(*np.asarray(transform)[:2, 0]), np.hypot(*np.asarray(transform)[:2, 1])])
+            )
+            peers = {
+                "baseline": plot_p90(
+                    labels, n, canopy_height(dsm, naive_block_ground(dsm, pixel_size=pixel, percentile=2.0))
+                ),
+                "plantcv": _plot_percentile(labels, n, dsm, 90) - _plot_percentile(labels, n, dsm, 25),
+            }
+            truths = {}
+            if reference is not None:
+                early = resample(reference, transform=transform, shape=shape)
+                difference = dsm - early
+                # Stable ground: at least half a metre outside every plot.
+                reach = max(1, round(0.5 / pixel))
+                near = cv2.dilate((labels > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)) > 0
+                aligned = difference - stable_alignment(difference, ~near)
+                truths["aligned"] = plot_p90(labels, n, np.maximum(aligned, 0))
+                truths["raw"] = plot_p90(labels, n, np.maximum(difference, 0))
+            if ruler is not None:
+                truths["ruler"] = ruler.heights_m
             row = {
                 "field": folder.name,
+                "crop": spec.get("crop", ""),
+                "stage": spec.get("stage", ""),
                 "date": date,
-                "half": role,
+                "half": "holdout" if date in spec.get("holdout", []) else "tune",
                 "plots": n,
-                "ours_raw": agreement(ours, truth_raw),
-                "ours_aligned": agreement(ours, truth),
-                "peer_raw": agreement(naive, truth_raw),
-                "peer_aligned": agreement(naive, truth),
-                "ground_support_median": float(np.nanmedian(support)),
-                "threshold": summary["threshold"],
+                "colour": bool(files.get("ortho")),
+                "ground_method": check.get("method"),
+                "ground_check_error_cm": 100 * check["candidates"][check["method"]]["error_m"],
+                "evidence": check.get("evidence", {}).get("source"),
+                "against": {},
             }
+            for kind, truth in truths.items():
+                row["against"][kind] = {
+                    "ours": agreement(ours, truth),
+                    "coverage": _coverage(ours, err, truth),
+                    **{name: agreement(values, truth) for name, values in peers.items()},
+                }
             rows.append(row)
             print(_field_line(row), flush=True)
     return rows
+
+
+def _run_heights(folder, files, spec, ground):
+    """`cliff-terrain heights` on one date: (p90, p90 err, ground check, grid transform, grid shape)."""
+    from cliff_terrain.cli import main as cli
+    from cliff_terrain.io.geotiff import read_surface
+
+    with tempfile.TemporaryDirectory() as out:
+        args = ["heights", str(folder / files["ortho"]), "--dsm", str(folder / files["dsm"])]
+        args += ["--plots", str(folder / spec["plots"]), "--out", out, "--ground", ground]
+        if cli(args) != 0:
+            raise CliffTerrainError(f"cliff-terrain heights failed on {folder.name} {files['dsm']}")
+        chm = read_surface(Path(out) / "chm.tif")
+        summary = json.loads((Path(out) / "summary.json").read_text())
+        with open(Path(out) / "plots.csv", newline="") as stream:
+            table = list(csv.DictReader(stream))
+    ours = np.array([float(row["height_p90_m"]) for row in table])
+    err = np.array([float(row["height_p90_err_m"]) for row in table])
+    return ours, err, summary["ground_check"], chm.transform, chm.shape
+
+
+def _plot_rms(labels, n, values, valid):
+    pick = labels.ravel() * valid.ravel()
+    counts = np.bincount(pick, minlength=n + 1)[1:]
+    sums = np.bincount(pick, weights=np.nan_to_num(values.ravel()) ** 2, minlength=n + 1)[1:]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(counts > 0, np.sqrt(sums / np.maximum(counts, 1)), np.nan)
+
+
+def _plot_percentile(labels, n, values, q):
+    flat, vals = labels.ravel(), values.ravel()
+    ok = (flat > 0) & np.isfinite(vals)
+    order = np.lexsort((vals[ok], flat[ok]))
+    lab, v = flat[ok][order], vals[ok][order]
+    out = np.full(n, np.nan)
+    starts = np.searchsorted(lab, np.arange(1, n + 1))
+    ends = np.searchsorted(lab, np.arange(1, n + 1), side="right")
+    for k, (a, b) in enumerate(zip(starts, ends, strict=True)):
+        if b > a:
+            out[k] = np.percentile(v[a:b], q)
+    return out
+
+
+def _coverage(ours, err, truth):
+    ok = np.isfinite(ours) & np.isfinite(err) & np.isfinite(truth)
+    if not ok.any():
+        return None
+    return float(np.mean(np.abs(ours[ok] - truth[ok]) <= 1.645 * err[ok]))
 
 
 def plot_p90(labels, n, heights):
@@ -238,12 +317,17 @@ def _field_line(row):
             return "n/a"
         return f"r {a['r']:.3f}, RMSE {a['rmse_cm']:.1f} cm, bias {a['bias_cm']:+.1f} cm"
 
-    return (
-        f"  {row['field']} day {row['date']} [{row['half']}], {row['plots']} plots:\n"
-        f"    ours  vs aligned: {fmt(row['ours_aligned'])} | vs raw: {fmt(row['ours_raw'])}\n"
-        f"    peer  vs aligned: {fmt(row['peer_aligned'])} | vs raw: {fmt(row['peer_raw'])}\n"
-        f"    ground support (plot median) {row['ground_support_median']:.2f}"
-    )
+    lines = [
+        f"  {row['field']} {row['date']} [{row['half']}], {row['plots']} plots, ground {row['ground_method']} "
+        f"(held-out {row['ground_check_error_cm']:.1f} cm, evidence: {row['evidence']})"
+    ]
+    for kind, figures in row["against"].items():
+        cov = figures["coverage"]
+        lines.append(
+            f"    vs {kind:8s} ours {fmt(figures['ours'])} (coverage {'n/a' if cov is None else f'{cov:.0%}'})"
+            f" | baseline {fmt(figures['baseline'])} | plantcv {fmt(figures['plantcv'])}"
+        )
+    return "\n".join(lines)
 
 
 def summarise(rows, half):
@@ -266,12 +350,13 @@ def main(argv=None):
     parser.add_argument("--json", type=Path, default=None, help="write every figure here")
     parser.add_argument("--skip-images", action="store_true")
     parser.add_argument("--skip-fields", action="store_true")
+    parser.add_argument("--ground", default="auto", help="the heights' --ground (default auto)")
     args = parser.parse_args(argv)
     if not args.data_dir.is_dir():
         parser.error(f"DATA_DIR {str(args.data_dir)!r} is not a folder")
     warnings.filterwarnings("ignore", message=".*GDAL_NODATA.*")
     images = [] if args.skip_images else image_rows(args.data_dir, args.max_size)
-    fields = [] if args.skip_fields else field_rows(args.data_dir)
+    fields = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground)
     record = {"images": images, "fields": fields, "summary": {}}
     for half in ("tune", "holdout"):
         for group in sorted({r["set"] for r in images}):

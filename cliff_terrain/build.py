@@ -147,10 +147,13 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         and ``Relief.georeference`` the grid's CRS and map origin (the mesh starts at 0, 0).
     dtm : str or os.PathLike, optional
         A terrain model: the ground; without it the ground is estimated from the soil pixels
-        (see :func:`cliff_terrain.measure.ground.estimate_ground`).
+        (see :func:`cliff_terrain.measure.ground.fit_ground`).
     ground_block : float, optional
-        Block size in metres of the estimated ground's trend (default 5; see
-        :func:`cliff_terrain.measure.ground.estimate_ground`); only with a `dsm` and no `dtm`.
+        Block size in metres of the estimated ground's lowest surface and of its held-out check
+        (default 5; see :func:`cliff_terrain.measure.ground.fit_ground`); only with a `dsm` and no `dtm`.
+    ground_method : {"auto", "baseline", "smooth", "detailed"}, optional
+        The estimated ground (default ``"auto"``: the candidate that predicts held-out bare soil
+        best, refused when none does; see :func:`cliff_terrain.measure.ground.fit_ground`).
     height_source : {"inflated", "calibrated", "measured"}, optional
         ``"inflated"``: domes from the photo (the only mode without a DSM). ``"measured"``: the
         canopy height model. ``"calibrated"``: each region's dome scaled so its top equals the
@@ -247,6 +250,7 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
             mode=params.height_source,
             exaggeration=params.exaggeration,
             block_m=DEFAULT_GROUND_BLOCK_M if params.ground_block is None else params.ground_block,
+            ground_method=params.ground_method or "auto",
         )
         units = "m"
     relief = Relief(

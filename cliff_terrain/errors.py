@@ -43,3 +43,7 @@ class GroundError(CliffTerrainError):
 
 class MissingBandError(CliffTerrainError):
     """A vegetation index needs a band the multispectral file lacks (the message names both)."""
+
+
+class RulerError(CliffTerrainError):
+    """A ruler file (measured plot heights) that cannot be read or matched to the plots."""

@@ -67,6 +67,7 @@ class ReliefParams:
     dtm: str | None = None
     height_source: str = settings.DEFAULT_HEIGHT_MODE
     ground_block: float | None = None
+    ground_method: str | None = None  # the ground estimate (measure.ground.GROUND_METHODS); None: "auto"
     bands: tuple | None = None  # a multispectral photo's band names, when its file gives none
 
     def __post_init__(self):
@@ -91,6 +92,10 @@ class ReliefParams:
         if not isinstance(self.two_sided, bool) and type(self.two_sided).__name__ != "bool_":
             raise CliffTerrainError(f"`two_sided` must be True or False, got {self.two_sided!r}")
         checked["two_sided"] = bool(self.two_sided)
+        if self.ground_method is not None:
+            from .measure.ground import GROUND_METHODS
+
+            checked["ground_method"] = check_choice("ground_method", self.ground_method, GROUND_METHODS)
         if self.mesh is not None:
             check_choice("mesh", self.mesh, settings.ids(settings.MESHES))
         for name in _PATHS:
@@ -124,6 +129,8 @@ class ReliefParams:
         record = {PROPERTY_NAMES.get(name, name): value for name, value in self.as_kwargs().items()}
         if self.ground_block is None:
             del record["ground_block"]  # only with a surface model and no terrain model
+        if self.ground_method is None:
+            del record["ground_method"]
         return record
 
     # ---- Blender's ID properties (the sidebar, the operators, a relief's record) ----

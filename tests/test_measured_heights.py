@@ -518,7 +518,7 @@ def test_heights_command_writes_chm_and_tables(field_files):
     header, *rows = (out / "plots.csv").read_text().splitlines()
     assert header.split(",") == [
         "plot", "name", "area_m2", "cover", "height_mean_m", "height_p50_m", "height_p90_m",
-        "height_p99_m", "height_max_m", "volume_m3", "ground_support", "error",
+        "height_p99_m", "height_max_m", "volume_m3", "ground_support", "height_p90_err_m", "error",
     ]  # fmt: skip
     assert (
         rows[0].startswith("0,in,9.0") and rows[1].startswith("1,out,0.0") and "outside the raster" in rows[1]
@@ -526,8 +526,13 @@ def test_heights_command_writes_chm_and_tables(field_files):
     # The ground's support: the plot's mean share of bare soil around its pixels, as the raster says.
     support = read_surface(out / "ground_support.tif")
     assert support.shape == chm.shape and 0.0 <= np.nanmin(support.data) <= np.nanmax(support.data) <= 1.0
-    plot_support = float(rows[0].split(",")[-2])
+    plot_support = float(rows[0].split(",")[-3])
     assert 0.0 < plot_support < 1.0
+    # The ground's standard error under the plot: the root mean square of chm_err.tif over it.
+    sigma = read_surface(out / "chm_err.tif")
+    labels = rasterize_plots(read_plots(folder / "plots.geojson"), transform=chm.transform, shape=chm.shape)
+    inside = (labels == 1) & np.isfinite(chm.data)
+    assert float(rows[0].split(",")[-2]) == pytest.approx(np.sqrt(np.mean(sigma.data[inside] ** 2)), rel=1e-3)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["ground"] == "estimated" and summary["units"] == "m"
     assert summary["canopy_height_p90_m"] == pytest.approx(

@@ -5,10 +5,13 @@ measured), so its plants, cover and heights are the ones ``render_views.py --dsm
 report for the same orthophoto and grid. Writes ``chm.tif`` (float32 GeoTIFF, metres, NaN as no-data,
 the grid's georeference), ``ground_support.tif`` beside it when the ground is estimated (the share of
 bare soil that carried the ground around each pixel, 0 where it is interpolated only),
+``chm_err.tif`` (the ground's standard error at each pixel, metres, from its held-out check),
 ``regions.csv`` and ``regions.geojson`` (one row per plant), with ``--plots`` ``plots.csv`` and
-``plots.geojson`` (one row per polygon), with ``--indices NDVI,NDRE`` their index columns
-(``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...), and ``summary.json`` (the key figures, the ground's source
-and the plant/soil threshold). All files appear together or none does.
+``plots.geojson`` (one row per polygon, with ``height_p90_err_m``), with ``--indices NDVI,NDRE`` their
+index columns (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...), with
+``--ruler`` the measured heights (``ruler_height_m``; ``height_calibrated_m`` with ``--calibrate``),
+and ``summary.json`` (the key figures, the ground's source, method and held-out check, the ruler's
+agreement and the plant/soil threshold). All files appear together or none does.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import settings
+from ..measure.ground import GROUND_METHODS
 from .index_options import add_index_arguments
 
 HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write the CHM and tables"
@@ -48,6 +52,36 @@ def configure(parser):
         default=settings.DEFAULT_GROUND_BLOCK_M,
         help=f"block size of the ground estimate in metres (default {settings.DEFAULT_GROUND_BLOCK_M})",
     )
+    parser.add_argument(
+        "--ground",
+        choices=GROUND_METHODS,
+        default="auto",
+        help="the single-flight ground: 'auto' (default) takes the candidate that predicts held-out bare "
+        "soil best and refuses when none does; 'baseline' is the DSM's 2nd percentile in blocks; "
+        "'smooth' lifts it onto the bare soil; 'detailed' adds the soil's ridges and furrows",
+    )
+    parser.add_argument(
+        "--ruler",
+        type=Path,
+        default=None,
+        help="CSV of measured plot heights (needs --plots): a plot id column and a height column",
+    )
+    parser.add_argument("--ruler-id", default=None, help="the ruler file's plot id column (default: found)")
+    parser.add_argument(
+        "--ruler-height", default=None, help="the ruler file's height column (default: found)"
+    )
+    parser.add_argument(
+        "--ruler-units",
+        choices=("m", "cm", "mm"),
+        default=None,
+        help="unit of the ruler's heights (default: from a 'unit' column or the column's name)",
+    )
+    parser.add_argument(
+        "--calibrate",
+        action="store_true",
+        help="fit height = a + b x height_p90 on the ruler's plots, apply it to every plot "
+        "(height_calibrated_m) and report its leave-one-out error",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     add_index_arguments(parser)
 
@@ -79,8 +113,6 @@ def grid_size(ortho, *, resolution=None, max_size=None):
 def run(args):
     import json
 
-    import numpy as np
-
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..evaluate.views import json_safe
@@ -93,16 +125,32 @@ def run(args):
     from .index_options import relief_index_maps, requested_bands
 
     out = args.out
-    outputs = ["chm.tif", "ground_support.tif", REGIONS_CSV, REGIONS_GEOJSON]
+    outputs = ["chm.tif", "ground_support.tif", "chm_err.tif", REGIONS_CSV, REGIONS_GEOJSON]
     outputs += [PLOTS_CSV, PLOTS_GEOJSON] if args.plots else []
     outputs += ["summary.json"]
     if args.dtm is not None:
         outputs.remove("ground_support.tif")
+        outputs.remove("chm_err.tif")
+    if args.ruler is not None and args.plots is None:
+        raise CliffTerrainError(f"--ruler {str(args.ruler)!r} needs --plots: its heights belong to plots")
+    if args.calibrate and args.ruler is None:
+        raise CliffTerrainError("--calibrate needs --ruler: the measured heights it is fitted on")
     if not args.overwrite:
         existing = [name for name in outputs if (out / name).exists()]
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     plots = read_plots(args.plots) if args.plots else None  # a bad plot file fails before the work
+    ruler = None
+    if args.ruler is not None:  # and so does a bad ruler
+        from ..measure.ruler import read_ruler
+
+        ruler = read_ruler(
+            args.ruler,
+            plots,
+            id_column=args.ruler_id,
+            height_column=args.ruler_height,
+            units=args.ruler_units,
+        )
     bands = requested_bands(args, args.ortho)  # and so does an index whose band the file lacks
     size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
     params = ReliefParams(
@@ -113,11 +161,22 @@ def run(args):
         bands=None if args.band_files else args.bands,  # --bands names the orthophoto's own bands
         mesh=None,
         ground_block=args.block,
+        ground_method=args.ground,
     )
     relief = build_relief(args.ortho, params)
     canopy = relief.canopy
     maps = relief_index_maps(args, bands, relief.mask.shape)
-    tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps)
+    ruler_record = {}
+
+    def with_ruler(rows):
+        from ..measure.ruler import ruler_columns
+
+        columns, record = ruler_columns(rows, ruler, calibrate_heights=args.calibrate)
+        ruler_record.update(record)
+        return columns
+
+    extra = with_ruler if ruler is not None else None
+    tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps, extra=extra)
     files = {out / name: text for name, text in tables.items()}
     files[out / "chm.tif"] = lambda tmp: write_geotiff(
         tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan")
@@ -126,11 +185,19 @@ def run(args):
         files[out / "ground_support.tif"] = lambda tmp: write_geotiff(
             tmp, canopy.support, transform=canopy.transform, crs=canopy.crs
         )
+        files[out / "chm_err.tif"] = lambda tmp: write_geotiff(
+            tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs
+        )
     figures = key_figures(relief)
+    check = canopy.check or {}
     summary = {
         **figures,
         "ground": canopy.ground_source,
-        "ground_support": None if canopy.support is None else float(np.mean(canopy.support[relief.mask])),
+        "ground_method": check.get("method"),
+        # Where the ground is guessed: the pixels that are not its bare-soil evidence.
+        "ground_support": check.get("support_where_guessed"),
+        "ground_check": check or None,
+        "ruler": ruler_record or None,
         "threshold": relief.params["threshold"],
         "grid": {
             "rows": int(relief.mask.shape[0]),
@@ -147,8 +214,17 @@ def run(args):
         write_files(files)
     except OSError as exc:
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
+    ground = canopy.ground_source
+    if check:
+        ground += f" ({check['method']}, held-out bare soil within {check['candidates'][check['method']]['error_m'] * 100:.1f} cm)"
+    against = ""
+    if ruler_record:
+        a = ruler_record["height_p90_m"]
+        if a["r"] is not None:
+            against = f"; against the ruler ({a['n']} plots) r {a['r']:.2f}, RMSE {a['rmse_m'] * 100:.1f} cm"
+            if "calibration" in ruler_record:
+                against += f", calibrated leave-one-out RMSE {ruler_record['calibration']['loo_rmse_m'] * 100:.1f} cm"
     print(
-        f"{args.ortho}: ground {canopy.ground_source}, {figures_line(figures)}; "
-        f"wrote {', '.join(outputs)} into {out}"
+        f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0

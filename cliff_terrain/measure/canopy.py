@@ -13,7 +13,7 @@ import numpy as np
 from .._validate import check_float
 from ..errors import GeoreferenceError
 from ..io.geotiff import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
-from .ground import DEFAULT_BLOCK_M, canopy_height, check_enough_soil, estimate_ground, ground_support
+from .ground import DEFAULT_BLOCK_M, canopy_height, fit_ground
 
 
 @dataclass
@@ -33,6 +33,12 @@ class Canopy:
     support : (rows, cols) float32 or None
         With an estimated ground, the share of bare soil around each pixel that carried it
         (:func:`cliff_terrain.measure.ground.ground_support`; 0: interpolated only); None with a DTM.
+    sigma : (rows, cols) float32 or None
+        With an estimated ground, its standard error in metres at each pixel, from the held-out
+        check (:func:`cliff_terrain.measure.ground_check.ground_sigma`); None with a DTM.
+    check : dict or None
+        With an estimated ground, the held-out check and the candidate chosen
+        (:func:`cliff_terrain.measure.ground_check.check_ground`); None with a DTM.
     """
 
     transform: np.ndarray
@@ -43,6 +49,8 @@ class Canopy:
     ground_source: str
     pixel_size: float
     support: np.ndarray | None = None
+    sigma: np.ndarray | None = None
+    check: dict | None = None
 
     @property
     def pixel_area_m2(self):
@@ -99,6 +107,7 @@ def measure_canopy(
     block_m=DEFAULT_BLOCK_M,
     valid=None,
     soil=None,
+    ground_method="auto",
 ):
     """DSM (and DTM) resampled onto a grid, the ground, and the canopy height there.
 
@@ -121,8 +130,11 @@ def measure_canopy(
     valid : (rows, cols) bool array, optional
         Pixels where the photo has data: only there can soil be told from plants.
     soil : (rows, cols) bool array, optional
-        The bare soil that carries the ground (see :func:`cliff_terrain.relief.vegetation.bare_soil`);
-        default: every pixel that is not a plant.
+        What the photo calls bare soil (see :func:`cliff_terrain.relief.vegetation.bare_soil`):
+        evidence for the ground, which the surface can overrule; default: every pixel that is not
+        a plant.
+    ground_method : {"auto", "baseline", "smooth", "detailed"}, optional
+        The ground estimate (:func:`cliff_terrain.measure.ground.fit_ground`).
 
     Returns
     -------
@@ -133,8 +145,8 @@ def measure_canopy(
     GeoreferenceError
         CRSs differ or the rasters do not overlap the grid (the message names both).
     GroundError
-        Without a DTM, too little bare soil with surface data to estimate the ground (the
-        message names the DSM and suggests a DTM).
+        Without a DTM, too little bare soil with surface data to estimate the ground, or a
+        ground that fails its held-out check (the message names the DSM and suggests a DTM).
     """
     dsm, dtm = load_surfaces(dsm, dtm)
     plants = np.asarray(plants, dtype=bool)
@@ -154,19 +166,24 @@ def measure_canopy(
             raise GeoreferenceError(f"{dtm.path!r} does not overlap {grid_name}")
         ground = resample(dtm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
         source = "dtm"
-        support = None
+        support = sigma = check = None
     else:
         has_data = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
         soil = ~plants if soil is None else np.asarray(soil, dtype=bool)
-        soil = soil & has_data
-        check_enough_soil(soil, has_data, source=f"{dsm.path!r} over {grid_name}")
-        ground = estimate_ground(surface, soil=soil, pixel_size=pixel_size, block_m=block_m)
-        support = ground_support(soil, pixel_size=pixel_size, block_m=block_m)
+        fit = fit_ground(
+            np.where(has_data, surface, np.nan),
+            soil=soil & has_data,
+            pixel_size=pixel_size,
+            block_m=block_m,
+            method=ground_method,
+            source=f"{dsm.path!r} over {grid_name}",
+        )
+        ground, support, sigma, check = fit.ground, fit.support, fit.sigma, fit.check
         source = "estimated"
     chm = canopy_height(surface, ground)
     if valid is not None:  # where the photo has no data, nothing tells plant from soil
         chm[~np.asarray(valid, dtype=bool)] = np.nan
-    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size, support)
+    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size, support, sigma, check)
 
 
 def plant_mask(rgb, *, valid=None):
@@ -236,7 +253,9 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
     return rgb, has_data, plants, canopy
 
 
-def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAULT_BLOCK_M):
+def relief_heights(
+    path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAULT_BLOCK_M, ground_method="auto"
+):
     """The relief's heights (metres) on the processing grid of orthophoto `path` (used by build_relief).
 
     Returns ``(canopy, heights, pixel_size, georeference)``: ``"measured"`` heights are the CHM,
@@ -263,6 +282,7 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAUL
         valid=valid,
         soil=soil,
         block_m=block_m,
+        ground_method=ground_method,
     )
     chm = np.nan_to_num(canopy.chm, nan=0.0)
     pixel_size = canopy.pixel_size
@@ -319,7 +339,7 @@ def dsm_noise(canopy, *, plants):
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
-def relief_tables(relief, *, plots=None, source="", index_maps=None):
+def relief_tables(relief, *, plots=None, source="", index_maps=None, extra=None):
     """The tables of a :class:`~cliff_terrain.build.Relief`: {file name: text}.
 
     ``regions.csv`` always (heights NaN without a surface model; areas in m² with a GSD),
@@ -327,6 +347,7 @@ def relief_tables(relief, *, plots=None, source="", index_maps=None):
     (a :class:`~cliff_terrain.io.plot_polygons.PlotSet` in the orthophoto's CRS; needs a surface model).
     `source` names the orthophoto in errors. `index_maps` ({index name: map on the relief's grid},
     :func:`cliff_terrain.measure.index_figures.relief_index_maps`) adds the index columns.
+    `extra` (``rows -> extra columns``) may add columns to the plot rows (a ruler's, say).
     """
     from ..errors import CliffTerrainError
     from ..io.geojson import point_geometries, table_geojson
@@ -354,7 +375,13 @@ def relief_tables(relief, *, plots=None, source="", index_maps=None):
     if plots is not None:
         files.update(
             plot_table_files(
-                plots, canopy, heights=canopy.chm, mask=relief.mask, source=source, index_maps=index_maps
+                plots,
+                canopy,
+                heights=canopy.chm,
+                mask=relief.mask,
+                source=source,
+                index_maps=index_maps,
+                extra=extra,
             )
         )
     return files
@@ -363,6 +390,11 @@ def relief_tables(relief, *, plots=None, source="", index_maps=None):
 def plot_support(canopy):
     """The ground's support for plot tables: the estimate's, or 1 everywhere with a terrain model."""
     return np.ones(canopy.chm.shape, np.float32) if canopy.support is None else canopy.support
+
+
+def plot_sigma(canopy):
+    """The ground's standard error for plot tables: the estimate's, or 0 with a terrain model."""
+    return np.zeros(canopy.chm.shape, np.float32) if canopy.sigma is None else canopy.sigma
 
 
 def relief_plot_rows(relief, plots, *, source, index_maps=None):
@@ -378,10 +410,10 @@ def relief_plot_rows(relief, plots, *, source, index_maps=None):
     if relief.canopy is not None:
         canopy = relief.canopy
         transform, crs, heights = canopy.transform, canopy.crs, canopy.chm
-        support = plot_support(canopy)
+        support, sigma = plot_support(canopy), plot_sigma(canopy)
     else:
         transform, crs = photo_grid(source, relief.metadata, relief.mask.shape)
-        heights, support = None, None
+        heights, support, sigma = None, None, None
     check_plot_crs(plots, crs, raster=str(source))
     labels = rasterize_plots(plots, transform=transform, shape=relief.mask.shape)
     area = float(abs(np.linalg.det(np.asarray(transform)[:2, :2])))
@@ -392,14 +424,16 @@ def relief_plot_rows(relief, plots, *, source, index_maps=None):
         heights=heights,
         pixel_area_m2=area,
         support=support,
+        sigma=sigma,
         index_maps=index_maps,
     )
 
 
-def plot_table_files(plots, canopy, *, heights, mask, source, index_maps=None):
+def plot_table_files(plots, canopy, *, heights, mask, source, index_maps=None, extra=None):
     """``plots.csv`` and ``plots.geojson`` ({file name: text}) of `plots` on `canopy`'s grid.
 
-    `heights` and `mask` are on that grid; `source` names the orthophoto in errors.
+    `heights` and `mask` are on that grid; `source` names the orthophoto in errors. `extra`, a
+    callable ``rows -> column names``, may add columns to the rows (before ``error``).
     """
     from ..io.geojson import polygon_geometries, table_geojson
     from .field_plots import check_plot_crs, plot_table, rasterize_plots, table_columns
@@ -416,9 +450,13 @@ def plot_table_files(plots, canopy, *, heights, mask, source, index_maps=None):
         heights=heights,
         pixel_area_m2=canopy.pixel_area_m2,
         support=plot_support(canopy),
+        sigma=plot_sigma(canopy),
         index_maps=index_maps,
     )
+    columns = table_columns(plots, support=True, sigma=True, indices=tuple(index_maps or ()))
+    if extra is not None:
+        columns[-1:-1] = extra(rows)
     return {
-        PLOTS_CSV: table_csv(rows, table_columns(plots, support=True, indices=tuple(index_maps or ()))),
+        PLOTS_CSV: table_csv(rows, columns),
         PLOTS_GEOJSON: table_geojson(rows, polygon_geometries(plots), crs=canopy.crs),
     }

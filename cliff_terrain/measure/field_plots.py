@@ -125,7 +125,16 @@ def _fill_even_odd(rings, rows, cols):
 
 
 def plot_table(
-    plots, plot_labels, *, mask, heights, pixel_area_m2, height_units="m", support=None, index_maps=None
+    plots,
+    plot_labels,
+    *,
+    mask,
+    heights,
+    pixel_area_m2,
+    height_units="m",
+    support=None,
+    sigma=None,
+    index_maps=None,
 ):
     """One row per plot: its attributes, area, plant cover and canopy heights.
 
@@ -151,6 +160,11 @@ def plot_table(
         The ground's support (:func:`cliff_terrain.measure.ground.ground_support`); adds the column
         ``ground_support``, its mean over the plot's pixels (0: the ground under the plot was
         interpolated from soil elsewhere; 1 with a terrain model).
+    sigma : (rows, cols) float array, optional
+        The ground's standard error in metres (:attr:`cliff_terrain.measure.canopy.Canopy.sigma`);
+        adds the column ``height_p90_err_m``, the root mean square of `sigma` over the plot's
+        pixels with data: the standard error of ``height_p90_m`` that the ground carries (an
+        error of the ground under a plot moves all its heights together; 0 with a terrain model).
     index_maps : dict, optional
         Vegetation index name -> (rows, cols) map on the grid (NaN = no value): adds, per index,
         ``ndvi_mean`` and ``ndvi_median`` over the plot's pixels and ``ndvi_plant_mean`` and
@@ -205,6 +219,18 @@ def plot_table(
         sums = np.bincount(plot_labels.ravel(), weights=support.ravel(), minlength=n + 1)[1 : n + 1]
         with np.errstate(invalid="ignore", divide="ignore"):
             plot_support = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    if sigma is not None:
+        sigma = np.asarray(sigma, dtype=np.float64)
+        if sigma.shape != plot_labels.shape:
+            raise CliffTerrainError(
+                f"`sigma` must have the shape of `plot_labels` {plot_labels.shape}, got {sigma.shape}"
+            )
+        # Over the pixels with a height: where the heights come from.
+        with_data = plot_labels.ravel() * (np.isfinite(heights).ravel() if heights is not None else 1)
+        counts = np.bincount(with_data, minlength=n + 1)[1 : n + 1]
+        sums = np.bincount(with_data, weights=np.nan_to_num(sigma.ravel()) ** 2, minlength=n + 1)[1 : n + 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            plot_sigma = np.where(counts > 0, np.sqrt(sums / np.maximum(counts, 1)), np.nan)
     full_areas = [polygon_area(rings) for rings in plots.polygons]
     indices = index_figures(plot_labels, n, maps=index_maps, mask=mask) if index_maps else None
     rows = []
@@ -223,6 +249,8 @@ def plot_table(
         del row["pixels"], row["valid_pixels"]
         if support is not None:
             row["ground_support"] = float(plot_support[index])
+        if sigma is not None:
+            row["height_p90_err_m"] = float(plot_sigma[index])
         if indices:
             row.update(indices[index])
         rows.append(row)
@@ -231,18 +259,24 @@ def plot_table(
 
 def _attribute_name(name):
     """An attribute's column: its own name, unless it is one of ours (then with ``_attr``)."""
-    ours = (*PLOT_COLUMNS, "ground_support", "pixels", "valid_pixels")
+    ours = (*PLOT_COLUMNS, "ground_support", "height_p90_err_m", "pixels", "valid_pixels")
     return f"{name}_attr" if name in ours else name
 
 
-def table_columns(plots, *, support=False, indices=()):
+def table_columns(plots, *, support=False, sigma=False, indices=()):
     """Columns of :func:`plot_table`'s rows: ``plot``, the attributes, then the figures.
 
     An attribute named like one of the figures (a plot file's own ``plot`` field, say) keeps its
     value under its name with ``_attr`` appended. With `support`, ``ground_support`` comes before
-    ``error``, and so do the columns of `indices` (index names, :func:`index_columns`).
+    ``error``, with `sigma` ``height_p90_err_m``, and so do the columns of `indices` (index names,
+    :func:`index_columns`).
     """
-    figures = [*PLOT_COLUMNS[1:-1], *(["ground_support"] if support else []), *index_columns(indices)]
+    figures = [
+        *PLOT_COLUMNS[1:-1],
+        *(["ground_support"] if support else []),
+        *(["height_p90_err_m"] if sigma else []),
+        *index_columns(indices),
+    ]
     figures.append(PLOT_COLUMNS[-1])
     return ["plot", *(_attribute_name(name) for name in plots.fields), *figures]
 

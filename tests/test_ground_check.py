@@ -1,0 +1,292 @@
+"""The single-flight ground, geometry first and checked on held-out soil (issue 38); the ruler."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+from test_measured_heights import run_cli, write_synthetic_pair
+
+from cliff_terrain.errors import CliffTerrainError, GroundError, RulerError
+from cliff_terrain.io.geotiff import read_surface
+from cliff_terrain.io.plot_polygons import PlotSet
+from cliff_terrain.measure.ground import fit_ground, naive_block_ground
+from cliff_terrain.measure.ground_check import robust_error, spatial_folds
+from cliff_terrain.measure.ruler import agreement, calibrate, read_ruler
+
+
+def beds(*, rows=400, cols=600, pixel=0.05, height=0.7, seed=0):
+    """Closed canopy beds 3 m wide between 1 m alleys of bare soil, on a tilted, undulating field."""
+    rng = np.random.default_rng(seed)
+    rr, cc = np.mgrid[:rows, :cols]
+    ground = 50.0 + 0.01 * cc * pixel + 0.05 * np.sin(2 * np.pi * rr * pixel / 15.0)
+    bed = (rr % 80) < 60
+    dsm = ground + np.where(bed, height + rng.normal(0, 0.03, bed.shape), rng.normal(0, 0.01, bed.shape))
+    return dsm.astype(np.float32), ground, bed
+
+
+def test_folds_never_put_neighbouring_blocks_together():
+    folds = spatial_folds((90, 120), block_px=10)
+    blocks = folds[::10, ::10]
+    assert set(np.unique(blocks)) == {0, 1, 2, 3, 4}
+    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = blocks[max(0, -di) : blocks.shape[0] - max(0, di), max(0, -dj) : blocks.shape[1] - max(0, dj)]
+        b = blocks[max(0, di) :, max(0, dj) :][: a.shape[0], : a.shape[1]]
+        assert not np.any(a == b), (di, dj)
+
+
+def test_robust_error_is_the_rmse_of_clean_errors_and_ignores_a_few_leaves():
+    rng = np.random.default_rng(1)
+    clean = rng.normal(0.01, 0.02, 20000)
+    assert robust_error(clean) == pytest.approx(np.sqrt(np.mean(clean**2)), rel=0.03)
+    dirty = np.concatenate([clean, np.full(500, 0.6)])  # 2.5 % leaves taken for soil
+    assert robust_error(dirty) < 1.1 * robust_error(clean)
+
+
+def test_the_baseline_candidate_is_the_naive_block_percentile():
+    dsm, _, bed = beds()
+    fit = fit_ground(dsm, soil=~bed, pixel_size=0.05, method="baseline")
+    np.testing.assert_array_equal(fit.ground, naive_block_ground(dsm, pixel_size=0.05, percentile=2.0))
+    assert fit.method == "baseline" and fit.check["method"] == "baseline"
+
+
+def test_auto_beats_the_baseline_on_held_out_soil_and_under_the_canopy():
+    dsm, ground, bed = beds()
+    fit = fit_ground(dsm, soil=~bed, pixel_size=0.05)
+    errors = {name: c["error_m"] for name, c in fit.check["candidates"].items()}
+    assert fit.check["passed"] and fit.method == min(errors, key=errors.get)
+    assert errors[fit.method] < 0.5 * errors["baseline"]
+    baseline = naive_block_ground(dsm, pixel_size=0.05, percentile=2.0)
+    ours_error = np.abs(fit.ground - ground)[bed].mean()
+    assert ours_error < 0.02 and ours_error < 0.5 * np.abs(baseline - ground)[bed].mean()
+
+
+def test_a_senescent_canopy_the_colour_calls_soil_is_overruled_by_the_surface():
+    # Breeders fly at maturity: the photo calls the whole yellow canopy soil. The ground must come
+    # from the alleys, the heights stay the canopy's, and the support falls on the beds.
+    dsm, ground, bed = beds(height=0.74)
+    fit = fit_ground(dsm, soil=np.ones(dsm.shape, bool), pixel_size=0.05)
+    assert fit.evidence_source == "surface"
+    assert fit.check["evidence"]["colour_soil_above"] > 0.5
+    assert not fit.evidence[bed].any() or fit.evidence[bed].mean() < 0.02
+    heights = (dsm - fit.ground)[bed]
+    assert abs(np.median(heights) - 0.74) < 0.03
+    # The colour alone would give the beds a support of 1 (all 'soil'); the alleys' share is 1/4.
+    assert fit.support[bed].mean() < 0.35
+    assert fit.check["support_where_guessed"] < 0.35
+
+
+def test_the_uncertainty_grows_from_the_alleys_into_the_beds():
+    dsm, ground, bed = beds()
+    fit = fit_ground(dsm, soil=~bed, pixel_size=0.05)
+    centre = (np.arange(dsm.shape[0]) % 80 == 30)[:, None] & np.ones(dsm.shape, bool)
+    assert fit.sigma[centre].mean() > fit.sigma[~bed].mean()
+    assert fit.check["sigma_model"]["at_soil_m"] > 0
+
+
+def test_a_ground_that_misses_held_out_soil_is_refused_and_names_the_file():
+    rng = np.random.default_rng(2)
+    dsm = (50 + rng.normal(0, 0.3, (300, 300))).astype(np.float32)  # 'soil' as rough as a canopy
+    with pytest.raises(GroundError, match=r"field\.tif.*held-out bare soil within 10 cm.*--dtm"):
+        fit_ground(dsm, soil=np.ones(dsm.shape, bool), pixel_size=0.05, source="field.tif")
+    forced = fit_ground(dsm, soil=np.ones(dsm.shape, bool), pixel_size=0.05, method="smooth", source="f")
+    assert not forced.check["passed"]  # a forced method still reports the failed check
+
+
+def test_bad_method_names_the_parameter():
+    with pytest.raises(CliffTerrainError, match="`method`.*'auto'"):
+        fit_ground(np.zeros((50, 50), np.float32), pixel_size=0.1, method="cloth")
+
+
+# --- The ruler ------------------------------------------------------------------------------------
+
+
+def test_agreement_against_scipy_and_lins_formula():
+    rng = np.random.default_rng(4)
+    truth = rng.uniform(0.3, 1.0, 60)
+    est = 0.9 * truth - 0.05 + rng.normal(0, 0.04, 60)
+    a = agreement(est, truth)
+    assert a["r"] == pytest.approx(stats.pearsonr(est, truth)[0], abs=1e-12)
+    assert a["rmse_m"] == pytest.approx(np.sqrt(np.mean((est - truth) ** 2)))
+    assert a["bias_m"] == pytest.approx(np.mean(est - truth))
+    # Lin (1989): 2 s_xy / (s_x^2 + s_y^2 + (mean_x - mean_y)^2), population moments.
+    sxy = np.cov(est, truth, bias=True)[0, 1]
+    ccc = 2 * sxy / (est.var() + truth.var() + (est.mean() - truth.mean()) ** 2)
+    assert a["ccc"] == pytest.approx(ccc)
+
+
+def test_calibration_recovers_a_line_and_its_leave_one_out_error_is_refitting():
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.2, 0.8, 25)
+    y = 0.08 + 1.15 * x + rng.normal(0, 0.02, 25)
+    fit = calibrate(x, y)
+    slope, intercept = np.polyfit(x, y, 1)
+    assert fit["b"] == pytest.approx(slope) and fit["a_m"] == pytest.approx(intercept)
+    loo = []
+    for i in range(x.size):
+        keep = np.arange(x.size) != i
+        b, a = np.polyfit(x[keep], y[keep], 1)
+        loo.append(y[i] - (a + b * x[i]))
+    assert fit["loo_rmse_m"] == pytest.approx(np.sqrt(np.mean(np.square(loo))))
+
+
+def _plots(ids):
+    square = [np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])]
+    return PlotSet(
+        [square] * len(ids), [{"PlotID": i, "name": f"n{i}"} for i in ids], ("PlotID", "name"), None, ""
+    )
+
+
+@pytest.mark.parametrize(
+    "text, kwargs, words",
+    [
+        ("plot,yield\n1,3\n", {}, "no column named like a height"),
+        ("plot,height_cm\n91,70\n92,80\n", {}, "none of its ids names a plot"),
+        ("plot,height,unit\n1,70,cm\n2,0.8,m\n", {}, "mixes units"),
+        ("plot,height\n1,70\n", {}, "--ruler-units"),
+        ("plot,height_cm\n1,tall\n", {}, "is not a number"),
+        ("plot,height_cm\n1,70\n", {"height_column": "ph_cm"}, "no column 'ph_cm'"),
+    ],
+)
+def test_bad_ruler_files_say_what_is_wrong(tmp_path, text, kwargs, words):
+    path = tmp_path / "ruler.csv"
+    path.write_text(text)
+    with pytest.raises(RulerError, match=words) as caught:
+        read_ruler(path, _plots([1, 2, 3]), **kwargs)
+    assert "ruler.csv" in str(caught.value)
+
+
+def test_a_binary_field_book_is_refused(tmp_path):
+    path = tmp_path / "book.xlsx"
+    path.write_bytes(b"PK\x03\x04\x00\x00binary")
+    with pytest.raises(RulerError, match="not a text CSV"):
+        read_ruler(path, _plots([1]))
+
+
+def test_ruler_matches_by_the_attribute_that_fits_and_converts_units(tmp_path):
+    path = tmp_path / "ruler.csv"
+    path.write_text("Plot ID,Height (mm),note\n3,800,\n1.0,710,x\n9,500,not a plot\n")
+    ruler = read_ruler(path, _plots([1, 2, 3]))
+    assert ruler.id_column == "Plot ID" and ruler.plot_field == "PlotID" and ruler.unit == "mm"
+    np.testing.assert_allclose(ruler.heights_m, [0.71, np.nan, 0.8])
+    assert ruler.matched == 2 and ruler.unmatched == 1
+
+
+# --- The heights command with its check, uncertainty and ruler ------------------------------------
+
+
+@pytest.fixture
+def trial(tmp_path):
+    """The synthetic pair with 8 plots of 1.5 m and a ruler: 0.05 m + 1.1 x each plot's true p90."""
+    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.plot_polygons import read_plots
+    from cliff_terrain.measure.field_plots import rasterize_plots
+
+    truth = write_synthetic_pair(tmp_path)
+    features = []
+    for k in range(8):
+        x0, y0 = 500000.6 + 2.1 * (k % 4), 3999999.6 - 2.6 * (k // 4)
+        ring = [[x0, y0], [x0 + 1.5, y0], [x0 + 1.5, y0 - 1.5], [x0, y0 - 1.5], [x0, y0]]
+        features.append(
+            {
+                "type": "Feature",
+                "properties": {"PlotID": f"P{k + 1}"},
+                "geometry": {"type": "Polygon", "coordinates": [ring]},
+            }
+        )
+    doc = {
+        "type": "FeatureCollection",
+        "crs": {"type": "name", "properties": {"name": "EPSG:32616"}},
+        "features": features,
+    }
+    (tmp_path / "plots.geojson").write_text(json.dumps(doc))
+    ortho = read_orthophoto(tmp_path / "ortho.tif")
+    labels = rasterize_plots(
+        read_plots(tmp_path / "plots.geojson"), transform=ortho.transform, shape=ortho.shape
+    )
+    true_p90 = np.array([np.percentile(truth.chm[labels == k + 1], 90) for k in range(8)])
+    rng = np.random.default_rng(7)
+    measured = 0.05 + 1.1 * true_p90 + rng.normal(0, 0.005, 8)
+    lines = ["plot_id,height_cm"] + [f"P{k + 1},{100 * h:.2f}" for k, h in enumerate(measured)]
+    (tmp_path / "ruler.csv").write_text("\n".join(lines) + "\n")
+    return tmp_path, truth, measured
+
+
+def test_heights_reports_its_check_uncertainty_and_the_ruler(trial):
+    folder, truth, measured = trial
+    out = folder / "out"
+    args = ("heights", folder / "ortho.tif", "--dsm", folder / "dsm.tif", "--plots", folder / "plots.geojson")
+    done = run_cli(*args, "--ruler", folder / "ruler.csv", "--calibrate", "--out", out)
+    assert done.returncode == 0, done.stderr
+    assert "held-out bare soil within" in done.stdout and "against the ruler (8 plots)" in done.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    check = summary["ground_check"]
+    assert check["passed"] and summary["ground_method"] == check["chosen"] == check["method"]
+    assert set(check["candidates"]) >= {"baseline", "smooth"}
+    ruler = summary["ruler"]
+    assert ruler["plots_matched"] == 8 and ruler["unit"] == "cm" and ruler["plot_field"] == "PlotID"
+    with open(out / "plots.csv", newline="") as stream:
+        rows = list(csv.DictReader(stream))
+    ours = np.array([float(r["height_p90_m"]) for r in rows])
+    np.testing.assert_allclose([float(r["ruler_height_m"]) for r in rows], measured, atol=1e-4)
+    assert ruler["height_p90_m"]["r"] == pytest.approx(
+        stats.pearsonr(ours, measured)[0], abs=1e-4
+    )  # the CSV rounds
+    assert ruler["height_p90_m"]["bias_m"] == pytest.approx(np.mean(ours - measured), abs=1e-4)
+    # The calibration undoes the ruler's 5 cm + 10 %: its leave-one-out error is small.
+    calibrated = np.array([float(r["height_calibrated_m"]) for r in rows])
+    fit = ruler["calibration"]
+    np.testing.assert_allclose(calibrated, fit["a_m"] + fit["b"] * ours, atol=1e-4)
+    assert fit["loo_rmse_m"] < 0.5 * ruler["height_p90_m"]["rmse_m"]
+    # The uncertainty: a column per plot and a raster beside chm.tif, positive where measured.
+    err = np.array([float(r["height_p90_err_m"]) for r in rows])
+    assert np.all(err > 0) and np.all(err < 0.1)
+    sigma = read_surface(out / "chm_err.tif")
+    assert sigma.shape == read_surface(out / "chm.tif").shape and np.nanmin(sigma.data) > 0
+
+
+def test_heights_with_the_baseline_is_the_naive_peer(trial):
+    folder, _, _ = trial
+    out = folder / "base"
+    done = run_cli(
+        "heights", folder / "ortho.tif", "--dsm", folder / "dsm.tif", "--ground", "baseline", "--out", out
+    )
+    assert done.returncode == 0, done.stderr
+    chm = read_surface(out / "chm.tif")
+    dsm = read_surface(folder / "dsm.tif")
+    from cliff_terrain.io.geotiff import resample
+
+    surface = resample(dsm, transform=chm.transform, shape=chm.shape)
+    expected = np.maximum(surface - naive_block_ground(surface, pixel_size=0.02, percentile=2.0), 0)
+    ok = np.isfinite(chm.data)
+    np.testing.assert_allclose(chm.data[ok], expected[ok], atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        (("--ruler", "{folder}/ruler.csv"), "needs --plots"),
+        (("--plots", "{folder}/plots.geojson", "--calibrate"), "--calibrate needs --ruler"),
+        (
+            ("--plots", "{folder}/plots.geojson", "--ruler", "{folder}/other.csv"),
+            "none of its ids names a plot",
+        ),
+        (
+            ("--plots", "{folder}/plots.geojson", "--ruler", "{folder}/missing.csv"),
+            "cannot read the ruler file",
+        ),
+    ],
+)
+def test_heights_bad_ruler_exits_2_with_one_line_and_writes_nothing(trial, extra, words):
+    folder, _, _ = trial
+    (folder / "other.csv").write_text("plot,height_cm\nX9,70\n")
+    extra = [e.format(folder=folder) for e in extra]
+    done = run_cli(
+        "heights", folder / "ortho.tif", "--dsm", folder / "dsm.tif", *extra, "--out", folder / "o"
+    )
+    assert done.returncode == 2, done.stdout
+    assert len(done.stderr.strip().splitlines()) == 1 and words in done.stderr
+    assert not (folder / "o").exists()
