@@ -7,7 +7,7 @@ views against the photo, as in the paper's Table 4).
 
 Both run the same code: the repository root (this file's folder) is loaded as the package
 ``cliff_terrain_addon`` and registered like the installed extension; the relief object is made by the
-build operator's own function (``operators.build.build_relief_object``), the views by the modules
+build operator's own function (``scene.relief_object.build_relief_object``), the views by the modules
 of ``scene/``. Arguments are parsed before Blender is imported, so ``--help`` and bad options
 answer at once: their choices, defaults and limits come from ``cliff_terrain/settings.py`` and
 their checks from ``cliff_terrain/_validate.py``, which need neither bpy nor the core's libraries. Bad input exits with status 2 and one line on stderr; existing output files are
@@ -318,7 +318,7 @@ def run(args):
     rig = importlib.import_module(f"{PACKAGE}.scene.rig")
     render_settings = importlib.import_module(f"{PACKAGE}.scene.render_settings")
     views = importlib.import_module(f"{PACKAGE}.scene.views")
-    build_relief_object = importlib.import_module(f"{PACKAGE}.operators.build").build_relief_object
+    build_relief_object = importlib.import_module(f"{PACKAGE}.scene.relief_object").build_relief_object
 
     timings = {"blender_start": time.perf_counter() - _START}
     log(f"Blender {bpy.app.version_string}, Cliff Terrain {core.__version__}")

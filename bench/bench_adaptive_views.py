@@ -36,7 +36,7 @@ def view_row(path, mesh, tmp, *, samples, **settings):
     rig = importlib.import_module(f"{render_views.PACKAGE}.scene.rig")
     views = importlib.import_module(f"{render_views.PACKAGE}.scene.views")
     evaluation = importlib.import_module(f"{render_views.PACKAGE}.cliff_terrain.evaluate.views")
-    build_object = importlib.import_module(f"{render_views.PACKAGE}.operators.build").build_relief_object
+    build_object = importlib.import_module(f"{render_views.PACKAGE}.scene.relief_object").build_relief_object
     relief = core.build_relief(str(path), mesh=mesh, **settings)
     rows, cols = relief.mesh.grid_shape
     obj = build_object(bpy.context, relief, str(path), relief.params, created=[])

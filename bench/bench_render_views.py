@@ -56,7 +56,7 @@ def flat_views(image, folder):
     rigs = importlib.import_module(f"{render_views.PACKAGE}.scene.rig")
     render_settings = importlib.import_module(f"{render_views.PACKAGE}.scene.render_settings")
     evaluation = render_views.core_module("evaluation")
-    build = importlib.import_module(f"{render_views.PACKAGE}.operators.build")
+    build = importlib.import_module(f"{render_views.PACKAGE}.scene.relief_object")
     context = bpy.context
     relief = core.build_relief(str(image))
     obj = build.build_relief_object(context, relief, str(image), relief.params, created=[])

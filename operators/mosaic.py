@@ -19,8 +19,8 @@ from bpy.props import FloatProperty, IntProperty, StringProperty
 from ..scene.datablocks import textured_object
 from ..scene.material import image_from_array
 from ..scene.mesh_data import mesh_from_arrays
-from .build import cancel_build
 from .file_operator import FileOperator
+from .reports import cancel_build
 
 GPU_TEXTURE_LIMIT = 16384
 
