@@ -142,7 +142,11 @@ def pytest_unconfigure(config):
     # bpy 4.2 as a Python module segfaults while the interpreter shuts down, after every test has
     # passed and the summary is printed; leave before that teardown, with pytest's own exit code.
     status = getattr(config, "cliff_terrain_exitstatus", None)
-    if "bpy" in sys.modules and status is not None:
+    # Not in a pytest-xdist worker: its "finished" message to the controller, sent at the session's
+    # end, may still be queued when this hook runs, and an exit without teardown would drop it
+    # (`make test` runs its workers on bpy 5.0.1, which shuts down cleanly).
+    worker = "PYTEST_XDIST_WORKER" in os.environ
+    if "bpy" in sys.modules and status is not None and not worker:
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)
