@@ -11,8 +11,20 @@ CORE = Path(__file__).resolve().parents[1] / "cliff_terrain"
 MAX_LINES = 500
 
 # Each subpackage may import the shared modules and the stages listed before it, never after.
-STAGES = ("io", "data", "relief", "mesh", "evaluate", "measure", "build", "figures", "season", "commands")
-SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "params"}
+STAGES = (
+    "io",
+    "data",
+    "relief",
+    "mesh",
+    "evaluate",
+    "measure",
+    "build",
+    "mosaic",
+    "figures",
+    "season",
+    "commands",
+)
+SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "_dask", "params"}
 
 
 def _modules():

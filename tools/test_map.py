@@ -28,6 +28,10 @@ MAP = TESTS / "TEST_MAP.md"
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
     "cliff_terrain.__main__": (("test_cli.py",), "`python -m cliff_terrain`"),
+    "cliff_terrain._dask": (
+        ("test_mosaic.py", "test_season.py"),
+        "`relief_tiles(client=...)`, a season on Dask",
+    ),
     "cliff_terrain._memory": (("test_mosaic.py",), "`peak_rss` of a mosaic's build"),
     "cliff_terrain._validate": (
         ("test_pipeline.py", "test_bad_input_table.py"),
