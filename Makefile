@@ -1,4 +1,5 @@
-# Two commands for a newcomer: `make demo` (figures from the synthetic field) and `make test`.
+# Two commands for a newcomer: `make demo` (figures from the synthetic field) and `make test`
+# (lint and the whole suite on the pinned bpy, on every core: minutes). `make test-all` is CI's.
 SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 # Python 3.13 for Blender 5.1-5.2 (bpy 5.2.3): python3.13 on PATH, else pyenv's.
@@ -10,14 +11,18 @@ VENV45 := .venv-bpy45
 VENV52 := .venv-bpy52
 BIN := $(VENV)/bin
 DEMO_DIR := demo
+# pytest-xdist workers of `make test` (auto: one per core).
+JOBS ?= auto
 
-.PHONY: help venv venv42 venv45 venv52 demo test test-core test-bpy42 test-bpy45 test-bpy52 test-app lint format bench extension clean
+.PHONY: help venv venv42 venv45 venv52 demo test test-all test-core test-bpy42 test-bpy45 test-bpy52 test-app lint format bench extension clean
 
 help:
 	@echo "make demo       - set up .venv, make the synthetic field, render its figures into $(DEMO_DIR)/"
-	@echo "make test       - lint, then the whole suite three times: bpy 5.0.1 with the pinned libraries"
-	@echo "                  (numpy 1.26), bpy 4.2 with the oldest supported ones, bpy 5.2.3 on Python 3.13"
-	@echo "                  with the newest (numpy 2, OpenCV 5); and the Blender tests on bpy 4.5 LTS"
+	@echo "make test       - lint, then the whole suite (core and Blender tests) on bpy 5.0.1 with the pinned"
+	@echo "                  libraries, on every core (JOBS=auto); one file: .venv/bin/python -m pytest tests/FILE.py"
+	@echo "make test-all   - CI's: lint, the suite on bpy 5.0.1 (pinned libraries, numpy 1.26), bpy 4.2 (the"
+	@echo "                  oldest supported ones), bpy 5.2.3 on Python 3.13 (the newest: numpy 2, OpenCV 5),"
+	@echo "                  the Blender tests on bpy 4.5 LTS, then test-app"
 	@echo "make test-app   - the extension zip in a real blender executable (Debian 13's, in a chroot, if"
 	@echo "                  none is on PATH): install, Build Relief, render_views.py, the sidebar in a window"
 	@echo "make bench      - run the benchmarks (ratios against named peers)"
@@ -76,8 +81,10 @@ format: venv
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
 
+# The whole suite on the pinned bpy, in JOBS worker processes (pytest-xdist); each file's tests stay in one
+# worker (--dist loadfile): the Blender tests of a file share its registered add-on and scene.
 test-core: venv
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(JOBS) --dist loadfile
 
 test-bpy42: venv42
 	$(VENV42)/bin/python -m pytest
@@ -88,10 +95,13 @@ test-bpy45: venv45
 test-bpy52: venv52
 	$(VENV52)/bin/python -m pytest
 
-test: lint test-core test-bpy42 test-bpy45 test-bpy52
+test: lint test-core
 
+test-all: lint test-core test-bpy42 test-bpy45 test-bpy52 test-app
+
+# The chroot of tools/test_app.sh needs root.
 test-app: venv
-	PY=$(BIN)/python bash tools/test_app.sh
+	$(if $(filter 0,$(shell id -u)),,sudo) env PY=$(BIN)/python bash tools/test_app.sh
 
 bench: venv
 	$(BIN)/python bench/run_all.py

@@ -18,16 +18,15 @@ with status 2 and one line on stderr.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
-# Blender's -P does not put the script's folder on sys.path; render_views.py (which imports no bpy
-# itself) holds the extension's one loader, the Blender start-up, the log and the exit.
+# Blender's -P does not put the script's folder on sys.path; _loader.py (which imports no bpy itself)
+# holds the extension's one loader, the Blender start-up, the log and the exit.
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
-from render_views import PACKAGE, InputError, leave, log, start_blender  # noqa: E402
+from _loader import InputError, leave, log, start_blender  # noqa: E402
 
 PROG = "render_season.py"
 
@@ -94,10 +93,11 @@ def run(args):
     season_dir = Path(args.season)
     out = Path(args.out) if args.out else season_dir / "animation"
     bpy, _, _ = start_blender(usage="blender -b -P render_season.py -- SEASON_DIR")
-    errors = importlib.import_module(f"{PACKAGE}.cliff_terrain.errors")
-    outputs = importlib.import_module(f"{PACKAGE}.cliff_terrain.season.outputs")
-    plots_module = importlib.import_module(f"{PACKAGE}.cliff_terrain.io.plot_polygons")
-    scene_season = importlib.import_module(f"{PACKAGE}.scene.season")
+    from cliff_terrain_addon.cliff_terrain import errors
+    from cliff_terrain_addon.cliff_terrain.io import plot_polygons as plots_module
+    from cliff_terrain_addon.cliff_terrain.season import outputs
+    from cliff_terrain_addon.scene import season as scene_season
+
     try:
         season = outputs.read_season(season_dir)
         plots = None

@@ -6,64 +6,38 @@ views against the photo, as in the paper's Table 4).
     blender -b -P render_views.py -- IMAGE [--out DIR] [options]    (Blender 4.2 or newer)
 
 Both run the same code: the repository root (this file's folder) is loaded as the package
-``cliff_terrain_addon`` and registered like the installed extension; the relief object is made by the
-build operator's own function (``operators.build.build_relief_object``), the views by the modules
-of ``scene/``. Arguments are parsed before Blender is imported, so ``--help`` and bad options
-answer at once: their choices, defaults and limits come from ``cliff_terrain/settings.py`` and
-their checks from ``cliff_terrain/_validate.py``, which need neither bpy nor the core's libraries. Bad input exits with status 2 and one line on stderr; existing output files are
-never replaced without ``--overwrite``.
+``cliff_terrain_addon`` and registered like the installed extension (``_loader.py``); the relief
+object is made by the build operator's own function (``scene.relief_object.build_relief_object``),
+the views by the modules of ``scene/``. Arguments are parsed before Blender is imported, so
+``--help`` and bad options answer at once: their choices, defaults and limits come from
+``cliff_terrain/settings.py`` and their checks from ``cliff_terrain/_validate.py``, which need
+neither bpy nor the core's libraries. Bad input exits with status 2 and one line on stderr;
+existing output files are never replaced without ``--overwrite``.
+
+A script only: what other scripts, tests and benchmarks share with it (loading the extension,
+starting Blender, the log, the exit) is in ``_loader.py``.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
-import os
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
-PACKAGE = "cliff_terrain_addon"
+# Blender's -P does not put the script's folder on sys.path.
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+import _loader  # noqa: E402
+from _loader import InputError, leave, log  # noqa: E402
+
+# The extension's bpy-free modules, importable before Blender starts.
+_loader.package(execute=False)
+from cliff_terrain_addon.cliff_terrain import _validate, errors, settings  # noqa: E402
+from cliff_terrain_addon.cliff_terrain.params import ReliefParams  # noqa: E402
+
 PROG = "render_views.py"
-
-_START = time.perf_counter()
-# Inside Blender (blender -b -P) bpy is loaded before this script runs; with the bpy wheel it is not.
-INSIDE_BLENDER = "bpy" in sys.modules
-
-
-class InputError(Exception):
-    """Bad input the user can fix: reported as one line on stderr, exit status 2."""
-
-
-def addon_package(*, execute=True):
-    """The repository root as the package ``cliff_terrain_addon``, as Blender imports an extension.
-
-    The one loader of the extension from this folder (the tests and benchmarks use it too). With
-    `execute` False the package's ``__init__`` (which imports bpy) has not run yet: enough to import
-    its bpy-free modules, such as ``cliff_terrain.settings``, while the arguments are parsed.
-    """
-    module = sys.modules.get(PACKAGE)
-    if module is None:
-        spec = importlib.util.spec_from_file_location(
-            PACKAGE, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
-        )
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[PACKAGE] = module
-    if execute and not hasattr(module, "register"):
-        try:
-            module.__spec__.loader.exec_module(module)
-        except BaseException:
-            del sys.modules[PACKAGE]
-            raise
-    return module
-
-
-def core_module(name):
-    """A module of the core (``cliff_terrain.<name>``) from this folder's copy of the extension."""
-    addon_package(execute=False)
-    return importlib.import_module(f"{PACKAGE}.cliff_terrain.{name}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -73,8 +47,7 @@ def core_module(name):
 
 def _number(kind, option, **limits):
     """An argparse type: a finite number of `kind` within `limits`, checked as the core checks it."""
-    validate = core_module("_validate")
-    check = validate.check_int if kind is int else validate.check_float
+    check = _validate.check_int if kind is int else _validate.check_float
 
     def convert(text):
         try:
@@ -85,7 +58,7 @@ def _number(kind, option, **limits):
             ) from None
         try:
             return check(option, value, **limits)
-        except validate.CliffTerrainError as exc:
+        except errors.CliffTerrainError as exc:
             # argparse names the option already: "argument --max-size: must be >= 16, got 3".
             raise argparse.ArgumentTypeError(str(exc).removeprefix(f"`{option}` ")) from None
 
@@ -101,7 +74,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser():
-    settings = core_module("settings")
     parser = _Parser(
         prog=PROG,
         description="Build the 3D relief of a UAV photo in Blender and render its figures and metrics.",
@@ -112,7 +84,7 @@ def build_parser():
         "--out", metavar="DIR", help="output folder (default: <image stem>_relief/ beside the image)"
     )
     build = parser.add_argument_group("relief (as cliff_terrain.build_relief)")
-    core_module("params").ReliefParams.add_arguments(build, number=_number)
+    ReliefParams.add_arguments(build, number=_number)
     build.add_argument(
         "--plots", metavar="FILE", help="plot polygons (GeoJSON or Shapefile): writes plots.csv (needs --dsm)"
     )
@@ -191,7 +163,7 @@ def script_args(argv=None):
         return list(argv)
     if "--" in sys.argv:
         return sys.argv[sys.argv.index("--") + 1 :]
-    if INSIDE_BLENDER:
+    if _loader.INSIDE_BLENDER:
         return []  # blender -b -P render_views.py without "--": Blender's own arguments are not ours
     return sys.argv[1:]
 
@@ -207,7 +179,11 @@ def index_view_name(index):
 
 
 def check_inputs(args):
-    """Fail before any work: a missing photo, an output folder that is a file, files to overwrite."""
+    """Fail before any work: a missing photo, an output folder that is a file, files to overwrite.
+
+    Each check imports what it needs only (a Blender without the core's libraries gets as far as
+    :func:`_loader.start_blender`, which says how to install them).
+    """
     image = Path(args.image)
     if not image.exists():
         raise InputError(f"image not found: {image}")
@@ -218,16 +194,22 @@ def check_inputs(args):
         raise InputError(f"--out exists and is not a folder: {out}")
     args.color_index = None
     if args.color_by:
+        from cliff_terrain_addon.cliff_terrain.relief import indices
+
         try:
-            (args.color_index,) = core_module("relief.indices").parse_indices(args.color_by)
+            (args.color_index,) = indices.parse_indices(args.color_by)
         except ValueError:  # a CliffTerrainError (an unknown index), or more than one index
             raise InputError(f"--color-by takes one vegetation index, got {args.color_by!r}") from None
     if not args.overwrite:
-        names = core_module("figures.outputs").OUTPUTS  # everything the script writes
+        from cliff_terrain_addon.cliff_terrain.figures.outputs import OUTPUTS
+
+        names = OUTPUTS  # everything the script writes
         if args.color_index:
             names = (*names, index_view_name(args.color_index))
         if args.dsm or args.plots or args.indices:  # and the region and plot tables
-            names = (*names, *core_module("measure.tables").TABLES)
+            from cliff_terrain_addon.cliff_terrain.measure.tables import TABLES
+
+            names = (*names, *TABLES)
         existing = [out / name for name in names if (out / name).exists()]
         if existing:
             more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
@@ -238,70 +220,37 @@ def check_inputs(args):
     if args.plots:
         if not args.dsm:
             raise InputError("--plots needs --dsm (plot heights are measured on the surface model)")
+        from cliff_terrain_addon.cliff_terrain.io import plot_polygons
+
         try:
-            args.plot_set = core_module("io.plot_polygons").read_plots(args.plots)
-        except core_module("errors").CliffTerrainError as exc:
+            args.plot_set = plot_polygons.read_plots(args.plots)
+        except errors.CliffTerrainError as exc:
             raise InputError(str(exc)) from None
     args.bands_read = None
     if args.indices or args.color_index:  # an index whose band the file lacks: one line, before any work
+        from cliff_terrain_addon.cliff_terrain.io import bands
+        from cliff_terrain_addon.cliff_terrain.relief import indices
+
         try:
-            names = core_module("relief.indices").parse_indices(args.indices)
-            args.bands_read = core_module("io.bands").read_bands(str(image), names=args.bands)
+            names = indices.parse_indices(args.indices)
+            args.bands_read = bands.read_bands(str(image), names=args.bands)
             wanted = (*names, *([args.color_index] if args.color_index else []))
-            core_module("relief.indices").check_indices(args.bands_read, wanted)
-        except core_module("errors").CliffTerrainError as exc:
+            indices.check_indices(args.bands_read, wanted)
+        except errors.CliffTerrainError as exc:
             raise InputError(str(exc)) from None
     args.transect_strip = None
     if args.transect is not None:
         # Checked against the photo's header now, not after the pipeline's seconds of work.
-        errors = core_module("errors")
+        from cliff_terrain_addon.cliff_terrain.io import photo, transect
+
         try:
-            meta = core_module("io.photo").read_metadata(str(image))
-            args.transect_strip = core_module("io.transect").parse_transect(
+            meta = photo.read_metadata(str(image))
+            args.transect_strip = transect.parse_transect(
                 args.transect, shape=(meta.height, meta.width), name="--transect"
             )
         except errors.CliffTerrainError as exc:
             raise InputError(str(exc)) from None
     return image, out
-
-
-# --------------------------------------------------------------------------------------------
-# Blender and the extension
-# --------------------------------------------------------------------------------------------
-
-
-def log(message):
-    print(f"[{time.perf_counter() - _START:6.1f} s] {message}", flush=True)
-
-
-def start_blender(*, usage="blender -b -P render_views.py -- IMAGE"):
-    """Import bpy, start from an empty scene and register the extension from this folder.
-
-    `usage` is the Blender command the error names when bpy is missing (render_season.py's own).
-    """
-    try:
-        import bpy
-    except ImportError:
-        raise InputError(
-            f"Blender's Python module is missing: run `{usage}` "
-            "or install the bpy wheel (pip install -r requirements-dev.txt)"
-        ) from None
-    # An empty scene with factory settings; the preferences (and installed add-ons) stay untouched.
-    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-    addon = addon_package()
-    # An installed Cliff Terrain extension may already have registered the same classes.
-    if not hasattr(bpy.types.Scene, "cliff_terrain"):
-        addon.register()
-    try:
-        core = importlib.import_module(f"{PACKAGE}.cliff_terrain")
-        importlib.import_module(f"{PACKAGE}.cliff_terrain._deps").check_required()
-    except ImportError as exc:
-        raise InputError(
-            f"Cliff Terrain's libraries are missing in this Python ({exc}): install the extension zip "
-            "in Blender (Edit > Preferences > Get Extensions > Install from Disk), or pip-install "
-            "requirements.txt into Blender's Python"
-        ) from None
-    return bpy, addon, core
 
 
 # --------------------------------------------------------------------------------------------
@@ -312,15 +261,13 @@ def start_blender(*, usage="blender -b -P render_views.py -- IMAGE"):
 def run(args):
     image, out = check_inputs(args)
     log("starting Blender")
-    bpy, addon, core = start_blender()
-    evaluation = core_module("evaluate.views")
-    outputs = core_module("figures.outputs")
-    rig = importlib.import_module(f"{PACKAGE}.scene.rig")
-    render_settings = importlib.import_module(f"{PACKAGE}.scene.render_settings")
-    views = importlib.import_module(f"{PACKAGE}.scene.views")
-    build_relief_object = importlib.import_module(f"{PACKAGE}.operators.build").build_relief_object
+    bpy, _, core = _loader.start_blender(usage="blender -b -P render_views.py -- IMAGE")
+    from cliff_terrain_addon.cliff_terrain.evaluate import views as evaluation
+    from cliff_terrain_addon.cliff_terrain.figures import outputs
+    from cliff_terrain_addon.scene import colour_by, render_settings, rig, views
+    from cliff_terrain_addon.scene.relief_object import build_relief_object
 
-    timings = {"blender_start": time.perf_counter() - _START}
+    timings = {"blender_start": time.perf_counter() - _loader.START}
     log(f"Blender {bpy.app.version_string}, Cliff Terrain {core.__version__}")
 
     def stage(name, start):
@@ -329,7 +276,7 @@ def run(args):
     start = time.perf_counter()
     path = str(image.resolve())
     try:
-        params = core_module("params").ReliefParams.from_args(args)
+        params = ReliefParams.from_args(args)
         relief = core.build_relief(path, params, progress=lambda fraction, name: log(f"pipeline: {name}"))
     except core.CliffTerrainError as exc:
         raise InputError(str(exc)) from None
@@ -382,7 +329,6 @@ def run(args):
     stage("metrics", start)
 
     if args.color_index:
-        colour_by = importlib.import_module(f"{PACKAGE}.scene.colour_by")
         log(f"rendering the top view coloured by {args.color_index}")
         shown = colour_by.colour_relief(obj, "INDEX", index=args.color_index)
         if shown != "INDEX":
@@ -407,7 +353,8 @@ def run(args):
 
     index_maps = None
     if args.bands_read is not None:
-        indices = core_module("relief.indices")
+        from cliff_terrain_addon.cliff_terrain.relief import indices
+
         index_maps = indices.index_maps(
             args.bands_read, indices.parse_indices(args.indices), shape=relief.mask.shape
         )
@@ -421,7 +368,7 @@ def run(args):
             plots=args.plot_set,
             render=views.render_record(obj, engine=engine, samples=args.samples, light=view_rig.light),
             timings=timings,
-            started=_START,
+            started=_loader.START,
             log=log,
             index_maps=index_maps,
         )
@@ -441,25 +388,6 @@ def main(argv=None):
         print(f"{PROG}: error: {message}", file=sys.stderr, flush=True)
         return 2
     return 0
-
-
-def leave(code):
-    """Exit with `code`.
-
-    bpy 4.2-4.5 as a Python module segfaults while the interpreter shuts down once a PropertyGroup
-    has been registered (even after unregistering it): there, flush, remove Blender's session
-    folder and leave without the teardown, so the exit code is ours.
-    """
-    bpy = sys.modules.get("bpy")
-    if INSIDE_BLENDER or bpy is None or bpy.app.version >= (5, 0, 0):
-        sys.exit(code)
-    import shutil
-
-    sys.stdout.flush()
-    sys.stderr.flush()
-    if bpy.app.tempdir:
-        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
-    os._exit(code)
 
 
 if __name__ == "__main__":

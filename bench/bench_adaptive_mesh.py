@@ -39,7 +39,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np
 
-# The extension registered in this process as the build benchmark loads it (render_views.addon_package).
+# The extension registered in this process as the build benchmark loads it (_loader.register).
 from bench_blender_build import ADDON, clear_scene, load_addon  # noqa: E402
 from machine_info import describe, machine  # noqa: E402
 

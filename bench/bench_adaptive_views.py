@@ -13,7 +13,6 @@ PSNR and SSIM, the faces and the ``scene.blend`` render_views.py would save.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import tempfile
 from pathlib import Path
@@ -29,14 +28,12 @@ def view_row(path, mesh, tmp, *, samples, **settings):
     """One relief's top views against its photo, as render_views.py makes and scores them."""
     import bpy
 
-    import render_views
-
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-    core = importlib.import_module(f"{render_views.PACKAGE}.cliff_terrain")
-    rig = importlib.import_module(f"{render_views.PACKAGE}.scene.rig")
-    views = importlib.import_module(f"{render_views.PACKAGE}.scene.views")
-    evaluation = importlib.import_module(f"{render_views.PACKAGE}.cliff_terrain.evaluate.views")
-    build_object = importlib.import_module(f"{render_views.PACKAGE}.operators.build").build_relief_object
+    from cliff_terrain_addon import cliff_terrain as core
+    from cliff_terrain_addon.cliff_terrain.evaluate import views as evaluation
+    from cliff_terrain_addon.scene import rig, views
+    from cliff_terrain_addon.scene.relief_object import build_relief_object as build_object
+
     relief = core.build_relief(str(path), mesh=mesh, **settings)
     rows, cols = relief.mesh.grid_shape
     obj = build_object(bpy.context, relief, str(path), relief.params, created=[])
@@ -70,9 +67,9 @@ def main(argv=None):
     parser.add_argument("--samples", type=int, default=8)
     args = parser.parse_args(argv)
 
-    import render_views
+    import _loader
 
-    bpy, addon, _core = render_views.start_blender()
+    bpy, addon, _core = _loader.start_blender(usage="python bench/bench_adaptive_views.py")
     cases = [(p, {}) for p in PHOTOS] + [(MEASURED[0], dict(MEASURED[1]))]
     out_rows = []
     with tempfile.TemporaryDirectory(prefix="cliff_terrain_views_") as tmp:

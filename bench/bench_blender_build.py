@@ -50,9 +50,9 @@ from machine_info import describe, machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-import render_views  # noqa: E402  (the one loader of the extension from this folder)
+import _loader  # noqa: E402  (the one loader of the extension from this folder)
 
-ADDON = render_views.PACKAGE
+ADDON = _loader.PACKAGE
 UAV = ROOT.parent / "shared" / "data" / "uav"
 REAL_IMAGE = UAV / "seneca_nir" / "IMG_0505.jpg"  # a real 3600x2700 frame of a crop field
 CROP = (3501, 2334)  # cols, rows of the crop photo
@@ -64,13 +64,13 @@ import json, os, sys, time
 start = time.perf_counter()
 import bpy
 sys.path.insert(0, sys.argv[1])
-import render_views
-render_views.addon_package().register()
+import _loader
+_loader.register()
 ready = time.perf_counter()
 result = bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2], max_size=int(sys.argv[3]))
 first = time.perf_counter() - ready
 print("RESULT " + json.dumps({"start_s": ready - start, "first_s": first, "result": sorted(result)}), flush=True)
-os._exit(0)  # bpy 4.2-4.5 crash while the interpreter shuts down (see render_views.leave)
+os._exit(0)  # bpy 4.2-4.5 crash while the interpreter shuts down (see _loader.leave)
 """
 
 
@@ -80,8 +80,8 @@ _WARM = r"""
 import gc, json, os, sys, time
 import bpy
 sys.path.insert(0, sys.argv[1])
-import render_views
-render_views.addon_package().register()
+import _loader
+_loader.register()
 bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2], max_size=64)
 runs = []
 for _ in range(int(sys.argv[4])):
@@ -146,13 +146,7 @@ def write_photo(path):
 
 def load_addon():
     """The extension, registered in this process (as Blender loads it); True if registered here."""
-    import bpy
-
-    module = render_views.addon_package()
-    registered_here = not hasattr(bpy.types.Scene, "cliff_terrain")
-    if registered_here:
-        module.register()
-    return module, registered_here
+    return _loader.register()
 
 
 def clear_scene():
@@ -226,11 +220,9 @@ def time_peer(heights):
 
 def time_stages(photo, max_size):
     """Where our time goes: the core alone, then the mesh transfer and the material."""
-    import importlib
+    from cliff_terrain_addon import cliff_terrain as core
+    from cliff_terrain_addon.scene import material, mesh_data
 
-    core = importlib.import_module(f"{ADDON}.cliff_terrain")
-    mesh_data = importlib.import_module(f"{ADDON}.scene.mesh_data")
-    material = importlib.import_module(f"{ADDON}.scene.material")
     clear_scene()
     start = time.perf_counter()
     relief = core.build_relief(str(photo), max_size=max_size)
@@ -399,6 +391,6 @@ def main(argv=None):
 
 if __name__ == "__main__":
     main()
-    # bpy 4.2-4.5 crash while the interpreter shuts down (see render_views.leave).
+    # bpy 4.2-4.5 crash while the interpreter shuts down (see _loader.leave).
     sys.stdout.flush()
     os._exit(0)

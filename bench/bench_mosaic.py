@@ -1,7 +1,7 @@
 """Benchmark: a big tiled GeoTIFF orthomosaic (>= 400 MP) built in tiles: throughput and peak memory.
 
 The mosaic is generated in a temporary folder (a synthetic field repeated, written tile by tile,
-zlib-compressed; never decoded whole, never committed). Ours: cliff_terrain.mesh.tiles (overview for
+zlib-compressed; never decoded whole, never committed). Ours: cliff_terrain.mosaic.tiles (overview for
 the shared settings, then every 4096-pixel tile with a 512-pixel margin: mask, regions, heights)
 plus an adaptive mesh per tile, in a subprocess whose peak resident memory is read from the OS;
 then the same with the tiles as Dask tasks on a local cluster (``relief_tiles(client=...)``, the
@@ -62,8 +62,9 @@ RUN = textwrap.dedent(
     import numpy as np
     from cliff_terrain._memory import peak_rss
     from cliff_terrain.mesh.adaptive import adaptive_mesh
-    from cliff_terrain.mesh.tile_meshes import mosaic_max_error
-    from cliff_terrain.mesh.tiles import MosaicReader, mosaic_settings, relief_tiles, tile_windows
+    from cliff_terrain.mosaic.meshes import mosaic_max_error
+    from cliff_terrain.io.mosaic import MosaicReader
+    from cliff_terrain.mosaic.tiles import mosaic_settings, relief_tiles, tile_windows
     path, limit, workers = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     start = time.perf_counter()
     with contextlib.ExitStack() as stack:

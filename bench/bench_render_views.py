@@ -16,7 +16,6 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import subprocess
@@ -49,14 +48,14 @@ def run_script(image, out):
 def flat_views(image, folder):
     """Ours and the Workbench peer on the same relief and camera: (seconds, PSNR, SSIM) each."""
     sys.path.insert(0, str(ROOT))
-    import render_views
+    import _loader
 
-    bpy, _, core = render_views.start_blender()
-    views = importlib.import_module(f"{render_views.PACKAGE}.scene.views")
-    rigs = importlib.import_module(f"{render_views.PACKAGE}.scene.rig")
-    render_settings = importlib.import_module(f"{render_views.PACKAGE}.scene.render_settings")
-    evaluation = render_views.core_module("evaluation")
-    build = importlib.import_module(f"{render_views.PACKAGE}.operators.build")
+    bpy, _, core = _loader.start_blender(usage="python bench/bench_render_views.py")
+    from cliff_terrain_addon.cliff_terrain.evaluate import views as evaluation
+    from cliff_terrain_addon.scene import relief_object as build
+    from cliff_terrain_addon.scene import render_settings, views
+    from cliff_terrain_addon.scene import rig as rigs
+
     context = bpy.context
     relief = core.build_relief(str(image))
     obj = build.build_relief_object(context, relief, str(image), relief.params, created=[])
@@ -148,6 +147,6 @@ def main(argv=None):
 
 if __name__ == "__main__":
     main()
-    # bpy 4.2-4.5 crash while the interpreter shuts down (see render_views.leave).
+    # bpy 4.2-4.5 crash while the interpreter shuts down (see _loader.leave).
     sys.stdout.flush()
     os._exit(0)

@@ -56,11 +56,13 @@ STEPS = {
         "allocate_mesh",
         "checked_topology",
         "fill_topology",
+        "show_relief",
+    ],
+    "scene.relief_object": [
         "set_positions",
         "mesh_from_arrays",
         "load_photo",
         "textured_object",
-        "show_relief",
     ],
     "scene.datablocks": ["relief_material"],
 }

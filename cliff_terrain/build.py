@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import time
 import warnings
@@ -104,6 +105,12 @@ class Relief:
     @property
     def max_height(self) -> float:
         return float(self.heights.max(initial=0.0))
+
+    @property
+    def mask_digest(self) -> str:
+        """A short hash of the plant mask: a rebuild from the same photo and settings reproduces the
+        segmentation bit for bit, so an equal digest tells the same relief (16 hex digits, BLAKE2b)."""
+        return hashlib.blake2b(np.packbits(self.mask, axis=None).tobytes(), digest_size=8).hexdigest()
 
 
 def build_relief(image_or_path, params=None, *, progress=None, **settings):

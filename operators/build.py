@@ -7,29 +7,27 @@ to the console, it is reported as an ERROR naming the exception, and the operato
 way every datablock the build made (object, mesh, material, image) is removed first: the scene is
 left as it was.
 
-The new object is named after the photo, placed at the 3D cursor, selected and made active; in a
-window, every 3D view frames it and Solid shading shows its texture (:func:`show_relief`). User
-objects are never modified. Sizes: metres when the ground sampling distance is known (1 Blender unit
-= 1 m), otherwise "normalised units" (the longest side is 10 Blender units; the factor is recorded
-as ``blender_units_per_unit`` in the object's ``cliff_terrain`` custom property).
+The new object (:func:`scene.relief_object.build_relief_object`, with its record,
+:mod:`scene.record`) is named after the photo, placed at the 3D cursor, selected and made active;
+in a window, every 3D view frames it and Solid shading shows its texture
+(:func:`scene.viewport.show_relief`). User objects are never modified. The core runs in a worker
+thread while this one makes the Blender mesh (:func:`build_beside_the_mesh`).
 """
 
 import dataclasses
 import queue
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import bpy
 
-from ..scene.datablocks import remove_datablocks, textured_object
-from ..scene.material import load_photo
-from ..scene.mesh_data import allocate_mesh, checked_topology, fill_topology, mesh_from_arrays, set_positions
+from ..scene.datablocks import remove_datablocks
+from ..scene.mesh_data import allocate_mesh, checked_topology, fill_topology
+from ..scene.record import Record, record_figures
+from ..scene.relief_object import build_relief_object, relief_name
+from ..scene.viewport import show_relief
 from .properties import PARAMETER_NAMES, ReliefParameters
-from .reports import report_failure
+from .reports import cancel_build
 
-# Without a known ground sampling distance the relief is scaled so its longest side is this many
-# Blender units ("normalised units"); with one, 1 Blender unit = 1 metre.
-NORMALISED_SIZE = 10.0
 # Share of the progress bar taken by the core pipeline; the rest is mesh and material.
 PIPELINE_SHARE = 0.8
 
@@ -107,81 +105,20 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 trait=settings.color_trait,
                 index=settings.color_index,
             )
-        info = obj["cliff_terrain"]
+        record = Record.of(obj)
         self.report(
             {"INFO"},
-            f"Built {obj.name}: {len(obj.data.vertices)} vertices, {info['regions']} regions, "
-            + ("sizes in metres" if info["units"] == "m" else "relative units (longest side = 10)")
-            + f"; {info['mesh']} mesh"
-            + ("" if info["mesh_rule"] == "given" else f" ({info['mesh_rule']})")
+            f"Built {obj.name}: {len(obj.data.vertices)} vertices, {record.regions} regions, "
+            + ("sizes in metres" if record.metres else "relative units (longest side = 10)")
+            + f"; {record.mesh} mesh"
+            + ("" if record.mesh_rule == "given" else f" ({record.mesh_rule})")
             + (
-                f", max error {info['max_error']:.3g} {info['units']}: {info['max_error_rule']}"
-                if info["max_error"]
+                f", max error {record.max_error:.3g} {record.units}: {record.max_error_rule}"
+                if record.max_error
                 else ""
             ),
         )
         return {"FINISHED"}
-
-
-def show_relief(context, obj):
-    """Show a new relief in every 3D view of the window, as Blender's Add menu would and then some:
-    each view frames it (View Selected, then fitted into the part of the view that the toolbar and
-    sidebar do not cover), and Solid shading shows the photo (Texture colour) so the user does not
-    meet a grey slab. Nothing to do without a window (background mode, scripts).
-    """
-    screen = context.screen
-    if bpy.app.background or screen is None:
-        return
-    view_prefs = context.preferences.view
-    smooth = view_prefs.smooth_view
-    view_prefs.smooth_view = 0  # the view settles now, so it can be refined below
-    try:
-        for area in screen.areas:
-            if area.type != "VIEW_3D":
-                continue
-            space = area.spaces.active
-            if space.shading.type == "SOLID":
-                space.shading.color_type = "TEXTURE"
-            regions = {region.type: region for region in area.regions}
-            region = regions.get("WINDOW")
-            if region is None or space.region_3d is None:
-                continue
-            rv3d = space.region_3d
-            distance = rv3d.view_distance
-            # World units per pixel at the view's centre, from the matrices of the last redraw.
-            per_pixel = _world_per_pixel(region, rv3d)
-            with context.temp_override(area=area, region=region, space_data=space):
-                bpy.ops.view3d.view_selected(use_all_regions=False)
-            if context.preferences.system.use_region_overlap and per_pixel:
-                _fit_visible_part(space, regions, region, rv3d, per_pixel * rv3d.view_distance / distance)
-    finally:
-        view_prefs.smooth_view = smooth
-
-
-def _world_per_pixel(region, rv3d):
-    from bpy_extras.view3d_utils import region_2d_to_location_3d
-
-    centre = (region.width / 2, region.height / 2)
-    a = region_2d_to_location_3d(region, rv3d, centre, rv3d.view_location)
-    b = region_2d_to_location_3d(region, rv3d, (centre[0] + 100, centre[1]), rv3d.view_location)
-    return (b - a).length / 100 if a is not None and b is not None else None
-
-
-def _fit_visible_part(space, regions, region, rv3d, per_pixel):
-    """Zoom out and pan so the framed relief sits in the view's uncovered middle: with region overlap,
-    the toolbar and the sidebar are drawn over the 3D view's left and right edges."""
-    from mathutils import Vector
-
-    left = regions["TOOLS"].width if "TOOLS" in regions and space.show_region_toolbar else 0
-    right = regions["UI"].width if "UI" in regions and space.show_region_ui else 0
-    visible = region.width - left - right
-    if visible < 0.3 * region.width:
-        return
-    factor = region.width / visible
-    rv3d.view_distance *= factor
-    # Move the view right, so the relief moves left into the middle of the uncovered part.
-    shift = 0.5 * (right - left) * per_pixel * factor
-    rv3d.view_location += (rv3d.view_rotation @ Vector((1.0, 0.0, 0.0))) * shift
 
 
 def build_beside_the_mesh(build_relief, path, params, progress, created):
@@ -197,9 +134,9 @@ def build_beside_the_mesh(build_relief, path, params, progress, created):
 
     An adaptive mesh's size is known only at its end, so there is nothing to allocate early: the
     relief is built in this thread without a mesh, then its mesh in this thread while a worker
-    works out the key figures of the object's record (`figures`, for :func:`build_record`;
-    ``pydelatin`` holds the GIL, but the figures' array steps run without it); `mesh` is then
-    None. For the grid, `figures` is None: :func:`build_record` works them out.
+    works out the key figures of the object's record (`figures`, for
+    :func:`scene.record.write_record`; ``pydelatin`` holds the GIL, but the figures' array steps run
+    without it); `mesh` is then None. For the grid, `figures` is None: the record works them out.
     """
     from ..cliff_terrain.build import grid_shape, mesh_relief
     from ..cliff_terrain.mesh.adaptive import choose_mesh
@@ -261,147 +198,6 @@ def build_beside_the_mesh(build_relief, path, params, progress, created):
         relief, mesh=vertices, mesh_kind=kind, mesh_rule=rule, params={**relief.params, "mesh": params.mesh}
     )
     return relief, mesh, None
-
-
-def relief_scale(relief):
-    """Blender units per core unit: 1 for metres, else the longest side becomes NORMALISED_SIZE."""
-    if relief.units == "m":
-        return 1.0
-    rows, cols = relief.mesh.grid_shape
-    return NORMALISED_SIZE / (max(rows, cols) * float(relief.pixel_size))
-
-
-def relief_name(path):
-    """Name of the relief object (and its mesh, material and image): the photo's file name."""
-    return Path(path).stem or "relief"
-
-
-def build_relief_object(context, relief, path, params, *, created, mesh=None, figures=None):
-    """Make the relief's mesh, material and object, linked to the active collection.
-
-    Every new datablock is appended to `created` as soon as it exists, so the caller can remove them
-    all if a later step fails. `mesh`, if given, is the relief's mesh with its faces, edges and UVs
-    filled (already in `created`) and only needs its vertices placed. `figures`, if given, are
-    :func:`record_figures` of the relief.
-    """
-    name = relief_name(path)
-    scale = relief_scale(relief)
-    if mesh is None:
-        mesh = mesh_from_arrays(name, relief.mesh, scale=scale)
-        created.append(mesh)
-    else:
-        set_positions(mesh, relief.mesh.vertices, scale=scale)
-    image, image_created = load_photo(path, metadata=relief.metadata, fallback_rgb=relief.image, name=name)
-    if image_created:
-        created.append(image)
-    obj = textured_object(name, mesh, image, context.collection or context.scene.collection, created=created)
-    obj["cliff_terrain"] = build_record(relief, path, params, scale, figures=figures)
-    obj.location = context.scene.cursor.location
-    for other in context.view_layer.objects.selected:
-        other.select_set(False)
-    obj.select_set(True)
-    context.view_layer.objects.active = obj
-    return obj
-
-
-def build_record(relief, path, params, scale, *, figures=None):
-    """What a relief object records about its build (its ``cliff_terrain`` custom property).
-
-    `figures`: :func:`record_figures` of the relief, if already worked out.
-    """
-    from ..cliff_terrain import __version__
-    from ..cliff_terrain.relief.indices import available_indices
-
-    digest, figures = record_figures(relief) if figures is None else figures
-
-    return {
-        "version": __version__,
-        "source": str(path),
-        "units": relief.units,
-        "blender_units_per_unit": scale,
-        "size_mode": "metres" if relief.units == "m" else "normalised",
-        "pixel_size": float(relief.pixel_size),
-        "grid_rows": int(relief.mesh.grid_shape[0]),
-        "grid_cols": int(relief.mesh.grid_shape[1]),
-        "regions": int(relief.n_regions),
-        # The photo's ground sampling distance (0 when unknown) and where it came from ("" when unknown).
-        "gsd_m_per_px": float(relief.metadata.gsd_m_per_px or 0.0),
-        "gsd_source": relief.metadata.gsd_source or "",
-        # The adaptive mesh's bound (0 for the grid) and its front faces (triangles, or grid quads).
-        "max_error": float(relief.max_error or 0.0),
-        # Which rule chose the bound ("given", half a pixel, the DSM's noise; "" for the grid), and
-        # the mesh made with why ("auto" resolved per build).
-        "max_error_rule": relief.max_error_rule or "",
-        "mesh": relief.mesh_kind or "",
-        "mesh_rule": relief.mesh_rule,
-        "front_faces": int(relief.mesh.n_front_faces),
-        "max_height": relief.max_height,
-        # Tells a rebuild of the relief from its photo (Render Views' figures) from another photo.
-        "mask_digest": digest,
-        # A multispectral photo's bands (as named by its file or by the build) and the vegetation
-        # indices they allow (Color By offers them).
-        "bands": list(relief.metadata.band_names or ()),
-        "indices": list(available_indices(relief.metadata.band_names or ())),
-        "image_width": int(relief.metadata.width),
-        "image_height": int(relief.metadata.height),
-        # The settings as the sidebar holds them (0 for "not given"), which a rebuild reads back.
-        "params": _relief_params(params).to_properties(),
-        **figures,
-    }
-
-
-def record_figures(relief):
-    """``(mask_digest, key_figures)`` of a relief, for its record: they need no mesh."""
-    return mask_digest(relief.mask), key_figures(relief)
-
-
-def _relief_params(params):
-    """`params` as a :class:`ReliefParams` (render_views.py passes a relief's recorded ``params``)."""
-    from ..cliff_terrain.params import ReliefParams
-
-    return params if isinstance(params, ReliefParams) else ReliefParams.from_properties(params)
-
-
-def mask_digest(mask):
-    """A short hash of a plant mask (the segmentation, which a rebuild reproduces bit for bit)."""
-    import hashlib
-
-    import numpy as np
-
-    return hashlib.blake2b(np.packbits(mask, axis=None).tobytes(), digest_size=8).hexdigest()
-
-
-def key_figures(relief):
-    """Cover and, with a surface model, the canopy height p50/p90 (cm, -1 without) and the map offset.
-
-    The mesh is built near the world origin; ``map_offset`` is the map (x, y) of its local (0, 0)
-    (the grid's bottom-left corner) in EPSG ``crs``: add it to a vertex to get map coordinates.
-    """
-    from ..cliff_terrain.measure.key_figures import key_figures as core_figures
-
-    # One definition of the figures (the core's), shown in the sidebar in centimetres.
-    core = core_figures(relief)
-    figures = {"cover": core["cover"], "canopy_p50_cm": -1.0, "canopy_p90_cm": -1.0}
-    canopy = getattr(relief, "canopy", None)
-    if canopy is not None:
-        if core["canopy_height_p90_m"] is not None:
-            figures.update(
-                canopy_p50_cm=core["canopy_height_p50_m"] * 100.0,
-                canopy_p90_cm=core["canopy_height_p90_m"] * 100.0,
-            )
-        rows = relief.heights.shape[0]  # the mesh's grid
-        t = canopy.transform
-        figures["map_offset"] = [float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2])]
-        figures["crs"] = int(canopy.crs)
-        figures["ground"] = canopy.ground_source
-    return figures
-
-
-def cancel_build(operator, exc, created):
-    """Remove every datablock in `created`, report `exc` as the module's error policy says and
-    return CANCELLED: a :class:`CliffTerrainError` with its message, anything else as a bug."""
-    remove_datablocks(created)
-    return report_failure(operator, exc)
 
 
 class _Progress:

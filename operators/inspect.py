@@ -7,13 +7,10 @@ The values come from :mod:`scene.probe` (the relief's own rasters); the colours 
 import bpy
 
 from ..scene.probe import PROBE_KEY
+from ..scene.record import is_relief
 from .reports import report_failure
 
 HINT = "Click the relief to read its height · Esc or right-click: done"
-
-
-def _relief(obj):
-    return obj is not None and obj.type == "MESH" and "cliff_terrain" in obj
 
 
 class CLIFF_TERRAIN_OT_probe_height(bpy.types.Operator):
@@ -32,7 +29,7 @@ class CLIFF_TERRAIN_OT_probe_height(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not any(_relief(obj) for obj in context.scene.objects):
+        if not any(is_relief(obj) for obj in context.scene.objects):
             cls.poll_message_set("Build a relief first")
             return False
         return True
@@ -42,8 +39,8 @@ class CLIFF_TERRAIN_OT_probe_height(bpy.types.Operator):
     def execute(self, context):
         from ..scene.probe import hit_from_above
 
-        candidates = [context.active_object] if _relief(context.active_object) else []
-        candidates += [obj for obj in context.visible_objects if _relief(obj) and obj not in candidates]
+        candidates = [context.active_object] if is_relief(context.active_object) else []
+        candidates += [obj for obj in context.visible_objects if is_relief(obj) and obj not in candidates]
         for obj in candidates:
             local = hit_from_above(obj, self.location)
             if local is not None:
@@ -107,7 +104,7 @@ class CLIFF_TERRAIN_OT_probe_height(bpy.types.Operator):
         direction = region_2d_to_vector_3d(region, rv3d, point)
         best = None
         for obj in context.visible_objects:
-            if not _relief(obj):
+            if not is_relief(obj):
                 continue
             local = hit_along(obj, origin, direction)
             if local is not None:
@@ -133,7 +130,7 @@ def legend_of(context):
     from ..scene.colour_by import LEGEND_KEY
 
     for obj in context.visible_objects:
-        legend = obj.get(LEGEND_KEY) if _relief(obj) else None
+        legend = obj.get(LEGEND_KEY) if is_relief(obj) else None
         if legend:
             return legend
     return None

@@ -1,9 +1,9 @@
 """The Import Mosaic operator: a tiled GeoTIFF orthomosaic of any size -> one relief object per tile.
 
-The core reads the mosaic in windows and builds it tile by tile (cliff_terrain.mesh.tiles); each tile
+The core reads the mosaic in windows and builds it tile by tile (cliff_terrain.mosaic.tiles); each tile
 comes as an adaptive mesh in metres with its own part of the photo as texture (never larger than the
 tile, at most 16384 pixels: GPUs' texture limit), joined to its left and top neighbours by a seam, so
-no crack opens where a plant crosses a border (cliff_terrain.mesh.tile_meshes). This operator only
+no crack opens where a plant crosses a border (cliff_terrain.mosaic.meshes). This operator only
 turns each into an object. The tiles are parented to one empty that carries the georeference (EPSG
 code and the map coordinates of the mosaic's top-left corner, as custom properties: map coordinates
 in metres are too large for Blender's single-precision positions).
@@ -19,8 +19,8 @@ from bpy.props import FloatProperty, IntProperty, StringProperty
 from ..scene.datablocks import textured_object
 from ..scene.material import image_from_array
 from ..scene.mesh_data import mesh_from_arrays
-from .build import cancel_build
 from .file_operator import FileOperator
+from .reports import cancel_build
 
 GPU_TEXTURE_LIMIT = 16384
 
@@ -58,8 +58,8 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     def execute(self, context):
         try:
             from ..cliff_terrain import CliffTerrainError
-            from ..cliff_terrain.mesh.tile_meshes import mosaic_max_error, tile_meshes
-            from ..cliff_terrain.mesh.tiles import MosaicReader
+            from ..cliff_terrain.io.mosaic import MosaicReader
+            from ..cliff_terrain.mosaic.meshes import mosaic_max_error, tile_meshes
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
             return {"CANCELLED"}

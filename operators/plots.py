@@ -8,13 +8,14 @@ snaps the grid to the crop of the relief's orthophoto.
 
 import bpy
 
+from ..scene.record import Record, is_relief
 from .file_operator import FileOperator
 from .reports import report_failure
 
 
 def _relief_of(context):
     obj = context.active_object
-    return obj if obj is not None and "cliff_terrain" in obj else None
+    return obj if is_relief(obj) else None
 
 
 class _OnAGrid:
@@ -44,7 +45,7 @@ class CLIFF_TERRAIN_OT_add_plot_grid(bpy.types.Operator):
         if relief is None:
             cls.poll_message_set("Select a relief built from a georeferenced orthophoto")
             return False
-        if relief["cliff_terrain"].get("units") != "m":
+        if not Record.of(relief).metres:
             cls.poll_message_set(
                 "The active relief has no ground size (build it from a georeferenced orthophoto)"
             )

@@ -171,12 +171,13 @@ def _colour_items(settings, context):
     """Photo and Height; Plot Trait too once some relief has a measured plot grid, Vegetation Index
     once some relief's bands give one."""
     from ..scene.colour_by import measured_grids, reliefs
+    from ..scene.record import Record
 
     scene = getattr(context, "scene", None)
     # Drawn at every redraw of the sidebar: one pass over the objects.
     objects = reliefs(scene) if scene is not None else []
     measured = scene is not None and not measured_grids().keys().isdisjoint(obj.name for obj in objects)
-    indexed = any(obj["cliff_terrain"].get("indices") for obj in objects)
+    indexed = any(Record.of(obj).indices for obj in objects)
     _ITEMS["colour"] = (*_COLOUR_MODES, *([_PLOT_TRAIT] if measured else []), *([_INDEX] if indexed else []))
     return _ITEMS["colour"]
 

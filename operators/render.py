@@ -23,15 +23,14 @@ from bpy.props import EnumProperty, IntProperty
 from ..cliff_terrain import settings as core_settings
 from ..cliff_terrain.evaluate.views import metrics_summary, view_resolution
 from ..scene import render_settings, rig, views
+from ..scene.record import Record, is_relief
 from . import render_job
 
 
 def active_relief(context):
     """The active object if it is a relief built by Cliff Terrain, else None."""
     obj = context.active_object
-    if obj is None or obj.type != "MESH" or "cliff_terrain" not in obj:
-        return None
-    return obj
+    return obj if is_relief(obj) else None
 
 
 class _ViewSettings:
@@ -75,10 +74,8 @@ class _ViewSettings:
 
         engine = render_settings.choose_engine(self.engine, log=warn)
         with render_settings.KeptRenderSettings(scene, log=warn):
-            record = obj["cliff_terrain"]
-            resolution = view_resolution(
-                self.resolution, int(record["grid_rows"]), int(record["grid_cols"]), name="Resolution"
-            )
+            rows, cols = Record.of(obj).grid_shape
+            resolution = view_resolution(self.resolution, rows, cols, name="Resolution")
             view_rig = rig.make_rig(context, obj, resolution=resolution)
             paths, seconds = views.render_views(
                 context, view_rig, out_dir, views=view_names, engine=engine, samples=self.samples
@@ -149,16 +146,16 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
 
         metrics = dict(metrics)
         side, seconds = metrics.pop("side_view"), metrics.pop("timings_s")
-        record = obj["cliff_terrain"]
+        record = Record.of(obj)
         render = views.render_record(
             obj, engine=metrics.pop("engine"), samples=metrics.pop("samples"), light=metrics.pop("light")
         )
         # The relief is rebuilt without its mesh: the parameters and error bound are the build's.
-        render["params"] = record["params"].to_dict()
-        render["max_error"] = float(record.get("max_error", 0.0)) or None
-        render["max_error_rule"] = record.get("max_error_rule") or None
-        render["mesh"] = record.get("mesh") or None
-        render["mesh_rule"] = record.get("mesh_rule", "")
+        render["params"] = dict(record.params)
+        render["max_error"] = float(record.max_error) or None
+        render["max_error_rule"] = record.max_error_rule or None
+        render["mesh"] = record.mesh or None
+        render["mesh_rule"] = record.mesh_rule
         timings = {
             ("metrics" if name == "metrics" else f"render_{name}"): value for name, value in seconds.items()
         }
@@ -172,27 +169,26 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
 
 def relief_from_record(record):
     """``(relief, None)``: the core's relief of a relief object, rebuilt (without a mesh) from the
-    photo and settings its record holds; ``(None, reason)`` when that is not the relief shown."""
+    photo and settings its :class:`~scene.record.Record` holds; ``(None, reason)`` when that is not
+    the relief shown."""
     import numpy as np
 
     from ..cliff_terrain import CliffTerrainError, build_relief
     from ..cliff_terrain.params import ReliefParams
-    from .build import mask_digest
 
-    source = str(record["source"])
+    source = str(record.source)
     if not os.path.isfile(source):
         return None, f"the photo {source!r} is not there any more"
     try:
-        params = ReliefParams.from_properties(dict(record["params"]))
+        params = ReliefParams.from_properties(dict(record.params))
         relief = build_relief(source, params, mesh=None)
     except (CliffTerrainError, OSError) as exc:
         return None, f"the photo {source!r} no longer builds: {exc}"
-    shape = (int(record["grid_rows"]), int(record["grid_cols"]))
-    same = relief.heights.shape == shape and np.isclose(
-        relief.max_height, float(record["max_height"]), rtol=1e-5
+    same = relief.heights.shape == record.grid_shape and np.isclose(
+        relief.max_height, float(record.max_height), rtol=1e-5
     )
-    if same and "mask_digest" in record:  # reliefs built by earlier versions lack it
-        same = mask_digest(relief.mask) == record["mask_digest"]
+    if same and record.mask_digest:  # reliefs built by earlier versions lack it
+        same = relief.mask_digest == record.mask_digest
     if not same:
         return None, f"the photo {source!r} has changed since the relief was built"
     return relief, None

@@ -2,6 +2,8 @@
 
 import traceback
 
+from ..scene.datablocks import remove_datablocks
+
 
 def report_failure(operator, exc):
     """Report `exc` on `operator` as an ERROR and return CANCELLED.
@@ -18,3 +20,10 @@ def report_failure(operator, exc):
         traceback.print_exc()
         operator.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
     return {"CANCELLED"}
+
+
+def cancel_build(operator, exc, created):
+    """Remove every datablock in `created` (what a failed build made), report `exc` as
+    :func:`report_failure` does and return CANCELLED."""
+    remove_datablocks(created)
+    return report_failure(operator, exc)

@@ -7,6 +7,7 @@ import bpy
 
 from ..operators.render_job import rendered_views
 from ..scene.probe import PROBE_KEY, probe_lines
+from ..scene.record import Record
 
 BUILD_OPERATOR = "cliff_terrain.build_relief"
 SEASON_OPERATOR = "cliff_terrain.season_animation"
@@ -68,37 +69,34 @@ def gsd_note(layout, settings):
         layout.label(text=f"GSD from photo: {format_length(found[0])}/px", icon="INFO")
 
 
-def relief_size_lines(info):
+def relief_size_lines(record):
     """The relief's size in one unit: cm/m with a GSD, else relative units (longest side = 10)."""
-    height = float(info.get("max_height", 0.0))
-    if info.get("units") == "m":
-        gsd = float(info.get("gsd_m_per_px", 0.0))
-        source = GSD_SOURCES.get(info.get("gsd_source", ""), "")
+    height = float(record.max_height)
+    if record.metres:
+        gsd = float(record.gsd_m_per_px)
+        source = GSD_SOURCES.get(record.gsd_source, "")
         lines = [f"Max height {format_length(height)}"]
         if gsd > 0:
             lines.append(f"GSD {format_length(gsd)}/px{f' ({source})' if source else ''}")
         return lines
-    scale = float(info.get("blender_units_per_unit", 1.0))
-    return [f"Max height {height * scale:.3g}", "Relative units (longest side = 10)"]
+    return [f"Max height {height * record.blender_units_per_unit:.3g}", "Relative units (longest side = 10)"]
 
 
-def key_figure_lines(info):
+def key_figure_lines(record):
     """Plants and cover, and the measured canopy height p50/p90 in cm after a build with a DSM."""
     lines = []
-    if "cover" in info:
-        lines.append(f"Plants {info.get('regions')}, cover {float(info['cover']):.0%}")
-    if info.get("canopy_p90_cm", -1.0) >= 0.0:
+    if record.cover is not None:
+        lines.append(f"Plants {record.regions}, cover {float(record.cover):.0%}")
+    if record.canopy_p90_cm >= 0.0:
         lines.append(
-            f"Canopy height p50 {float(info['canopy_p50_cm']):.1f} cm, p90 {float(info['canopy_p90_cm']):.1f} cm"
+            f"Canopy height p50 {float(record.canopy_p50_cm):.1f} cm, p90 {float(record.canopy_p90_cm):.1f} cm"
         )
     return lines
 
 
 def relief_info(obj):
-    """The build record of a relief object (its ``cliff_terrain`` custom property), or None."""
-    if obj is None:
-        return None
-    return obj.get("cliff_terrain")
+    """The build record of a relief object (:class:`scene.record.Record`), or None."""
+    return Record.of(obj)
 
 
 class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
@@ -130,22 +128,19 @@ class CLIFF_TERRAIN_PT_sidebar(bpy.types.Panel):
         if info is not None:
             box = layout.box()
             box.label(text=f"{obj.name}", icon="OBJECT_DATA")
-            box.label(
-                text=f"Grid {info.get('grid_cols')} x {info.get('grid_rows')}, {info.get('regions')} regions"
-            )
+            box.label(text=f"Grid {info.grid_cols} x {info.grid_rows}, {info.regions} regions")
             for line in relief_size_lines(info):
                 box.label(text=line)
             for line in key_figure_lines(info):
                 box.label(text=line)
-            if info.get("max_error"):
+            if info.max_error:
                 box.label(
-                    text=f"Adaptive: {info.get('front_faces')} front faces, "
-                    f"max error {info['max_error']:.3g} {info.get('units')}"
+                    text=f"Adaptive: {info.front_faces} front faces, max error {info.max_error:.3g} {info.units}"
                 )
-                if info.get("max_error_rule"):
-                    box.label(text=f"Bound: {info['max_error_rule']}")
-            if info.get("mesh_rule", "given") != "given":
-                box.label(text=f"Mesh: {info['mesh_rule']}")
+                if info.max_error_rule:
+                    box.label(text=f"Bound: {info.max_error_rule}")
+            if info.mesh_rule not in ("", "given"):  # "": a record from before the mesh was chosen
+                box.label(text=f"Mesh: {info.mesh_rule}")
 
         # ---- Inspecting ----
         col = layout.column()

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..cliff_terrain.settings import PLOT_TRAITS
 from .mesh_data import positions
+from .record import Record, is_relief
 
 COLOUR_ATTRIBUTE = "Cliff Terrain Colour"
 MIX_NODE = "Cliff Terrain Colour By"
@@ -22,8 +23,8 @@ OUTSIDE_PLOTS = (0.35, 0.35, 0.35)
 
 
 def reliefs(scene):
-    """The scene's relief objects (their ``cliff_terrain`` record)."""
-    return [obj for obj in scene.objects if obj.type == "MESH" and "cliff_terrain" in obj]
+    """The scene's relief objects (those with a record, :mod:`.record`)."""
+    return [obj for obj in scene.objects if is_relief(obj)]
 
 
 def measured_grids():
@@ -78,12 +79,11 @@ def _socket(sockets, identifier):
 
 def height_legend(relief):
     """(t per vertex in [0, 1], legend) of colouring `relief` by its height (0 to its highest point)."""
-    info = relief["cliff_terrain"]
-    scale = float(info.get("blender_units_per_unit", 1.0))
-    top = float(info.get("max_height", 0.0))
-    z = positions(relief.data)[:, 2] / scale
+    record = Record.of(relief)
+    top = float(record.max_height)
+    z = positions(relief.data)[:, 2] / record.blender_units_per_unit
     t = np.clip(z / top, 0.0, 1.0) if top > 0 else np.zeros_like(z)
-    return t, {"mode": "HEIGHT", "title": "Height", "low": 0.0, "high": top, "unit": info.get("units", "px")}
+    return t, {"mode": "HEIGHT", "title": "Height", "low": 0.0, "high": top, "unit": record.units}
 
 
 def trait_legend(relief, grid, settings, trait):
@@ -92,10 +92,10 @@ def trait_legend(relief, grid, settings, trait):
     from .plot_grid import TABLE_KEY, grid_plots
     from .probe import grid_cells
 
-    info = relief["cliff_terrain"]
+    record = Record.of(relief)
     plots, frame = grid_plots(grid, settings)
-    rows, cols = int(info["grid_rows"]), int(info["grid_cols"])
-    size = float(info["pixel_size"])  # metres: plots need a ground size
+    rows, cols = record.grid_shape
+    size = float(record.pixel_size)  # metres: plots need a ground size
     # The relief's processing grid on the map: its local (0, 0) is the bottom-left corner.
     transform = np.array([[size, 0.0, frame.offset[0]], [0.0, -size, frame.offset[1] + rows * size]])
     labels = rasterize_plots(plots, transform=transform, shape=(rows, cols))
@@ -105,7 +105,7 @@ def trait_legend(relief, grid, settings, trait):
         row = by_number.get(attributes["plot"])
         if row is not None and row.get(trait) is not None:
             values[k] = float(row[trait])
-    row, col = grid_cells(info, positions(relief.data)[:, :2])
+    row, col = grid_cells(record, positions(relief.data)[:, :2])
     per_vertex = values[labels[row, col]]
     finite = values[np.isfinite(values)]
     low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
@@ -124,12 +124,10 @@ def index_legend(relief, index):
     from ..cliff_terrain.relief.indices import index_maps
     from .probe import grid_cells
 
-    info = relief["cliff_terrain"]
-    shape = (int(info["grid_rows"]), int(info["grid_cols"]))
-    values = index_maps(read_bands(info["source"], names=info.get("bands") or None), (index,), shape=shape)[
-        index
-    ]
-    row, col = grid_cells(info, positions(relief.data)[:, :2])
+    record = Record.of(relief)
+    bands = read_bands(record.source, names=record.bands or None)
+    values = index_maps(bands, (index,), shape=record.grid_shape)[index]
+    row, col = grid_cells(record, positions(relief.data)[:, :2])
     per_vertex = values[row, col].astype(np.float64)
     finite = values[np.isfinite(values)]
     low, high = (float(v) for v in np.percentile(finite, (2, 98))) if finite.size else (0.0, 1.0)
@@ -178,7 +176,7 @@ def colour_relief(relief, mode, *, settings=None, trait="height_p90_m", index="N
         grid = measured_grid(relief)
         if grid is not None:
             t, legend = trait_legend(relief, grid, settings, trait)
-    elif mode == "INDEX" and index in relief["cliff_terrain"].get("indices", ()):
+    elif mode == "INDEX" and index in Record.of(relief).indices:
         t, legend = index_legend(relief, index)
     if legend is not None:
         set_vertex_colours(relief.data, t)

@@ -10,6 +10,8 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
+from .record import Record
+
 GRID_KEY = "cliff_terrain_plot_grid"  # custom property: the name of the relief the grid belongs to
 FIT_KEY = "cliff_terrain_fit"  # custom property: the last fit's report
 TABLE_KEY = "cliff_terrain_plot_table"  # custom property: the last Measure Plots' rows
@@ -43,28 +45,28 @@ class MapFrame:
     """Blender world (x, y) <-> map (x, y) of a relief built from a georeferenced orthophoto."""
 
     def __init__(self, relief):
-        info = relief.get("cliff_terrain")
-        if info is None:
+        record = Record.of(relief)
+        if record is None:
             raise ValueError(f"{relief.name!r} is not a Cliff Terrain relief")
-        self.scale = float(info.get("blender_units_per_unit", 1.0))
-        if info.get("units") != "m":
+        self.scale = record.blender_units_per_unit
+        if not record.metres:
             from ..cliff_terrain.errors import CliffTerrainError
 
             raise CliffTerrainError(
                 f"{relief.name!r} has no ground size: plots need a relief built from a georeferenced orthophoto"
             )
-        if "map_offset" in info:
-            self.offset = np.array(info["map_offset"], dtype=np.float64)
-            self.crs = int(info["crs"])
+        if record.map_offset is not None:
+            self.offset = np.array(record.map_offset, dtype=np.float64)
+            self.crs = int(record.crs)
         else:
             from ..cliff_terrain.io.geotiff import read_georeference
 
-            transform, self.crs = read_georeference(info["source"])
+            transform, self.crs = read_georeference(record.source)
             # The mesh's local (0, 0) is the photo's bottom-left corner.
-            self.offset = transform[:2, :2] @ [0.0, float(info["image_height"])] + transform[:2, 2]
+            self.offset = transform[:2, :2] @ [0.0, float(record.image_height)] + transform[:2, 2]
         self.matrix = np.array(relief.matrix_world, dtype=np.float64)
         self.inverse = np.linalg.inv(self.matrix)
-        self.source = info["source"]
+        self.source = record.source
 
     def to_map(self, world_xy):
         world = np.asarray(world_xy, dtype=np.float64).reshape(-1, 2)

@@ -9,6 +9,8 @@ height raster (``height.tif``) holds there, whatever mesh shows it.
 
 from mathutils import Vector
 
+from .record import Record
+
 PROBE_KEY = "cliff_terrain_probe"  # custom property of the relief: the last probe's values
 # The last relief rebuilt for probing: (object name, mask digest) -> Relief. One at a time: a relief
 # of a 4000-pixel grid holds about 1 GB of stages.
@@ -18,20 +20,19 @@ _RELIEFS = {}
 def relief_of(obj):
     """The core :class:`~cliff_terrain.build.Relief` of a relief object, rebuilt once and cached."""
     from ..cliff_terrain.errors import CliffTerrainError
-    from ..operators.build import mask_digest
 
-    info = obj["cliff_terrain"]
-    key = (obj.name, info.get("mask_digest"))
+    record = Record.of(obj)
+    key = (obj.name, record.mask_digest)
     if key in _RELIEFS:
         return _RELIEFS[key]
     from ..cliff_terrain.build import build_relief
     from ..cliff_terrain.params import ReliefParams
 
-    params = ReliefParams.from_properties(info.get("params", {}).to_dict())
-    relief = build_relief(info["source"], params, mesh=None)
-    if info.get("mask_digest") and mask_digest(relief.mask) != info["mask_digest"]:
+    params = ReliefParams.from_properties(record.params)
+    relief = build_relief(record.source, params, mesh=None)
+    if record.mask_digest and relief.mask_digest != record.mask_digest:
         raise CliffTerrainError(
-            f"{info['source']!r} no longer gives the relief {obj.name!r} was built from (the photo "
+            f"{record.source!r} no longer gives the relief {obj.name!r} was built from (the photo "
             "or Cliff Terrain changed): build it again to probe it"
         )
     _RELIEFS.clear()
@@ -56,31 +57,32 @@ def hit_along(obj, origin, direction):
     return location if hit else None
 
 
-def pixel_of(info, local):
+def pixel_of(record, local):
     """(row, col) of the relief's processing grid under a local point, or None outside the grid.
 
-    The mesh's x grows with the column from 0, y with the rows upwards (the top row has the largest
-    y); one processing pixel is ``pixel_size`` core units, times ``blender_units_per_unit``.
+    `record`: the relief's :class:`~.record.Record`. The mesh's x grows with the column from 0, y
+    with the rows upwards (the top row has the largest y); one processing pixel is ``pixel_size``
+    core units, times ``blender_units_per_unit``.
     """
-    size = float(info["pixel_size"]) * float(info.get("blender_units_per_unit", 1.0))
-    rows, cols = int(info["grid_rows"]), int(info["grid_cols"])
+    size = record.blender_pixel
+    rows, cols = record.grid_shape
     # A point on the grid's last edge (up to a millionth of a pixel out) belongs to the last pixel.
     tolerance = 1e-6 * size
     if not (
         -tolerance <= local.x <= cols * size + tolerance and -tolerance <= local.y <= rows * size + tolerance
     ):
         return None
-    (row,), (col,) = grid_cells(info, [(local.x, local.y)])
+    (row,), (col,) = grid_cells(record, [(local.x, local.y)])
     return int(row), int(col)
 
 
-def grid_cells(info, local_xy):
+def grid_cells(record, local_xy):
     """(rows, cols) arrays of the processing-grid pixels under local (x, y) points, clipped to the grid
     (the mesh's frame: see :func:`pixel_of`)."""
     import numpy as np
 
-    size = float(info["pixel_size"]) * float(info.get("blender_units_per_unit", 1.0))
-    rows, cols = int(info["grid_rows"]), int(info["grid_cols"])
+    size = record.blender_pixel
+    rows, cols = record.grid_shape
     # In the points' own precision (a mesh's float32 positions, a probe's float64 point): a vertex on
     # a pixel edge falls on the side its float32 quotient gives, as Color By has always read it.
     xy = np.asarray(local_xy).reshape(-1, 2) / size
@@ -103,8 +105,7 @@ def probe(obj, local):
     from ..cliff_terrain.errors import CliffTerrainError
     from ..cliff_terrain.measure.field_plots import region_figures
 
-    info = obj["cliff_terrain"]
-    pixel = pixel_of(info, local)
+    pixel = pixel_of(Record.of(obj), local)
     if pixel is None:
         raise CliffTerrainError(f"the point is outside the relief {obj.name!r}")
     relief = relief_of(obj)

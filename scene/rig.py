@@ -31,6 +31,7 @@ from ..cliff_terrain.settings import (
 )
 from .datablocks import remove_collection
 from .mesh_data import positions
+from .record import Record
 
 # The light's defaults (the command line offers the same): see the module notes.
 SUN_AZIMUTH = DEFAULT_SUN_AZIMUTH
@@ -275,8 +276,8 @@ def _aim_side(camera, obj, bounds, resolution, pad, *, exaggeration, transect, p
     cols, rows = frame_size(frame_w, frame_h, resolution)
     rows = max(rows, MIN_VIEW_SIDE)
     pixel = camera.data.ortho_scale / max(cols, rows)  # ortho_scale spans the longer side (sensor fit AUTO)
-    record = obj.get("cliff_terrain")
-    units_per_unit = float(record.get("blender_units_per_unit", 1.0)) if record is not None else 1.0
+    record = Record.of(obj)
+    units_per_unit = record.blender_units_per_unit if record is not None else Record.blender_units_per_unit
     return {
         "size": (cols, rows),
         "exaggeration": float(exaggeration),

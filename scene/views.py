@@ -25,6 +25,7 @@ from ..cliff_terrain.evaluate.views import (
 )
 from ..cliff_terrain.figures import outputs
 from .mesh_data import positions
+from .record import Record
 from .render_materials import add_height_colours, flat_material, height_material, make_matte, relief_image
 from .render_settings import FLAT_SAMPLES, SAMPLES, configure, gpu_available
 
@@ -177,7 +178,8 @@ def front_corner_heights(obj, grid_shape, n_front_faces=None):
         from ..cliff_terrain.mesh.tin_sample import sample_front
 
         if n_front_faces is None:
-            n_front_faces = obj.get("cliff_terrain", {}).get("front_faces")
+            record = Record.of(obj)
+            n_front_faces = record.front_faces if record is not None else None
         if n_front_faces is None:
             raise ValueError(
                 f"{obj.name!r} is not a {rows} x {cols} grid and says nothing of its front faces"
@@ -210,11 +212,11 @@ def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):
     dict
         The metrics, plus ``reference`` (what the views were compared with) and ``render_size``.
     """
-    record = obj["cliff_terrain"]
+    record = Record.of(obj)
     size = rig.sizes["xy"]
-    bands = tuple(record.get("bands", ())) or None  # a multispectral photo's, when its file names none
-    reference, description = reference_image(source or record["source"], size, bands=bands)
-    grid = (int(record["grid_rows"]), int(record["grid_cols"]))
+    bands = record.bands or None  # a multispectral photo's, when its file names none
+    reference, description = reference_image(source or record.source, size, bands=bands)
+    grid = record.grid_shape
     width = rig.bounds.size[0]
     slope = slope_degrees(front_corner_heights(obj, grid), width / grid[1])
     metrics = compare_top_views(

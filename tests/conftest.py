@@ -53,27 +53,27 @@ def shared_uav() -> Path:
 
 # ---- the extension inside Blender (bpy wheel, in this process) ----
 
-# The repository root is imported under this name, as render_views.py does: bpy keeps its state for
-# the whole process, so every test module shares this one registered copy through sys.modules.
+# The repository root is imported under this name by _loader.py: bpy keeps its state for the whole
+# process, so every test module shares this one registered copy through sys.modules (and imports its
+# modules plainly: ``from cliff_terrain_addon.scene import views``).
 ADDON = "cliff_terrain_addon"
 
 
 def load_addon():
     """Import the repository root as a package, the way Blender imports an extension."""
-    import render_views  # the one loader (it imports no bpy itself)
+    import _loader  # the one loader (it imports no bpy itself)
 
-    assert render_views.PACKAGE == ADDON
-    return render_views.addon_package()
+    assert _loader.PACKAGE == ADDON
+    return _loader.package()
 
 
 @pytest.fixture(scope="module")
 def addon():
     """The extension, registered for the module's tests (unregistered after, if registered here)."""
     bpy = pytest.importorskip("bpy")
-    module = load_addon()
-    registered_here = not hasattr(bpy.types.Scene, "cliff_terrain")
-    if registered_here:
-        module.register()
+    import _loader
+
+    module, registered_here = _loader.register()
     yield module
     if registered_here and hasattr(bpy.types.Scene, "cliff_terrain"):
         module.unregister()
@@ -142,7 +142,11 @@ def pytest_unconfigure(config):
     # bpy 4.2 as a Python module segfaults while the interpreter shuts down, after every test has
     # passed and the summary is printed; leave before that teardown, with pytest's own exit code.
     status = getattr(config, "cliff_terrain_exitstatus", None)
-    if "bpy" in sys.modules and status is not None:
+    # Not in a pytest-xdist worker: its "finished" message to the controller, sent at the session's
+    # end, may still be queued when this hook runs, and an exit without teardown would drop it
+    # (`make test` runs its workers on bpy 5.0.1, which shuts down cleanly).
+    worker = "PYTEST_XDIST_WORKER" in os.environ
+    if "bpy" in sys.modules and status is not None and not worker:
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)

@@ -455,14 +455,14 @@ def test_bad_setting_is_reported_with_the_core_message(addon, scene, tmp_path, d
 def test_failure_after_the_object_exists_removes_every_new_datablock(
     addon, scene, monkeypatch, datablock_counts
 ):
-    build_module = importlib.import_module(f"{ADDON}.operators.build")
+    relief_object = importlib.import_module(f"{ADDON}.scene.relief_object")
 
     def fail(*args, **kwargs):
         # By now the mesh, the photo, the material and the linked object exist.
         assert len(bpy.data.objects) == 1 and bpy.data.objects[0].users_collection
         raise RuntimeError("injected failure while recording")
 
-    monkeypatch.setattr(build_module, "build_record", fail)
+    monkeypatch.setattr(relief_object, "write_record", fail)
     before = datablock_counts()
     with pytest.raises(RuntimeError, match="injected failure while recording"):
         bpy.ops.cliff_terrain.build_relief(filepath=str(BROCCOLI), max_size=32)

@@ -52,9 +52,9 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
     has_data = np.isfinite(reference.canopy.chm)
     assert info["cover"] == pytest.approx((reference.mask & has_data).sum() / has_data.sum())
 
-    from cliff_terrain_addon.panels.sidebar import key_figure_lines
+    from cliff_terrain_addon.panels.sidebar import key_figure_lines, relief_info
 
-    lines = key_figure_lines(info)
+    lines = key_figure_lines(relief_info(obj))
     assert lines[0].startswith(f"Plants {reference.n_regions}, cover ")
     assert lines[1] == f"Canopy height p50 {info['canopy_p50_cm']:.1f} cm, p90 {info['canopy_p90_cm']:.1f} cm"
 

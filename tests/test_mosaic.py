@@ -19,10 +19,10 @@ from scipy.ndimage import label as _label
 
 from cliff_terrain import synthetic_field
 from cliff_terrain.errors import CliffTerrainError, ImageTooLargeError
+from cliff_terrain.io.mosaic import MosaicReader
 from cliff_terrain.io.photo import load_image
 from cliff_terrain.mesh.quads import fan_triangles
-from cliff_terrain.mesh.tiles import (
-    MosaicReader,
+from cliff_terrain.mosaic.tiles import (
     mosaic_settings,
     relief_tile,
     relief_tiles,
@@ -112,7 +112,7 @@ def test_windows_read_from_several_threads_at_once_are_the_pixels(tmp_path, tile
 
 
 def test_tiles_computed_one_ahead_come_in_order_raise_in_place_and_stop_when_dropped():
-    from cliff_terrain.mesh.tiles import _one_ahead
+    from cliff_terrain.mosaic.tiles import _one_ahead
 
     assert list(_one_ahead(iter(range(5)))) == [0, 1, 2, 3, 4]
     assert list(_one_ahead(iter([]))) == []
@@ -143,7 +143,7 @@ def test_tile_meshes_closed_early_end_the_tile_computed_ahead_while_the_reader_i
     # The Import Mosaic operator closes them before the reader when a tile fails in Blender.
     import threading
 
-    from cliff_terrain.mesh.tile_meshes import tile_meshes
+    from cliff_terrain.mosaic.meshes import tile_meshes
 
     def tile_threads():
         return [t for t in threading.enumerate() if t.name.startswith("cliff_terrain_tile")]
@@ -360,7 +360,7 @@ def test_tile_meshes_are_the_tiles_reliefs_joined_without_cracks(tmp_path):
     an adaptive mesh in metres, stitched to its neighbours, with its part of the photo."""
     from test_seams import cracks, welded_open_edges
 
-    from cliff_terrain.mesh.tile_meshes import tile_meshes
+    from cliff_terrain.mosaic.meshes import tile_meshes
 
     rgb, _ = synthetic_field(shape=(300, 400), seed=4)
     path = write_mosaic(tmp_path / "field.tif", rgb, gsd=0.02)
@@ -392,8 +392,8 @@ def test_tile_meshes_are_the_tiles_reliefs_joined_without_cracks(tmp_path):
 def test_mosaic_tiles_default_to_half_a_pixel_and_keep_it(tmp_path):
     """Without `max_error`, each tile's front is within half a mosaic pixel (1 cm at 2 cm) of its
     heights at every pixel centre, and has fewer triangles than at a 5 mm bound."""
-    from cliff_terrain.mesh.tile_meshes import mosaic_max_error, tile_meshes
     from cliff_terrain.mesh.tin_sample import sample_front
+    from cliff_terrain.mosaic.meshes import mosaic_max_error, tile_meshes
 
     assert mosaic_max_error(0.02) == (0.01, "half a pixel (inflated heights, 2 cm pixels)")
     with pytest.raises(CliffTerrainError, match=r"`max_error` must be > 0.0, got -1.0"):
@@ -427,7 +427,8 @@ BIG_SCRIPT = textwrap.dedent(
     import json, sys, time
     import numpy as np
     from cliff_terrain._memory import peak_rss
-    from cliff_terrain.mesh.tiles import MosaicReader, mosaic_settings, relief_tiles
+    from cliff_terrain.io.mosaic import MosaicReader
+    from cliff_terrain.mosaic.tiles import mosaic_settings, relief_tiles
     path, tiles_wanted = sys.argv[1], int(sys.argv[2])
     start = time.perf_counter()
     with MosaicReader(path) as reader:

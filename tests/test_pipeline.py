@@ -300,3 +300,18 @@ def test_resized_shape_is_the_shape_resize_longest_makes(shape, max_size, expect
 
     assert resized_shape(shape, max_size) == expected
     assert resize_longest(np.zeros((*shape, 3), np.uint8), max_size).shape[:2] == expected
+
+
+def test_the_mask_digest_tells_a_rebuild_from_another_mask(field):
+    """A rebuild from the same photo and settings has the same digest (the relief object's record
+    keeps it to know the relief it shows); one plant pixel less gives another."""
+    import dataclasses
+
+    image, _ = field
+    relief = build_relief(image, max_size=300, mesh=None)
+    digest = relief.mask_digest
+    assert len(digest) == 16 and int(digest, 16) >= 0  # 8 bytes, hexadecimal
+    assert build_relief(image, max_size=300, mesh=None).mask_digest == digest
+    mask = relief.mask.copy()
+    mask[np.argwhere(mask)[0][0], np.argwhere(mask)[0][1]] = False
+    assert dataclasses.replace(relief, mask=mask).mask_digest != digest

@@ -300,14 +300,14 @@ def test_blender_without_the_extension_libraries_says_how_to_install_them(tmp_pa
     assert not (tmp_path / "p_relief").exists()
 
 
-# Start Blender as render_views.py does (argv[1] is the repository), with the view operators.
+# Start Blender as render_views.py does (_loader.py; argv[1] is the repository), with the view operators.
 OPERATORS_HEAD = textwrap.dedent(
     r"""
-    import importlib, json, sys
+    import json, sys
     sys.path.insert(0, sys.argv[1])
-    import render_views as rv
-    bpy, addon, core = rv.start_blender()
-    render = importlib.import_module(rv.PACKAGE + ".operators.render")
+    import _loader
+    bpy, addon, core = _loader.start_blender(usage="render_views.py")
+    from cliff_terrain_addon.operators import render
     if not hasattr(bpy.types, "CLIFF_TERRAIN_OT_evaluate"):
         render.register()
     scene = bpy.context.scene
@@ -326,7 +326,7 @@ OPERATORS = OPERATORS_HEAD + textwrap.dedent(
     out["kept"] = before == (scene.render.engine, scene.view_settings.view_transform, scene.render.resolution_x)
     out["rig"] = sorted(o.name for o in bpy.data.collections["Cliff Terrain Views"].objects)
     print("RESULT " + json.dumps(out), flush=True)
-    rv.leave(0)
+    _loader.leave(0)
     """
 )
 
@@ -379,7 +379,7 @@ CHANGED_PHOTO = OPERATORS_HEAD + textwrap.dedent(
     scene.cliff_terrain.output_dir = sys.argv[3]
     out = {"render": sorted(bpy.ops.cliff_terrain.render_views(samples=1))}
     print("RESULT " + json.dumps(out), flush=True)
-    rv.leave(0)
+    _loader.leave(0)
     """
 )
 

@@ -29,7 +29,7 @@ def build(path, **kwargs):
 def test_a_relief_in_metres_speaks_centimetres_and_names_its_gsd(sidebar, scene):
     obj = build(MAIZE)
     info = obj["cliff_terrain"].to_dict()
-    lines = sidebar.relief_size_lines(info)
+    lines = sidebar.relief_size_lines(sidebar.relief_info(obj))
     # The heights are metres (the GeoTIFF's 2.2 cm/px); under 1 m they read in cm, and nothing in px.
     assert lines[0] == f"Max height {info['max_height'] * 100:.3g} cm"
     assert lines[1].startswith("GSD 2.") and lines[1].endswith("cm/px (from the GeoTIFF)")
@@ -40,7 +40,7 @@ def test_a_relief_in_metres_speaks_centimetres_and_names_its_gsd(sidebar, scene)
 def test_a_relief_without_gsd_speaks_relative_units_only(sidebar, scene):
     obj = build(BROCCOLI, max_size=64)
     info = obj["cliff_terrain"].to_dict()
-    lines = sidebar.relief_size_lines(info)
+    lines = sidebar.relief_size_lines(sidebar.relief_info(obj))
     # Blender units: the longest side is 10, so the height is the core's px times that scale.
     longest = max(info["grid_rows"], info["grid_cols"]) * info["pixel_size"]
     assert lines == [

@@ -1,7 +1,7 @@
 """Picture and count the long, thin triangles along a mosaic's tile borders (issue #28, item 5).
 
 A synthetic field (the benchmark's, ``bench/bench_mosaic.py``) is written as a tiled GeoTIFF of
-2 x 2 tiles and meshed as Import Mosaic meshes it (:func:`cliff_terrain.mesh.tile_meshes.tile_meshes`,
+2 x 2 tiles and meshed as Import Mosaic meshes it (:func:`cliff_terrain.mosaic.meshes.tile_meshes`,
 by default the benchmark's 0.5-pixel bound). A front triangle is *thin* along a border when all its corners
 lie within the tile's last two lines of pixel centres (1.5 px of its side), it is at least
 `--min-length` pixels long and it is not level (its corners' heights differ by more than the
@@ -26,8 +26,8 @@ PHOTO = ROOT.parent / "shared" / "data" / "uav" / "caliterra" / "IMG_9370.jpg"
 sys.path.insert(0, str(ROOT))
 
 from cliff_terrain.data.synthetic import synthetic_field  # noqa: E402
-from cliff_terrain.mesh.tile_meshes import tile_meshes  # noqa: E402
-from cliff_terrain.mesh.tiles import MosaicReader  # noqa: E402
+from cliff_terrain.io.mosaic import MosaicReader  # noqa: E402
+from cliff_terrain.mosaic.meshes import tile_meshes  # noqa: E402
 
 
 def write_field(path, side, seed=5, photo=None):

@@ -128,7 +128,7 @@ def segment(
     threshold : float, optional
         The threshold to apply (to the index, or to the grey level in ``"paper"`` mode) instead of
         the image's own; ``Segmentation.threshold_source`` is then ``"given"``. The tiles of one
-        mosaic share the whole mosaic's (:mod:`cliff_terrain.mesh.tiles`).
+        mosaic share the whole mosaic's (:mod:`cliff_terrain.mosaic.tiles`).
     radius, edge_scale : float, optional
         The watershed's marker radius and colour-edge scale (see :func:`split_regions`); by
         default from this image's regions and edges. Tiles of one mosaic share the whole mosaic's.

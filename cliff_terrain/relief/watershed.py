@@ -84,6 +84,19 @@ def colour_edges(filtered):
 _EDGE_BAND_PIXELS = 131_072
 
 
+def default_edge_scale(dmax, edges, mask):
+    """The colour edges' weight in the watershed's landscape: half the regions' 90th percentile of
+    their largest distance over the edge strength's 99th percentile on the mask (from every 7th
+    pixel), so that the strongest edges weigh about half a typical region's depth.
+
+    `dmax`: each region's largest distance (pixels); `edges`: :func:`colour_edges`; `mask`: the
+    plant mask. One rule for one photo (:func:`split_regions`) and a whole mosaic's overview
+    (:func:`cliff_terrain.mosaic.tiles.mosaic_settings`).
+    """
+    sample = np.asarray(edges).ravel()[::7][np.asarray(mask, dtype=bool).ravel()[::7]]
+    return 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
+
+
 def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, return_distance=False):
     """Label `mask`, splitting touching blobs by a marker-controlled watershed of the distance map.
 
@@ -96,7 +109,7 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, r
         Colour-edge strength added to the watershed landscape (scaled to the distance range).
     radius, edge_scale : float, optional
         The markers' neighbourhood radius and the edges' scale; by default from this image's
-        regions and edges. Tiles of one mosaic share the whole mosaic's (cliff_terrain.mesh.tiles).
+        regions and edges. Tiles of one mosaic share the whole mosaic's (cliff_terrain.mosaic.tiles).
     return_distance : bool, optional
         Also return ``distance_map(labels)``, computed with the flood, component by component
         (the same values to a float32 rounding; see :func:`_split_distance`).
@@ -132,10 +145,8 @@ def split_regions(mask, distance, *, edges=None, radius=None, edge_scale=None, r
     split[0] = False
     if edges is not None:
         e = np.asarray(edges, dtype=np.float32)
-        # The edge strength's 99th percentile over the mask, from every 7th pixel.
         if edge_scale is None:
-            sample = e.ravel()[::7][mask.ravel()[::7]]
-            edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
+            edge_scale = default_edge_scale(dmax, e, mask)
         landscape = np.multiply(e, np.float32(edge_scale))
         landscape -= smooth
     else:

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import uuid
 from pathlib import Path
 
+from .._dask import as_completed_results
 from ..errors import CliffTerrainError
 from .cache import Cache, cache_key, file_hash
 from .task import OPENCV_THREADS, process_image
@@ -179,19 +179,8 @@ def run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, cl
 
 def _submit(client, jobs, finished):
     """One task per job on `client`, under names of this run only; results to `finished` as they come."""
-    from distributed import as_completed
-
-    futures = {}
-    run = uuid.uuid4().hex[:8]  # task names of this run only, whoever else uses the scheduler
-    for index, job in enumerate(jobs):
-        name = f"season-{run}-{index}-{Path(job.path).name}"
-        futures[client.submit(process_image, job.as_dict(), key=name, pure=False)] = index
-    for future in as_completed(futures, loop=client.loop):
-        try:
-            result = future.result()
-        except Exception as exc:  # the worker died (memory limit) or the task was lost
-            result = {"ok": False, "error": f"{type(exc).__name__}: {exc}".replace("\n", " ")}
-        finished(futures[future], result)
+    payloads = ((Path(job.path).name, job.as_dict()) for job in jobs)
+    as_completed_results(client, process_image, payloads, finished, prefix="season")
 
 
 def local_cluster(workers, *, memory_limit="auto"):

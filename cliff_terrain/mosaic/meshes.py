@@ -1,6 +1,6 @@
 """A mosaic as meshes: each tile's relief as a one-sided adaptive mesh, joined to its neighbours.
 
-:func:`tile_meshes` takes the tiles of :func:`cliff_terrain.mesh.tiles.relief_tiles` one at a
+:func:`tile_meshes` takes the tiles of :func:`cliff_terrain.mosaic.tiles.relief_tiles` one at a
 time and gives each an adaptive mesh (:func:`cliff_terrain.mesh.adaptive.adaptive_mesh`) in the
 units of `pixel_size`, joined to its left and top neighbours by a seam
 (:func:`cliff_terrain.mesh.seams.stitch`) so that no crack opens where a plant crosses a border,
@@ -15,11 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import check_float
-from .adaptive import adaptive_mesh
-from .grid import MeshArrays
-from .seams import border, stitch
+from ..mesh.adaptive import adaptive_mesh
+from ..mesh.grid import MeshArrays
+from ..mesh.seams import border, stitch
+from ..mesh.tin import default_max_error
 from .tiles import DEFAULT_OVERLAP, DEFAULT_TILE, TileRelief, relief_tiles
-from .tin import default_max_error
 
 
 @dataclass
@@ -86,7 +86,7 @@ def tile_meshes(
     pixel_size : float, optional
         Size of a mosaic pixel (the mosaic's GSD for metres); heights are scaled by it too.
     tile, overlap, settings, client, kwargs
-        As in :func:`cliff_terrain.mesh.tiles.relief_tiles`.
+        As in :func:`cliff_terrain.mosaic.tiles.relief_tiles`.
 
     Returns
     -------

@@ -1,11 +1,9 @@
 """Orthomosaics larger than memory: read a tiled GeoTIFF in windows, build the relief tile by tile.
 
-A whole farm's orthomosaic has hundreds of megapixels. :class:`MosaicReader` reads any window of a
-*tiled* GeoTIFF by decoding only the TIFF tiles it overlaps (one at a time), so memory follows the
-window, not the image. A striped (untiled) GeoTIFF cannot be read that way; above
-`max_striped_pixels` it is refused with the command that tiles it.
+A whole farm's orthomosaic has hundreds of megapixels; :class:`cliff_terrain.io.mosaic.MosaicReader`
+reads any window of a tiled GeoTIFF, decoding only the TIFF tiles it overlaps.
 
-:func:`relief_tiles` then builds the relief in tiles of `tile` x `tile` pixels, each read with an
+:func:`relief_tiles` builds the relief in tiles of `tile` x `tile` pixels, each read with an
 `overlap` margin on every side and cut back to its own area, so that a plant crossing a tile's
 border lies whole in the windows of both tiles and gets the same mask, region and heights in
 each, as it would in one piece (plants smaller than the margin). Settings that depend on the whole
@@ -18,134 +16,18 @@ settings, which a Dask task can run as well.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._validate import check_float, check_int
-from ..errors import CliffTerrainError, ImageReadError, ImageTooLargeError
-from ..io.geokeys import GDAL_NODATA, georeference, nodata_value
-from ..io.geotiff import photo_bands
-from ..io.tiff_window import TiffRaster
+from ..errors import CliffTerrainError
+from ..io.mosaic import MosaicReader
 from ..settings import DEFAULT_EXAGGERATION, DEFAULT_PROFILE
 
-# A striped GeoTIFF is decoded whole: above this many pixels (a 12-bit 150 MP RGB image is 0.9 GB
-# decoded) it is refused with the command that tiles it.
-MAX_STRIPED_PIXELS = 150_000_000
 DEFAULT_TILE = 4096
 DEFAULT_OVERLAP = 512
-# The overview that fixes the threshold: at most this many pixels.
-OVERVIEW_PIXELS = 4_000_000
-
-
-class MosaicReader:
-    """Windows of a GeoTIFF orthomosaic, decoding only the TIFF tiles a window overlaps.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        A GeoTIFF (or plain TIFF) with RGB(A) samples, uint8, uint16 or float.
-    max_striped_pixels : int, optional
-        A striped (untiled) TIFF up to this many pixels is decoded whole and served from memory;
-        above it is refused (:class:`ImageTooLargeError`) with how to tile it.
-
-    Examples
-    --------
-    >>> with MosaicReader(path) as mosaic:  # doctest: +SKIP
-    ...     rgb, valid = mosaic.read(0, 512, 0, 512)
-    """
-
-    def __init__(self, path, *, max_striped_pixels=MAX_STRIPED_PIXELS):
-        max_striped_pixels = check_int("max_striped_pixels", max_striped_pixels, minimum=1)
-        self.raster = TiffRaster(path, what="mosaic", error=ImageReadError)
-        self.path = self.raster.path
-        self.shape = self.raster.shape
-        self.planar = self.raster.planar
-        try:
-            self._nodata = nodata_value(self.raster.tags.get(GDAL_NODATA), self.path)
-        except CliffTerrainError:
-            self.close()
-            raise
-        if self.raster.tiled:
-            if self.planar:
-                self.close()
-                raise ImageReadError(
-                    f"mosaic {self.path!r} stores its bands in separate planes; windows need "
-                    "pixel-interleaved tiles: gdal_translate -co TILED=YES -co INTERLEAVE=PIXEL IN.tif OUT.tif"
-                )
-        else:
-            pixels = self.shape[0] * self.shape[1]
-            if pixels > max_striped_pixels:
-                self.close()
-                raise ImageTooLargeError(
-                    f"mosaic {self.path!r} is a striped (untiled) TIFF of {self.shape[1]} x {self.shape[0]} "
-                    f"pixels ({pixels / 1e6:.0f} MP), too big to decode whole (limit "
-                    f"{max_striped_pixels / 1e6:.0f} MP) and not readable in windows; tile it first, for "
-                    "example: gdal_translate -co TILED=YES -co COMPRESS=DEFLATE IN.tif OUT.tif"
-                )
-        self.tile_shape = self.raster.tile_shape
-        try:
-            self.transform, self.crs = georeference(self.raster.tags, self.path)
-        except CliffTerrainError:
-            self.transform, self.crs = None, None  # a plain TIFF: no georeference
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
-
-    def close(self):
-        self.raster.close()
-
-    @property
-    def gsd(self):
-        """Metres per pixel from the georeference, or None."""
-        if self.transform is None:
-            return None
-        return float(np.hypot(*self.transform[:2, 0]))
-
-    def read(self, r0, r1, c0, c1):
-        """Pixels [r0:r1, c0:c1] as RGB uint8 and a valid mask (None when every pixel holds data).
-
-        Only the TIFF tiles the window overlaps are read and decoded, one at a time.
-        """
-        rows, cols = self.shape
-        if not (0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols):
-            raise CliffTerrainError(
-                f"window [{r0}:{r1}, {c0}:{c1}] is not inside the mosaic's {rows} x {cols}"
-            )
-        raw = self.raster.read_window(r0, r1, c0, c1)
-        return photo_bands(raw, self.path, nodata=self._nodata)
-
-    def overview(self, *, max_pixels=OVERVIEW_PIXELS):
-        """The whole mosaic reduced by an integer step (every `step`-th pixel) to at most `max_pixels`.
-
-        Returns
-        -------
-        rgb : (rows', cols', 3) uint8
-        valid : (rows', cols') bool or None
-        step : int
-        """
-        rows, cols = self.shape
-        step = max(1, math.ceil(math.sqrt(rows * cols / max_pixels)))
-        out_rows, out_cols = math.ceil(rows / step), math.ceil(cols / step)
-        rgb = np.zeros((out_rows, out_cols, 3), np.uint8)
-        valid = np.ones((out_rows, out_cols), bool)
-        # A band of TIFF tiles at a time (whole rows of tiles), so each tile is decoded once.
-        band = max(self.tile_shape[0], step)
-        band -= band % step or 0
-        band = max(band, step)
-        for r0 in range(0, rows, band):
-            r1 = min(rows, r0 + band)
-            part, ok = self.read(r0, r1, 0, cols)
-            rgb[r0 // step : r0 // step + len(range(0, r1 - r0, step))] = part[::step, ::step]
-            if ok is not None:
-                valid[r0 // step : r0 // step + len(range(0, r1 - r0, step))] = ok[::step, ::step]
-        return rgb, (None if valid.all() else valid), step
 
 
 @dataclass
@@ -229,7 +111,7 @@ def mosaic_settings(
     from ..relief.quaternion import quaternion_filter
     from ..relief.segmentation import segment, soil_level
     from ..relief.vegetation import blurred_index
-    from ..relief.watershed import colour_edges
+    from ..relief.watershed import colour_edges, default_edge_scale
 
     profile = resolve_profile(profile, "vegetation")
     exaggeration = check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True)
@@ -243,9 +125,7 @@ def mosaic_settings(
     components, n = ndimage.label(seg.mask)
     if n:
         dmax = step * label_max(distance_map(seg.mask.astype(np.int32)), components)[1:]
-        edges = colour_edges(quaternion_filter(rgb))
-        sample = edges.ravel()[::7][seg.mask.ravel()[::7]]
-        edge_scale = 0.5 * float(np.percentile(dmax, 90)) / (float(np.percentile(sample, 99)) + 1e-6)
+        edge_scale = default_edge_scale(dmax, colour_edges(quaternion_filter(rgb)), seg.mask)
         radius = float(np.median(dmax))
     else:
         radius, edge_scale = 3.0, 0.0
@@ -450,23 +330,9 @@ def _one_ahead(tiles):
 
 
 def _tiles_on_dask(client, path, windows, settings):
-    """relief_tile(path, window, settings) of each window as Dask tasks, results in order, bounded ahead."""
-    import collections
-    import itertools
+    """relief_tile(path, window, settings) of each window as Dask tasks, results in order, two per
+    worker ahead."""
+    from .._dask import in_order
 
     ahead = 2 * max(1, len(client.scheduler_info().get("workers", {})))
-    pending = iter(windows)
-    futures = collections.deque()
-
-    def submit(batch):
-        futures.extend(client.submit(relief_tile, path, window, settings, pure=False) for window in batch)
-
-    submit(itertools.islice(pending, ahead))
-    try:
-        while futures:
-            result = futures.popleft().result()  # a task's exception is raised here, as in a loop
-            submit(itertools.islice(pending, 1))
-            yield result
-    finally:
-        if futures:  # the caller stopped early or a tile failed: drop the tiles still queued
-            client.cancel(list(futures))
+    return in_order(client, relief_tile, ((path, window, settings) for window in windows), ahead=ahead)

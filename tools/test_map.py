@@ -1,0 +1,177 @@
+"""Which test files test each module of the core: the table ``tests/TEST_MAP.md``.
+
+    python tools/test_map.py           # print the table
+    python tools/test_map.py --write   # write tests/TEST_MAP.md
+
+A test file tests a module when it imports it (``from cliff_terrain.io.bands import read_bands``;
+``from cliff_terrain import build_relief``, the package's public name, counts for the module that
+defines it; the Blender tests' ``cliff_terrain_addon.cliff_terrain...`` and
+``f"{ADDON}.cliff_terrain..."`` too). A module no test imports is reached through another entry point
+(the command line, ``build_relief``): :data:`REACHED_THROUGH` names the test files that exercise it
+and how. ``tests/test_test_map.py`` fails when the table is not this script's output, or when a core
+module with code has no test file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = ROOT / "cliff_terrain"
+TESTS = ROOT / "tests"
+MAP = TESTS / "TEST_MAP.md"
+
+# Modules no test file imports, with the test files that run them and the way in.
+REACHED_THROUGH = {
+    "cliff_terrain.__main__": (("test_cli.py",), "`python -m cliff_terrain`"),
+    "cliff_terrain._dask": (
+        ("test_mosaic.py", "test_season.py"),
+        "`relief_tiles(client=...)`, a season on Dask",
+    ),
+    "cliff_terrain._memory": (("test_mosaic.py",), "`peak_rss` of a mosaic's build"),
+    "cliff_terrain._validate": (
+        ("test_pipeline.py", "test_bad_input_table.py"),
+        "every entry point's checks",
+    ),
+    "cliff_terrain.commands.heights": (("test_measured_heights.py",), "`cliff-terrain heights`"),
+    "cliff_terrain.commands.index_options": (("test_multispectral.py",), "`--indices` of the commands"),
+    "cliff_terrain.commands.plots": (
+        ("test_plot_grid.py", "test_plot_fit_reference.py"),
+        "`cliff-terrain plots`",
+    ),
+    "cliff_terrain.commands.relief": (("test_cli.py",), "`cliff-terrain relief`"),
+    "cliff_terrain.commands.season": (("test_season.py",), "`cliff-terrain season`"),
+    "cliff_terrain.commands.synthetic": (("test_cli.py",), "`cliff-terrain synthetic`"),
+    "cliff_terrain.commands.traits": (("test_traits.py",), "`cliff-terrain traits`"),
+    "cliff_terrain.io.camera": (("test_image_io.py",), "a photo's metadata"),
+    "cliff_terrain.io.geokeys": (("test_measured_heights.py", "test_season.py"), "reading GeoTIFFs"),
+    "cliff_terrain.io.photo_metadata": (("test_image_io.py",), "a photo's metadata"),
+    "cliff_terrain.io.pillow_pixels": (("test_image_io.py",), "decoding photos"),
+    "cliff_terrain.io.tiff_window": (("test_mosaic.py", "test_measured_heights.py"), "reading TIFF windows"),
+    "cliff_terrain.measure.key_figures": (
+        ("test_render_figures.py", "test_blender_measured.py"),
+        "metrics.json and the relief's record",
+    ),
+    "cliff_terrain.season.align": (("test_season.py",), "`cliff-terrain season`"),
+    "cliff_terrain.season.charts": (("test_season.py",), "`cliff-terrain season` (growth.png)"),
+    "cliff_terrain.season.security": (("test_season.py",), "`cliff-terrain season --scheduler`"),
+    "cliff_terrain.season.table": (("test_season.py",), "`cliff-terrain season` (season.csv)"),
+    "cliff_terrain.season.task": (("test_season.py",), "`cliff-terrain season` (one date)"),
+    "cliff_terrain.season.trait_charts": (("test_traits.py",), "`cliff-terrain traits`"),
+}
+
+_ADDON_STRING = re.compile(
+    r"""(?:cliff_terrain_addon\.|\{ADDON\}\.|ADDON \+ ["']\.)(cliff_terrain(?:\.\w+)*)"""
+)
+
+
+def core_modules():
+    """{module name: path} of every module of the core, packages' ``__init__`` included."""
+    found = {}
+    for path in sorted(CORE.rglob("*.py")):
+        parts = list(path.relative_to(ROOT).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        found[".".join(parts)] = path
+    return found
+
+
+def has_code(path):
+    """True unless the module is only a docstring and imports (a package's ``__init__`` mostly)."""
+    body = ast.parse(path.read_text()).body
+    return any(not isinstance(n, (ast.Import, ast.ImportFrom, ast.Expr)) for n in body)
+
+
+def public_names():
+    """{public name of ``cliff_terrain``: the module defining it} (the package loads them lazily)."""
+    tree = ast.parse((CORE / "__init__.py").read_text())
+    names = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "_EXPORTS" for t in node.targets):
+            names.update({k: f"cliff_terrain.{v}" for k, v in ast.literal_eval(node.value).items()})
+        elif isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
+            names.update({alias.name: f"cliff_terrain.{node.module}" for alias in node.names})
+    return names
+
+
+def imported_names(path):
+    """Dotted names a test file imports (statically, lazy imports included)."""
+    text = path.read_text()
+    names = set(_ADDON_STRING.findall(text))
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return {name.removeprefix("cliff_terrain_addon.") for name in names}
+
+
+def test_map():
+    """{core module: (sorted test file names, how: "imports" or the entry point)}."""
+    modules = core_modules()
+    public = public_names()
+    importers = {m: set() for m in modules}
+    for test in sorted(TESTS.glob("test_*.py")):
+        for name in imported_names(test):
+            head, _, tail = name.partition("cliff_terrain.")
+            if not head and tail in public:
+                name = public[tail]
+            parts = name.split(".")
+            while parts and ".".join(parts) not in modules:
+                parts.pop()
+            if parts:
+                importers[".".join(parts)].add(test.name)
+    table = {}
+    for module, path in modules.items():
+        if importers[module]:
+            table[module] = (sorted(importers[module]), "imports")
+        elif module in REACHED_THROUGH:
+            files, how = REACHED_THROUGH[module]
+            table[module] = (sorted(files), how)
+        elif not has_code(path):
+            table[module] = ([], "a package: see its modules")
+        else:
+            table[module] = ([], "")
+    return table
+
+
+def markdown(table):
+    lines = [
+        "# Which tests test which module of the core",
+        "",
+        "Generated by `python tools/test_map.py --write` (checked by `tests/test_test_map.py`). Run one",
+        "module's tests with `python -m pytest tests/FILE.py`; the Blender ones need bpy (`.venv`).",
+        "",
+        "| module | test files | how |",
+        "| --- | --- | --- |",
+    ]
+    for module, (files, how) in table.items():
+        path = module.replace(".", "/") + (
+            "/__init__.py" if (ROOT / module.replace(".", "/")).is_dir() else ".py"
+        )
+        tests = ", ".join(f"`{f}`" for f in files) or (
+            "-" if how == "a package: see its modules" else "**none**"
+        )
+        lines.append(f"| `{path}` | {tests} | {how} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help=f"write {MAP.relative_to(ROOT)}")
+    args = parser.parse_args(argv)
+    text = markdown(test_map())
+    if args.write:
+        MAP.write_text(text)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
