@@ -101,3 +101,22 @@ extension: venv
 
 clean:
 	rm -rf dist wheels build .pytest_cache .ruff_cache
+
+# The docs site (docs/, Sphinx + MyST + numpydoc) into docs/_build/html, warnings as errors, in a venv
+# of its own: the core's pinned libraries (autodoc imports the core; never bpy) and the docs tools.
+VENVDOCS := .venv-docs
+.PHONY: docs venv-docs
+
+$(VENVDOCS)/.installed: requirements.txt requirements-docs.txt
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed for the docs (the core pinned as Blender 4.2-5.0 run it); set PYTHON=/path/to/python3.11")'
+	$(PYTHON) -m venv $(VENVDOCS)
+	$(VENVDOCS)/bin/pip install -q --upgrade pip
+	$(VENVDOCS)/bin/pip install -q -r requirements-docs.txt
+	@touch $@
+
+venv-docs: $(VENVDOCS)/.installed
+
+docs: venv-docs
+	rm -rf docs/_build/html
+	$(VENVDOCS)/bin/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "Docs: docs/_build/html/index.html"

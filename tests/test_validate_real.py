@@ -88,3 +88,81 @@ def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_pat
     # The tilt makes the raw difference taller than the plants by up to 20 cm; aligned, ours agrees.
     assert row["ours_raw"]["bias_cm"] < -5.0
     assert abs(row["ours_aligned"]["bias_cm"]) < 3.0 and row["ours_aligned"]["rmse_cm"] < 4.0
+
+
+def test_the_validation_page_is_written_from_its_record(validate, tmp_path):
+    record = {
+        "images": [
+            {
+                "set": "wheat",
+                "image": "a.png",
+                "half": "holdout",
+                "reference": "annotation",
+                "iou": 0.31,
+                "f1": 0.47,
+                "volume_on_plants": 0.55,
+                "threshold": 0.1,
+                "threshold_source": "band",
+                "valley": None,
+            }
+        ],
+        "summary": {
+            "wheat/holdout": {
+                "images": 1,
+                "iou_median": 0.31,
+                "f1_median": 0.47,
+                "volume_on_plants_min": 0.55,
+                "volume_on_plants_median": 0.55,
+            },
+            "wheat/tune": None,
+        },
+        "fields": [
+            {
+                "field": "trial",
+                "date": "60",
+                "half": "holdout",
+                "plots": 4,
+                "ours_aligned": {"n": 4, "r": 0.9, "rmse_cm": 2.0, "bias_cm": -1.0},
+                "peer_aligned": {"n": 4, "r": 0.95, "rmse_cm": 9.0, "bias_cm": 8.0},
+                "ours_raw": {"n": 4, "r": 0.5, "rmse_cm": 20.0, "bias_cm": -19.0},
+                "peer_raw": {"n": 4, "r": None, "rmse_cm": None, "bias_cm": None},
+                "ground_support_median": 0.5,
+            }
+        ],
+    }
+    page = tmp_path / "validation.md"
+    validate.main(["--record", str(_write_json(tmp_path / "record.json", record)), "--docs", str(page)])
+    text = page.read_text()
+    assert text.startswith("# Validation on real fields\n") and validate.DOCS_BEGIN in text
+    for heading in (
+        "## Sources and licences",
+        "## Plants and soil",
+        "## Ground and canopy height",
+        "## Where we lose",
+    ):
+        assert heading in text, heading
+    # Every source with its licence, every set and half, every image, every field and date.
+    for row in validate.SOURCES:
+        assert validate._cells(row) in text
+    assert "| wheat | holdout | 1 | 0.310 | 0.470 | 55.0 % / 55.0 % |" in text
+    assert "| wheat | a.png | holdout | annotation | 0.310 | 0.470 | 55.0 % | 0.100 (band) |" in text
+    assert "| trial | day 60 | holdout | 4 | 0.900 / 2.0 cm / −1.0 cm | 0.950 / 9.0 cm / +8.0 cm |" in text
+    # Where we lose, found in the record: the peer's higher r, the weak image, the set's worst volume.
+    losses = text.split("## Where we lose\n", 1)[1]
+    assert "trial day 60: the naive peer's r is higher (0.950 against 0.900)." in losses
+    assert "RMSE is lower" not in losses and "bias is smaller" not in losses
+    assert "wheat/a.png (holdout): IoU 0.310 against annotation." in losses
+    assert "wheat/holdout: the worst image's relief stands only 55.0 %" in losses
+
+
+def test_the_committed_validation_page_is_its_record_written_out(validate):
+    record = json.loads((REPO / "bench" / "validation_record.json").read_text())
+    assert (REPO / "docs" / "validation.md").read_text() == validate.docs_page(record)
+    # Every field and date of the record is on the page, with ours and the naive peer.
+    assert record["fields"] and all(r["ours_aligned"]["r"] is not None for r in record["fields"])
+    assert record["fields"] and all(r["peer_aligned"]["r"] is not None for r in record["fields"])
+
+
+def _write_json(path, value):
+    path.write_text(json.dumps(value))
+    return path
