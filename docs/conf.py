@@ -50,3 +50,8 @@ html_theme_options = {
     "icon_links": [],
 }
 html_show_sourcelink = False
+# The pages at the top have no sub-pages: no empty "Section Navigation" column beside them.
+html_sidebars = {
+    page: []
+    for page in ("index", "blender", "cli", "api", "validation", "benchmarks", "development", "changes")
+}
