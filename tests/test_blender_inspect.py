@@ -169,6 +169,11 @@ def test_sidebar_sub_panels_are_registered_under_the_main_panel(addon):
         and getattr(getattr(bpy.types, name), "bl_parent_id", "") == "CLIFF_TERRAIN_PT_sidebar"
     }
     assert set(children.values()) == {"Photo & Models", "Heights", "Mesh", "Plots", "Figures", "Season"}
+    # The Blender guide's table of sub-panels names the ones registered.
+    guide = (REPO / "docs" / "blender.md").read_text()
+    table = guide.split("| Sub-panel | What it holds |\n", 1)[1].split("\n\n", 1)[0]
+    listed = {line.split("|")[1].strip().strip("*") for line in table.splitlines()[1:]}
+    assert listed == set(children.values())
 
 
 def test_the_blender_guide_script_runs_as_pasted(scene, tmp_path, capsys):

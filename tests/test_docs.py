@@ -221,3 +221,47 @@ def test_the_docs_and_the_changelog_stay_out_of_the_extension_zip():
     assert {"/docs/", "/CHANGES.md", "/requirements*.txt", "/.venv*/"} <= set(patterns)
     builder = (REPO / "tools" / "build_extension.py").read_text()
     assert '"docs", "CHANGES.md"' in builder
+
+
+def _table_names(text, header, pattern=r"`([^`]+)`"):
+    """The backticked names in the first column of the Markdown table under `header`."""
+    section = text.split(header + "\n", 1)[1].split("\n\n", 1)[0]
+    names = set()
+    for line in section.splitlines()[1:]:
+        if line.startswith("| "):
+            names |= set(re.findall(pattern, line.strip().strip("|").split("|")[0]))
+    return names
+
+
+def test_the_render_views_tables_name_its_options_and_outputs():
+    sys.path.insert(0, str(REPO))
+    try:
+        import render_views
+    finally:
+        sys.path.remove(str(REPO))
+    from cliff_terrain.figures.outputs import OUTPUTS
+
+    text = (DOCS / "cli.md").read_text()
+    parser = render_views.build_parser()
+    options = {o for a in parser._actions for o in a.option_strings if o.startswith("--")} - {"--help"}
+    assert _table_names(text, "| option | default | meaning |", r"`(--[a-z-]+)") == options
+    assert _table_names(text, "| file | what |") == set(OUTPUTS)
+
+
+def test_the_index_table_is_the_indices_the_code_defines():
+    from cliff_terrain.relief.indices import INDICES
+
+    text = (DOCS / "concepts" / "multispectral.md").read_text()
+    section = text.split("| index | formula | bands | reference |\n", 1)[1].split("\n\n", 1)[0]
+    listed = {line.split("|")[1].strip() for line in section.splitlines()[1:] if line.startswith("| ")}
+    assert listed == set(INDICES)
+
+
+def test_the_definitions_table_names_every_key_figure():
+    from cliff_terrain import build_relief, synthetic_field
+    from cliff_terrain.measure.key_figures import key_figures
+
+    image, _ = synthetic_field(shape=(120, 160), seed=1)
+    figures = key_figures(build_relief(image, max_size=160, gsd=0.01, mesh=None))
+    text = (DOCS / "concepts" / "ground.md").read_text()
+    assert _table_names(text, "| key | definition |") == set(figures) - {"units"}
