@@ -22,6 +22,7 @@ help:
 	@echo "                  none is on PATH): install, Build Relief, render_views.py, the sidebar in a window"
 	@echo "make bench      - run the benchmarks (ratios against named peers)"
 	@echo "make extension  - build one Blender extension zip per platform and Python into dist/"
+	@echo "make docs       - build the docs site into docs/_build/html (Sphinx, warnings as errors; .venv-docs)"
 
 $(VENV)/.installed: requirements.txt requirements-dev.txt
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed (Blender 4.2-5.0 and their bpy wheels are 3.11); set PYTHON=/path/to/python3.11")'
