@@ -222,15 +222,34 @@ def test_the_readme_is_a_front_page_whose_figures_stand_on_the_pages_it_links():
         assert (REPO / link).exists(), link
 
 
-def test_the_docs_and_the_changelog_stay_out_of_the_extension_zip():
+def test_the_docs_and_the_changelog_stay_out_of_the_extension_zip(tmp_path):
+    import importlib.util
     import tomllib
+    import zipfile
 
     manifest = tomllib.loads((REPO / "blender_manifest.toml").read_text())
     patterns = manifest["build"]["paths_exclude_pattern"]
-    # Blender's builder leaves these out; tools/build_extension.py refuses a zip that holds them.
+    # Blender's builder leaves these out ...
     assert {"/docs/", "/CHANGES.md", "/requirements*.txt", "/.venv*/"} <= set(patterns)
-    builder = (REPO / "tools" / "build_extension.py").read_text()
-    assert '"docs", "CHANGES.md"' in builder
+    # ... and tools/build_extension.py refuses a zip that holds them all the same.
+    spec = importlib.util.spec_from_file_location("_build_extension", REPO / "tools" / "build_extension.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    for leaked in ("docs/index.md", "CHANGES.md"):
+        archive_path = tmp_path / f"{leaked.replace('/', '_')}.zip"
+        with zipfile.ZipFile(archive_path, "w") as archive:
+            archive.writestr("blender_manifest.toml", 'id = "cliff_terrain"\nblender_version_min = "4.2.0"\n')
+            for name in (
+                "__init__.py",
+                "cliff_terrain/__init__.py",
+                "operators/__init__.py",
+                "scene/__init__.py",
+                "panels/__init__.py",
+                leaked,
+            ):
+                archive.writestr(name, "")
+        with pytest.raises(tool.BuildError, match=f"must be excluded, e.g. {leaked}"):
+            tool.check_zip(archive_path, {"3.11": []}, "cliff_terrain", packages=())
 
 
 def _table_names(text, header, pattern=r"`([^`]+)`"):
