@@ -27,6 +27,7 @@ help:
 	@echo "                  none is on PATH): install, Build Relief, render_views.py, the sidebar in a window"
 	@echo "make bench      - run the benchmarks (ratios against named peers)"
 	@echo "make extension  - build one Blender extension zip per platform and Python into dist/"
+	@echo "make docs       - build the docs site into docs/_build/html (Sphinx, warnings as errors; .venv-docs)"
 
 $(VENV)/.installed: requirements.txt requirements-dev.txt
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed (Blender 4.2-5.0 and their bpy wheels are 3.11); set PYTHON=/path/to/python3.11")'
@@ -111,3 +112,22 @@ extension: venv
 
 clean:
 	rm -rf dist wheels build .pytest_cache .ruff_cache
+
+# The docs site (docs/, Sphinx + MyST + numpydoc) into docs/_build/html, warnings as errors, in a venv
+# of its own: the core's pinned libraries (autodoc imports the core; never bpy) and the docs tools.
+VENVDOCS := .venv-docs
+.PHONY: docs venv-docs
+
+$(VENVDOCS)/.installed: requirements.txt requirements-docs.txt
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Python 3.11 is needed for the docs (the core pinned as Blender 4.2-5.0 run it); set PYTHON=/path/to/python3.11")'
+	$(PYTHON) -m venv $(VENVDOCS)
+	$(VENVDOCS)/bin/pip install -q --upgrade pip
+	$(VENVDOCS)/bin/pip install -q -r requirements-docs.txt
+	@touch $@
+
+venv-docs: $(VENVDOCS)/.installed
+
+docs: venv-docs
+	rm -rf docs/_build/html
+	$(VENVDOCS)/bin/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "Docs: docs/_build/html/index.html"

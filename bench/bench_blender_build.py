@@ -27,7 +27,7 @@ out into a temporary folder) in the same run: warm builds in a fresh Blender per
 version, the two versions alternating, so that both see the same machine.
 
 The photo is written to a temporary file (never committed). `main(argv=None)` returns the figures
-as a dict, with ``rows`` for the README's benchmark table (bench/run_all.py writes it).
+as a dict, with ``rows`` for the benchmark table of docs/benchmarks.md (bench/run_all.py writes it).
 """
 
 from __future__ import annotations
@@ -248,7 +248,7 @@ def _spread(values):
 
 
 def table_rows(r):
-    """The README's rows for these figures: (what, ours, peer, ratio, goal)."""
+    """The benchmark table's rows for these figures: (what, ours, peer, ratio, goal)."""
     bpy_version = f"bpy {r['blender']}"
     cols, rows = r["photo_size"]
     peer = f"grid primitive + Displace modifier + Apply, mesh only: {_spread(r['peer_runs_s'])}"

@@ -1,12 +1,12 @@
-"""Run every benchmark in bench/ (each prints its own figures and ratios) and write the README's table.
+"""Run every benchmark in bench/ (each prints its own figures and ratios) and write the benchmark page's table.
 
-python bench/run_all.py            # all, then the README's benchmark table
-python bench/run_all.py filter     # the ones whose name contains "filter" (the README is left alone)
+python bench/run_all.py            # all, then the table of docs/benchmarks.md
+python bench/run_all.py filter     # the ones whose name contains "filter" (the page is left alone)
 
 A benchmark's ``main`` returns its figures; those with ``rows`` (what, ours, peer, ratio, goal) make
-the README's table, between the markers below, so that its numbers are always a run's output and
+the table of the docs' benchmark page (docs/benchmarks.md), between the markers below, so that its numbers are always a run's output and
 never copied by hand. The Build benchmark also runs on the declared minimum Blender when its
-environment (.venv-bpy42, ``make venv42``) exists. The README is written only after a run of every
+environment (.venv-bpy42, ``make venv42``) exists. The page is written only after a run of every
 benchmark in which none failed.
 """
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-README = ROOT / "README.md"
+PAGE = ROOT / "docs" / "benchmarks.md"
 BEGIN = "<!-- bench:begin (written by `make bench`, bench/run_all.py; not edited by hand) -->"
 END = "<!-- bench:end -->"
 BPY42_PYTHON = ROOT / ".venv-bpy42" / "bin" / "python"
@@ -71,16 +71,16 @@ def table(rows):
     return "\n".join(lines)
 
 
-def write_readme(rows, readme=README, *, start_load=None):
-    """Put the table (with the machine, its load and the day it ran) between the README's markers."""
+def write_page(rows, page=PAGE, *, start_load=None):
+    """Put the table (with the machine, its load and the day it ran) between the page's markers."""
     sys.path.insert(0, str(HERE))
     import cv2
     import numpy as np
     from machine_info import describe
 
-    text = readme.read_text()
+    text = page.read_text()
     if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
-        raise RuntimeError(f"{readme.name} needs one {BEGIN!r} line, then one {END!r} line")
+        raise RuntimeError(f"{page.name} needs one {BEGIN!r} line, then one {END!r} line")
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)
     started = "" if start_load is None else f" (it was {start_load:.2f} when the run started)"
@@ -90,8 +90,8 @@ def write_readme(rows, readme=README, *, start_load=None):
         "run ended: other processes may share its cores, and absolute times move with the load more "
         "than ratios do.\n\n" + table(rows)
     )
-    readme.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
-    print(f"\nwrote {len(rows)} rows into {readme.name}")
+    page.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
+    print(f"\nwrote {len(rows)} rows into {page}")
 
 
 def main(argv=None):
@@ -110,11 +110,11 @@ def main(argv=None):
                 failed.append("bench_blender_build (bpy 4.2)")
             results["bench_blender_build (bpy 4.2)"] = figures or {}
     if failed:
-        print(f"\nfailed: {', '.join(failed)}; the README is left as it was", file=sys.stderr)
+        print(f"\nfailed: {', '.join(failed)}; the benchmark page is left as it was", file=sys.stderr)
         return 1
     if not argv:
         rows = [tuple(row) for figures in results.values() for row in figures.get("rows", [])]
-        write_readme(rows, start_load=start_load)
+        write_page(rows, start_load=start_load)
     return 0
 
 

@@ -1,9 +1,10 @@
 """Validation on real fields: masks against references, single-flight heights against two flights.
 
-    python bench/validate_real.py DATA_DIR [--json OUT.json] [--half tune|holdout|all]
+    python bench/validate_real.py DATA_DIR [--json OUT.json] [--docs docs/validation.md]
+    python bench/validate_real.py --record OUT.json --docs docs/validation.md   # the page from a record
 
-Fetches nothing: DATA_DIR holds the data (outside the repository; see the README's "Validation on
-real fields" for the sources, their licences and how they were laid out):
+Fetches nothing: DATA_DIR holds the data (outside the repository; see the docs' validation page,
+docs/validation.md, for the sources, their licences and how they were laid out):
 
 ``DATA_DIR/masks/<set>/NAME.(png|jpg|tif)`` with ``NAME_mask.png``
     A photo and its annotated plant mask (255 = plant). Reported: the relief mask's IoU and F1
@@ -29,7 +30,7 @@ real fields" for the sources, their licences and how they were laid out):
 
 Images are split into two halves by their sorted order within each set (even: ``tune``, odd:
 ``holdout``); a field's dates are ``holdout`` when listed so in field.json. Thresholds were chosen
-on the tune half only; the README reports the holdout half.
+on the tune half only; the validation page reports both.
 """
 
 from __future__ import annotations
@@ -343,15 +344,279 @@ def summarise(rows, half):
     }
 
 
+# --- The validation page (docs/validation.md), written from a run's record -------------------------
+
+# The sets this script reads, where they come from and under which licence (none is in the repository).
+SOURCES = (
+    (
+        "`cwfid` (12 photos)",
+        "carrot seedlings and weeds on dark, moist soil, nadir from a field robot (not a UAV); the colours "
+        "look like a NIR-sensitive camera",
+        "`cwfid/dataset`, `images/`, `masks/`",
+        '"non-commercial research only", cite the paper (README; no licence file)',
+        "the dataset's vegetation masks (crop and weeds are plant)",
+    ),
+    (
+        "`segveg_literal_wheat` (12)",
+        "wheat plots from a handheld nadir camera: green, yellow and ripe canopy, hard shadows, some soil",
+        "`mserouar/SegVeg`, `docs/DATA/Literal_wheat_dataset/` (older commit)",
+        "none stated",
+        "the repository's binary masks (possibly a model's output, not verified as hand-drawn)",
+    ),
+    (
+        "`uavbroccoli` (4)",
+        "UAV orthomosaic tiles: pale, bluish broccoli on very dark soil",
+        "`UTokyo-FieldPhenomics-Lab/UAVbroccoli`, `data/broccoli_data/images/train/` (older commit)",
+        "MIT for the code; the data's is unclear",
+        "none: independent ExG/Otsu mask",
+    ),
+    (
+        "`potato_fieldimager`",
+        "a potato trial flown 30, 40, 70 and 100 days after planting: orthomosaics, DSMs (6.8 cm/px), "
+        "140 plot polygons; day 70 is held out and used for nothing here",
+        "`filipematias23/FIELDimageR-QGIS-Workshop`",
+        "none stated",
+        "the date's DSM minus day 30's",
+    ),
+    (
+        "`potato_fieldimager_d55_d90`",
+        "the same potato trial flown 55 days (open rows) and 90 days (closed canopy) after planting, its "
+        "140 plots and day-30 reference",
+        "`phenome-force/FIELDimageR-workshop` (`DSM/3_55`, `DSM/5_90`, `MOSAIC/3_55`, `MOSAIC/5_90` only)",
+        "none stated",
+        "the date's DSM minus day 30's",
+    ),
+    (
+        "`potato_fieldimager_ex1`",
+        "a second potato trial (Wisconsin), vegetative, plants 0.1-0.3 m above the hills: two DSMs, no "
+        "orthophoto; 126 plots made from its field map and the two-flight heights",
+        "`filipematias23/FIELDimageR-QGIS` (`EX_DSM0.tif`, `EX_DSM1.tif`, `fieldMap.csv`)",
+        "none stated (the R package is GPL-3)",
+        "DSM1 minus the bare-soil DSM0",
+    ),
+    (
+        "`potato_fieldimager_ex2`",
+        "potato breeding plots at flowering: the OpenDroneMap DSM and orthophoto in `../shared`, 588 plots",
+        "`filipematias23/FIELDimageR-Workshop-10` (EX2 files only)",
+        "GPL-2.0 (DSM, orthophoto); none stated (plots)",
+        "none: the ground check only",
+    ),
+)
+DOCS_BEGIN = "<!-- written by bench/validate_real.py --docs from its record; not edited by hand -->"
+WEAK_IOU = 0.5  # an image whose mask agrees less than this with its reference is listed as a loss
+# The references of a field, by their record key.
+KINDS = {"aligned": "aligned two-flight difference", "raw": "raw two-flight difference", "ruler": "ruler"}
+# The share of plots |error| <= 1.645 x height_p90_err_m should cover (issue 38).
+COVERAGE_GOAL = (0.85, 0.95)
+
+
+def _cells(row):
+    return "| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |"
+
+
+def _table(header, rows):
+    return "\n".join([_cells(header), "|" + "---|" * len(header), *(_cells(r) for r in rows)])
+
+
+def _pct(value):
+    return "-" if value is None else f"{100 * value:.1f} %"
+
+
+def _num(value, digits=3):
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def _fit(a):
+    if not a or a.get("r") is None:
+        return "-"
+    return f"{a['r']:.3f} / {a['rmse_cm']:.1f} cm / {a['bias_cm']:+.1f} cm".replace("-", "−")
+
+
+def _losses(fields, images, summary):
+    """Where we lose, found in the record: a peer's better r or RMSE, weak images and sets."""
+    lines = []
+    names = {"baseline": "the naive baseline", "plantcv": "plantcv-geospatial's p90 - p25"}
+    for row in fields:
+        for kind, figures in row.get("against", {}).items():
+            ours = figures.get("ours") or {}
+            if ours.get("r") is None:
+                continue
+            where = f"{row['field']} {row['date']} against the {KINDS.get(kind, kind)}"
+            for peer, name in names.items():
+                theirs = figures.get(peer) or {}
+                if theirs.get("r") is None:
+                    continue
+                if theirs["r"] > ours["r"]:
+                    lines.append(
+                        f"{where}: {name}'s r is higher ({theirs['r']:.3f} against {ours['r']:.3f})."
+                    )
+                if theirs["rmse_cm"] < ours["rmse_cm"]:
+                    lines.append(
+                        f"{where}: {name}'s RMSE is lower ({theirs['rmse_cm']:.1f} cm against {ours['rmse_cm']:.1f} cm)."
+                    )
+            cover = figures.get("coverage")
+            if cover is not None and not COVERAGE_GOAL[0] <= cover <= COVERAGE_GOAL[1]:
+                lines.append(
+                    f"{where}: the uncertainty covers {_pct(cover)} of the plots (goal "
+                    f"{_pct(COVERAGE_GOAL[0])}-{_pct(COVERAGE_GOAL[1])})."
+                )
+    for row in images:
+        if row["iou"] < WEAK_IOU:
+            lines.append(
+                f"{row['set']}/{row['image']} ({row['half']}): IoU {row['iou']:.3f} against {row['reference']}."
+            )
+    for key, value in summary.items():
+        if value and value["volume_on_plants_min"] < 0.6:
+            lines.append(
+                f"{key}: the worst image's relief stands only {_pct(value['volume_on_plants_min'])} on the "
+                "reference's plants."
+            )
+    return lines
+
+
+def docs_page(record):
+    """The validation page (Markdown) for a record of :func:`main`: sources, every set, field and date."""
+    images, fields, summary = record.get("images", []), record.get("fields", []), record.get("summary", {})
+    parts = [
+        "# Validation on real fields",
+        DOCS_BEGIN,
+        "The figures users trust must hold on fields the code was not tuned on. `bench/validate_real.py "
+        "DATA_DIR` fetches nothing: it reads photos with annotated masks, photos without (against an "
+        "independent ExG/Otsu mask) and fields flown on several dates, and reports, per image, the relief "
+        "mask's IoU and F1 against the reference and the share of the relief's volume standing on the "
+        "reference's plants; per field and date, r, RMSE and bias of `cliff-terrain heights`' per-plot p90 "
+        "against the two-flight difference, with the naive peer (2nd percentile of the DSM in 5 m blocks) "
+        "in the same run. Its docstring gives the folder layout. None of this data is in the repository: "
+        "the licences below do not allow it, or are unclear. This page is written from the run's record "
+        "(`python bench/validate_real.py DATA_DIR --json record.json --docs docs/validation.md`).",
+    ]
+    if record.get("provenance"):
+        parts.append(f"*This record:* {record['provenance']}")
+    parts += [
+        "## Sources and licences",
+        _table(("set", "what", "source (public GitHub repository)", "licence", "reference"), SOURCES),
+        "## Plants and soil: masks against references",
+        "Each image set is split by sorted order (even: tune, odd: holdout); thresholds were chosen on "
+        "the tune halves only.",
+    ]
+    rows = [
+        (
+            key.split("/")[0],
+            key.split("/")[1],
+            value["images"],
+            _num(value["iou_median"]),
+            _num(value["f1_median"]),
+            f"{_pct(value['volume_on_plants_min'])} / {_pct(value['volume_on_plants_median'])}",
+        )
+        for key, value in sorted(summary.items())
+        if value
+    ]
+    header = (
+        "set",
+        "half",
+        "images",
+        "IoU (median)",
+        "F1 (median)",
+        "volume on the reference's plants (min / median)",
+    )
+    parts.append(_table(header, rows) if rows else "No image set in this record.")
+    if images:
+        parts.append("Every image:")
+        header = ("set", "image", "half", "reference", "IoU", "F1", "volume on plants", "threshold (source)")
+        parts.append(
+            _table(
+                header,
+                [
+                    (
+                        r["set"],
+                        r["image"],
+                        r["half"],
+                        r["reference"],
+                        _num(r["iou"]),
+                        _num(r["f1"]),
+                        _pct(r["volume_on_plants"]),
+                        f"{r['threshold']:.3f} ({r['threshold_source']})",
+                    )
+                    for r in images
+                ],
+            )
+        )
+    parts += [
+        "## Ground and canopy height: one flight against two, and against a ruler",
+        "Per-plot p90 canopy height from one flight (`cliff-terrain heights` on the date's orthophoto and "
+        "DSM; on a surface model alone, its ground from the surface) against each reference the field "
+        "has: the p90 of the date's DSM minus the early-season DSM, *aligned* on stable ground first "
+        "(photogrammetry without ground control tilts one flight against another; a robust quadratic "
+        "surface fitted to the difference at least 0.5 m outside every plot, plants rejected as "
+        "outliers, is removed) and raw, and a breeder's ruler. The naive baseline (the DSM's 2nd "
+        "percentile in 5 m blocks, bilinear) and plantcv-geospatial's `height_percentile` (each plot's "
+        "DSM p90 minus its p25) run on the same grid in the same run. Each cell is r / RMSE / bias; "
+        "coverage is the share of plots with |error| <= 1.645 x `height_p90_err_m`.",
+    ]
+    header = (
+        "field",
+        "crop, stage",
+        "date",
+        "plots",
+        "ground (held-out error)",
+        "against",
+        "ours",
+        "naive baseline",
+        "plantcv p90 - p25",
+        "coverage",
+    )
+    rows = [
+        (
+            r["field"],
+            f"{r.get('crop', '')}, {r.get('stage', '')}".strip(", "),
+            r["date"],
+            r["plots"],
+            f"{r.get('ground_method')} ({_num(r.get('ground_check_error_cm'), 1)} cm, {r.get('evidence')})",
+            KINDS.get(kind, kind),
+            _fit(figures.get("ours")),
+            _fit(figures.get("baseline")),
+            _fit(figures.get("plantcv")),
+            _pct(figures.get("coverage")),
+        )
+        for r in fields
+        for kind, figures in r.get("against", {}).items()
+    ]
+    parts.append(_table(header, rows) if rows else "No field in this record.")
+    losses = _losses(fields, images, summary)
+    parts.append("## Where we lose")
+    parts.append("\n".join(f"- {line}" for line in losses) if losses else "Nowhere in this record.")
+    if record.get("notes"):
+        parts.append("## Notes on this run")
+        parts.append("\n".join(f"- {note}" for note in record["notes"]))
+    return "\n\n".join(parts) + "\n"
+
+
+def write_docs(record, path):
+    """Write :func:`docs_page` of `record` to `path` (the docs' validation page)."""
+    Path(path).write_text(docs_page(record))
+    print(f"wrote {path}")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("data_dir", type=Path)
+    parser.add_argument("data_dir", type=Path, nargs="?", help="the data (not needed with --record)")
     parser.add_argument("--max-size", type=int, default=1000)
     parser.add_argument("--json", type=Path, default=None, help="write every figure here")
     parser.add_argument("--skip-images", action="store_true")
     parser.add_argument("--skip-fields", action="store_true")
     parser.add_argument("--ground", default="auto", help="the heights' --ground (default auto)")
+    parser.add_argument("--docs", type=Path, default=None, help="write the validation page here")
+    parser.add_argument(
+        "--record", type=Path, default=None, help="a --json record to write --docs from, instead of a run"
+    )
     args = parser.parse_args(argv)
+    if args.record is not None:
+        record = json.loads(args.record.read_text())
+        if args.docs:
+            write_docs(record, args.docs)
+        return record
+    if args.data_dir is None:
+        parser.error("DATA_DIR is needed (or --record)")
     if not args.data_dir.is_dir():
         parser.error(f"DATA_DIR {str(args.data_dir)!r} is not a folder")
     warnings.filterwarnings("ignore", message=".*GDAL_NODATA.*")
@@ -370,6 +635,8 @@ def main(argv=None):
             )
     if args.json:
         args.json.write_text(json.dumps(record, indent=2) + "\n")
+    if args.docs:
+        write_docs(record, args.docs)
     return record
 
 

@@ -43,6 +43,41 @@ class ReliefParams:
     """The settings of one relief build; checked when made (a :class:`CliffTerrainError` names the
     setting and the value). See :func:`cliff_terrain.build.build_relief` for their meaning.
 
+    Parameters
+    ----------
+    max_size : int, optional
+        Longest side of the processing grid in pixels (16 to 16384).
+    segmentation : {"vegetation", "paper"}, optional
+        What rises: plants (``"vegetation"``) or the paper's bright class (``"paper"``).
+    profile : {"auto", "circular", "poisson", "plateau"}, optional
+        Cross-section of each region.
+    exaggeration : float, optional
+        Height factor (> 0).
+    max_height : float, optional
+        Canopy height (metres with a ground sampling distance, else processing pixels).
+    gsd : float, optional
+        Ground sampling distance of the original photo, metres per pixel.
+    two_sided : bool, optional
+        Close the relief into a watertight solid.
+    mesh : {"auto", "grid", "adaptive"} or None, optional
+        The mesh to make; None for heights only.
+    max_error : float, optional
+        The adaptive mesh's largest vertical error, in the relief's units.
+    dsm, dtm : str or os.PathLike, optional
+        Surface and terrain model GeoTIFFs of a georeferenced orthophoto.
+    height_source : {"inflated", "calibrated", "measured"}, optional
+        Where the heights come from; the last two need `dsm`.
+    ground_block : float, optional
+        Block size in metres of the estimated ground's trend (with a `dsm` and no `dtm`).
+    bands : str or sequence of str, optional
+        A multispectral photo's band names, when its file gives none (e.g. ``"B,G,R,RE,NIR"``).
+
+    Returns
+    -------
+    ReliefParams
+        Frozen; :meth:`replace` makes a checked copy, :meth:`as_kwargs` gives the keywords of
+        :func:`cliff_terrain.build.build_relief`.
+
     Examples
     --------
     >>> params = ReliefParams(max_size=500, gsd=0.01)

@@ -1,6 +1,6 @@
 """The core's shape, checked from its source: no import cycle, no private name imported across
 modules, small modules, no Blender schedule in the core, and each stage importing only the stages
-before it (the README's architecture section)."""
+before it (the architecture of docs/development.md)."""
 
 import ast
 from pathlib import Path

@@ -93,3 +93,104 @@ def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_pat
     assert aligned["baseline"]["rmse_cm"] > aligned["ours"]["rmse_cm"]
     assert aligned["plantcv"]["n"] == aligned["ours"]["n"] == 4
     assert row["ground_method"] in ("baseline", "smooth", "detailed") and 0 <= aligned["coverage"] <= 1
+
+
+def test_the_validation_page_is_written_from_its_record(validate, tmp_path):
+    record = {
+        "images": [
+            {
+                "set": "wheat",
+                "image": "a.png",
+                "half": "holdout",
+                "reference": "annotation",
+                "iou": 0.31,
+                "f1": 0.47,
+                "volume_on_plants": 0.55,
+                "threshold": 0.1,
+                "threshold_source": "band",
+                "valley": None,
+            }
+        ],
+        "summary": {
+            "wheat/holdout": {
+                "images": 1,
+                "iou_median": 0.31,
+                "f1_median": 0.47,
+                "volume_on_plants_min": 0.55,
+                "volume_on_plants_median": 0.55,
+            },
+            "wheat/tune": None,
+        },
+        "fields": [
+            {
+                "field": "trial",
+                "date": "60",
+                "half": "holdout",
+                "plots": 4,
+                "crop": "potato",
+                "stage": "closing",
+                "ground_method": "detailed",
+                "ground_check_error_cm": 1.2,
+                "evidence": "colour and surface",
+                "against": {
+                    "aligned": {
+                        "ours": {"n": 4, "r": 0.9, "rmse_cm": 2.0, "bias_cm": -1.0},
+                        "baseline": {"n": 4, "r": 0.95, "rmse_cm": 9.0, "bias_cm": 8.0},
+                        "plantcv": {"n": 4, "r": 0.5, "rmse_cm": 20.0, "bias_cm": -19.0},
+                        "coverage": 0.9,
+                    },
+                    "raw": {
+                        "ours": {"n": 4, "r": 0.5, "rmse_cm": 20.0, "bias_cm": -19.0},
+                        "baseline": {"n": 4, "r": None, "rmse_cm": None, "bias_cm": None},
+                        "plantcv": {"n": 4, "r": None, "rmse_cm": None, "bias_cm": None},
+                        "coverage": 0.5,
+                    },
+                },
+            }
+        ],
+    }
+    page = tmp_path / "validation.md"
+    validate.main(["--record", str(_write_json(tmp_path / "record.json", record)), "--docs", str(page)])
+    text = page.read_text()
+    assert text.startswith("# Validation on real fields\n") and validate.DOCS_BEGIN in text
+    for heading in (
+        "## Sources and licences",
+        "## Plants and soil",
+        "## Ground and canopy height",
+        "## Where we lose",
+    ):
+        assert heading in text, heading
+    # Every source with its licence, every set and half, every image, every field and date.
+    for row in validate.SOURCES:
+        assert validate._cells(row) in text
+    assert "| wheat | holdout | 1 | 0.310 | 0.470 | 55.0 % / 55.0 % |" in text
+    assert "| wheat | a.png | holdout | annotation | 0.310 | 0.470 | 55.0 % | 0.100 (band) |" in text
+    assert (
+        "| trial | potato, closing | 60 | 4 | detailed (1.2 cm, colour and surface) | aligned two-flight "
+        "difference | 0.900 / 2.0 cm / −1.0 cm | 0.950 / 9.0 cm / +8.0 cm | 0.500 / 20.0 cm / −19.0 cm | 90.0 % |"
+    ) in text
+    # Where we lose, found in the record: a peer's higher r, the uncovered plots, the weak image, the
+    # set's worst volume.
+    losses = text.split("## Where we lose\n", 1)[1]
+    where = "trial 60 against the aligned two-flight difference"
+    assert f"{where}: the naive baseline's r is higher (0.950 against 0.900)." in losses
+    assert "RMSE is lower" not in losses and "plantcv" not in losses
+    assert "trial 60 against the raw two-flight difference: the uncertainty covers 50.0 %" in losses
+    assert f"{where}: the uncertainty" not in losses
+    assert "wheat/a.png (holdout): IoU 0.310 against annotation." in losses
+    assert "wheat/holdout: the worst image's relief stands only 55.0 %" in losses
+
+
+def test_the_committed_validation_page_is_its_record_written_out(validate):
+    record = json.loads((REPO / "bench" / "validation_record.json").read_text())
+    assert (REPO / "docs" / "validation.md").read_text() == validate.docs_page(record)
+    # Every field and date of the record is on the page, with ours and the naive baseline.
+    against = [f for r in record["fields"] for f in r["against"].values()]
+    # (a field without any reference, such as the shared ODM pair, reports its ground check only)
+    assert against and all(r["against"] or r["field"] == "potato_fieldimager_ex2" for r in record["fields"])
+    assert all(f["ours"]["r"] is not None and f["baseline"]["r"] is not None for f in against)
+
+
+def _write_json(path, value):
+    path.write_text(json.dumps(value))
+    return path

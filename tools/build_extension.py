@@ -355,7 +355,11 @@ def check_zip(zip_path, expected_by_python, manifest_id, *, blender_version_min=
                     f"{zip_path.name}: Python {python} needs exactly one {package} wheel, the zip has "
                     f"{', '.join(usable) or 'none'}"
                 )
-    leaked = sorted(n for n in names if n.split("/", 1)[0] in ("tests", "bench", "tools", ".venv", "dist"))
+    leaked = sorted(
+        n
+        for n in names
+        if n.split("/", 1)[0] in ("tests", "bench", "tools", ".venv", "dist", "docs", "CHANGES.md")
+    )
     if leaked:
         raise BuildError(f"{zip_path.name}: holds files that must be excluded, e.g. {leaked[0]}")
     if any(wheel_name_version(w)[0] in NEVER for w in wheels):

@@ -27,6 +27,10 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
+    "cliff_terrain.measure.ground_detail": (
+        ("test_ground_check.py", "test_measured_heights.py"),
+        "`fit_ground`'s detailed candidate",
+    ),
     "cliff_terrain.__main__": (("test_cli.py",), "`python -m cliff_terrain`"),
     "cliff_terrain._dask": (
         ("test_mosaic.py", "test_season.py"),
@@ -52,10 +56,6 @@ REACHED_THROUGH = {
     "cliff_terrain.io.photo_metadata": (("test_image_io.py",), "a photo's metadata"),
     "cliff_terrain.io.pillow_pixels": (("test_image_io.py",), "decoding photos"),
     "cliff_terrain.io.tiff_window": (("test_mosaic.py", "test_measured_heights.py"), "reading TIFF windows"),
-    "cliff_terrain.measure.key_figures": (
-        ("test_render_figures.py", "test_blender_measured.py"),
-        "metrics.json and the relief's record",
-    ),
     "cliff_terrain.season.align": (("test_season.py",), "`cliff-terrain season`"),
     "cliff_terrain.season.charts": (("test_season.py",), "`cliff-terrain season` (growth.png)"),
     "cliff_terrain.season.security": (("test_season.py",), "`cliff-terrain season --scheduler`"),

@@ -231,7 +231,7 @@ def agreement(estimate, truth):
     --------
     >>> a = agreement(np.array([0.5, 0.6, 0.7, np.nan]), np.array([0.55, 0.65, 0.75, 0.8]))
     >>> a["n"], round(a["r"], 3), round(a["rmse_m"], 3), round(a["bias_m"], 3), round(a["ccc"], 3)
-    (3, 1.0, 0.05, -0.05, 0.571)
+    (3, 1.0, 0.05, -0.05, 0.842)
     """
     estimate = np.asarray(estimate, np.float64)
     truth = np.asarray(truth, np.float64)
