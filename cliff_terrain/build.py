@@ -24,6 +24,7 @@ from .relief.inflate import inflate, resolve_profile
 from .relief.quaternion import quaternion_filter
 from .relief.resize import resize_longest, resized_shape
 from .relief.segmentation import Segmentation, segment
+from .relief.vegetation import COLOUR_SEPARATION
 from .settings import DEFAULT_GROUND_BLOCK_M
 
 
@@ -227,7 +228,12 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         "value": round(float(seg.threshold), 4),
         "source": seg.threshold_source,
         "valley": round(float(seg.valley), 3),  # NaN in paper mode
+        # Ashman's D of the chroma across Otsu's split: the colour test (NaN where not measured).
+        "colour_separation": round(float(seg.separation), 3),
+        "colour_test": {"statistic": "ashman_d_chroma", "min": COLOUR_SEPARATION},
     }
+    if seg.threshold_note:
+        threshold["note"] = seg.threshold_note
     clock.start("mesh", 0.8)
     pixel_size = metadata.grid_pixel_size(stages.working.shape[:2])
     units = "px" if pixel_size is None else "m"

@@ -175,10 +175,16 @@ def plant_mask(rgb, *, valid=None):
     Cheaper than :func:`cliff_terrain.relief.segmentation.segment` on large orthophotos, where only
     plant/soil matters (the ground, plot cover).
     """
-    from ..relief.vegetation import blurred_index, index_threshold
+    from ..relief.vegetation import blurred_index, chroma_map, index_threshold
 
     vi, name = blurred_index(rgb)
-    mask = vi > index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    # The same rule as the segmentation's, colour test included.
+    chroma = chroma_map(rgb) if name == "green" else None
+    if valid is None:
+        rule = index_threshold(vi, index=name, chroma=chroma)
+    else:
+        rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
+    mask = vi > rule.threshold
     if valid is not None:
         mask &= valid
     return mask

@@ -38,7 +38,7 @@ from .._validate import check_choice, check_float, check_int, check_rgb
 from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
 from .labels import distance_map, inner_boundaries
-from .vegetation import ThresholdRule, blurred_index, index_threshold, otsu_threshold
+from .vegetation import ThresholdRule, blurred_index, chroma_map, index_threshold, otsu_threshold
 from .watershed import colour_edges, split_regions
 
 METHODS = ids(SEGMENTATIONS)
@@ -61,12 +61,18 @@ class Segmentation:
     index : str
         ``"green"``, ``"nir"`` or ``"grey"`` (paper mode).
     threshold_source : str
-        ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"band"`` (Otsu's
+        ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"photo (colour)"``
+        (the photo's own: its two sides differ plainly in chroma), ``"band"`` (Otsu's
         kept within the prior band), ``"otsu"`` (paper mode: Otsu's on the grey level) or
         ``"given"`` (the caller's, see :func:`segment`).
     valley : float
         The histogram at the threshold relative to its mean between the class means (see
         :func:`index_threshold`); NaN in paper mode.
+    separation : float
+        Ashman's D of the chroma between the two sides of Otsu's split (see
+        :func:`~cliff_terrain.relief.vegetation.colour_separation`); NaN where not measured.
+    threshold_note : str
+        Empty, or why the photo could not decide (see :func:`index_threshold`).
     distance : (rows, cols) float32
         ``distance_map(mask)``: each plant pixel's distance to flat ground (the watershed's, kept
         for the plateau profile).
@@ -85,6 +91,8 @@ class Segmentation:
     threshold_source: str = "band"
     valley: float = float("nan")
     region_distance: np.ndarray | None = None
+    separation: float = float("nan")
+    threshold_note: str = ""
 
     @property
     def n_regions(self) -> int:
@@ -229,6 +237,8 @@ def segment(
         threshold_source=source,
         valley=valley,
         region_distance=region_distance,
+        separation=rule.separation,
+        threshold_note=rule.note,
     )
 
 
@@ -277,7 +287,12 @@ def _vegetation_mask(image, index, valid, threshold=None, index_map=None):
         valid = finite if valid is None else valid & finite
         vi, name = cv2.GaussianBlur(np.where(finite, index_map, np.float32(-1.0)), (0, 0), 1.0), "ndvi"
     if threshold is None:
-        rule = index_threshold(vi if valid is None else vi[valid], index=name)
+        # The colour test reads the photo's chroma (not for false-colour NIR or NDVI frames).
+        chroma = chroma_map(image) if name == "green" else None
+        if valid is None:
+            rule = index_threshold(vi, index=name, chroma=chroma)
+        else:
+            rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
     else:
         rule = ThresholdRule(threshold, name, "given", float("nan"))
     return vi > rule.threshold, rule, vi

@@ -31,6 +31,17 @@ NDVI_FLOOR = 0.1
 # annotated photos (README, "Validation on real fields") dark-soil fields whose own threshold is
 # right measured 0.09-0.38, closed canopies that Otsu splits in two 0.75-1.11.
 TWO_CLASS_VALLEY = 0.5
+# ...or when its two sides differ plainly in colour: Ashman's D of the CIELAB chroma C* of the pixels
+# on either side of Otsu's split, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2) (medians, robust
+# spreads), is at least this much. 2 is Ashman et al.'s (1994) own bound for two cleanly separated
+# classes, not a fitted number; leave-one-source-out on the annotated sets picks it from every
+# fold (see bench/mask_sources.py). Green leaves are chromatic and grey-brown soil is not, however
+# dark and wet, and however much blur and mixed pixels fill the valley between them; the sunlit and
+# shaded halves of a closed canopy are both green (0.6-1.8 on real canopies).
+COLOUR_SEPARATION = 2.0
+# A photo whose index spans less than this between its 0.5th and 99.5th percentiles (about two
+# 8-bit steps of ExG) has no usable colour: nothing in it can be told apart, so nothing rises.
+UNIFORM_SPREAD = 0.01
 # Soil sure enough to carry the ground: index within this many robust standard deviations of the
 # soil class's mode (the lower side of the soil peak, which no plant pixel widens).
 SOIL_SPREAD = 5.0
@@ -162,21 +173,33 @@ class ThresholdRule:
     index: str
     source: str
     valley: float
+    separation: float = float("nan")
+    note: str = ""
 
 
-def index_threshold(values, *, index="green"):
+def index_threshold(values, *, index="green", chroma=None):
     """The plant/soil threshold of a vegetation index: the photo's own when clearly two-class.
 
     Otsu's threshold is the photo's own. The prior is Otsu's threshold kept within the band of
-    `index`. The photo's own wins when the histogram is clearly two-class and the prior is not in
-    its valley: the density at Otsu's threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the
-    mean density between the two class means, and the density at the prior's is above that, so
-    the band would cut into a class. Dark, wet soil whose index reaches 0.3 beside green plants
-    is such a case. Otherwise the prior stands: one class (bare soil, or a closed canopy that
-    Otsu would split into sunlit and shaded leaves), or two classes whose valley holds the prior
-    too (then either threshold gives the same mask but for the blurred rims, and the prior keeps
-    every figure measured with it). The band's lower end is a floor in both cases: soil and grey
-    objects score at or below 0.
+    `index`. The photo's own wins when Otsu's threshold lies above the band, the band's threshold is
+    not in an empty valley (it would cut into a class) and the photo is clearly two-class by either
+    of two tests:
+
+    * ``"valley"``: the density at Otsu's threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the
+      mean density between the two class means (an almost empty valley);
+    * ``"colour"``: the two sides of Otsu's split differ plainly in colour: Ashman's D of their
+      CIELAB chroma C* (`chroma`, the upper side the more chromatic) is at least
+      ``COLOUR_SEPARATION`` (2, Ashman's bound). Green plants over grey-brown soil pass however
+      dark and wet the soil and however much JPEG blur and mixed pixels fill the valley; the
+      sunlit and shaded halves of a closed canopy, both green, do not.
+
+    Otherwise the prior stands: one class (bare soil, or a closed canopy that Otsu would split into
+    sunlit and shaded leaves), or two classes whose valley holds the prior too (then either
+    threshold gives the same mask but for the blurred rims, and the prior keeps every figure
+    measured with it). The band's lower end is a floor in both cases: soil and grey objects score
+    at or below 0. When Otsu's threshold lies *below* the floor and the two sides differ in colour
+    (yellow, senescent canopy over brown soil, or straw and residue over soil), colour alone cannot
+    tell which is plant: the floor stands and ``note`` says so.
 
     Parameters
     ----------
@@ -186,12 +209,18 @@ def index_threshold(values, *, index="green"):
         Which index, for its prior band. ``"ndvi"`` (a multispectral orthomosaic's NDVI, see
         :func:`cliff_terrain.relief.indices.nir_index_map`) has none: its threshold is the photo's
         own, Otsu's, never below ``NDVI_FLOOR`` (0.1).
+    chroma : array of float, optional
+        CIELAB chroma of the same pixels, in the same order (see :func:`chroma_map`); without it
+        (false-colour and NDVI frames) only the valley test applies.
 
     Returns
     -------
     ThresholdRule
-        ``threshold``, ``index``, ``source`` (``"photo"`` or ``"band"``) and ``valley`` (the
-        density ratio; NaN when there is no spread).
+        ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"band"``, or
+        ``"uniform"`` when the index has no spread: then the threshold is its largest value and
+        nothing lies above it),
+        ``valley`` (the density ratio; NaN when there is no spread), ``separation`` (the chroma's
+        Ashman D; NaN without `chroma`) and ``note`` (empty, or why the photo could not decide).
 
     Examples
     --------
@@ -203,30 +232,117 @@ def index_threshold(values, *, index="green"):
     >>> rule.source, bool(0.35 < rule.threshold < 0.65)
     ('photo', True)
 
+    The same classes blurred into each other (no valley), the soil grey and the plants green:
+
+    >>> vi = np.concatenate([rng.normal(0.17, 0.16, 5500), rng.normal(0.7, 0.18, 4500)])
+    >>> chroma = np.concatenate([rng.normal(6, 3, 5500), rng.normal(40, 8, 4500)])
+    >>> index_threshold(vi).source, index_threshold(vi, chroma=chroma).source
+    ('band', 'photo (colour)')
+
     One class only (a closed canopy): Otsu's threshold would split it, the band keeps it whole.
 
-    >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000))
+    >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000), chroma=rng.normal(40, 8, 10000))
     >>> rule.source, rule.threshold
     ('band', 0.14)
     """
     check_choice("index", index, ("green", "nir", "ndvi"))
     flat = np.asarray(values, dtype=np.float32).ravel()
-    flat = flat[np.isfinite(flat)]
+    if chroma is not None:
+        chroma = np.asarray(chroma, dtype=np.float32).ravel()
+        if chroma.shape != flat.shape:
+            raise CliffTerrainError(
+                f"`chroma` must have {flat.size} values (one per index value), got {chroma.size}"
+            )
+    keep = np.isfinite(flat)
+    flat = flat[keep]
+    if chroma is not None:
+        chroma = chroma[keep]
     if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
-        flat = flat[:: flat.size // 400_000]
+        step = flat.size // 400_000
+        flat = flat[::step]
+        chroma = None if chroma is None else chroma[::step]
     # float64: numpy 2 refuses 128 histogram bins over a float32 range of a few ulps.
     flat = flat.astype(np.float64)
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = otsu_threshold(flat)
+    if flat.size == 0 or float(np.subtract(*np.percentile(flat, (99.5, 0.5)))) < UNIFORM_SPREAD:
+        top = float(flat.max()) if flat.size else 0.0
+        note = (
+            "uniform: the photo has no usable colour (one index value); nothing is told apart, nothing rises"
+        )
+        return ThresholdRule(max(top, otsu), index, "uniform", float("nan"), float("nan"), note)
     if index == "ndvi":
         valley = _valley(flat, otsu, (otsu,))[0]
         return ThresholdRule(max(otsu, NDVI_FLOOR), index, "photo", valley)
     banded = float(np.clip(otsu, low, high))
     valley, at_band = _valley(flat, otsu, (otsu, banded))
+    separation = float("nan") if chroma is None else colour_separation(chroma, flat > otsu)
     # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
-    if otsu > high and valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
-        return ThresholdRule(otsu, index, "photo", valley)
-    return ThresholdRule(banded, index, "band", valley)
+    if otsu > high and not at_band <= TWO_CLASS_VALLEY:
+        if valley <= TWO_CLASS_VALLEY:
+            return ThresholdRule(otsu, index, "photo", valley, separation)
+        if separation >= COLOUR_SEPARATION:
+            return ThresholdRule(otsu, index, "photo (colour)", valley, separation)
+    if otsu < low and (separation >= COLOUR_SEPARATION or valley <= TWO_CLASS_VALLEY):
+        note = (
+            "undecided: a class below the index floor differs from the rest (yellow, senescent "
+            "canopy, or straw and residue, over soil?); colour alone cannot tell which is plant, "
+            "so it stays flat"
+        )
+    elif otsu > high and not at_band <= TWO_CLASS_VALLEY:
+        note = (
+            "one class: neither an empty valley nor a colour difference splits the photo; the "
+            "prior band decides (a closed canopy rises whole, bare soil stays flat)"
+        )
+    else:
+        note = ""
+    return ThresholdRule(banded, index, "band", valley, separation, note)
+
+
+def colour_separation(chroma, upper):
+    """Ashman's D of `chroma` between the pixels where `upper` is True and the others.
+
+    D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2) with medians m and robust spreads s (1.4826 times the
+    median absolute deviation, at least 0.5: chroma is read on a whole-number scale), signed:
+    positive when the upper side is the more chromatic. NaN when a side is empty.
+
+    Examples
+    --------
+    >>> c = np.r_[np.full(50, 5.0), np.full(50, 40.0)]
+    >>> round(colour_separation(c, np.arange(100) >= 50), 1)
+    70.0
+    """
+    chroma = np.asarray(chroma, dtype=np.float64).ravel()
+    upper = np.asarray(upper, dtype=bool).ravel()
+    hi, lo = chroma[upper], chroma[~upper]
+    if hi.size == 0 or lo.size == 0:
+        return float("nan")
+    m_hi, m_lo = float(np.median(hi)), float(np.median(lo))
+    s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), 0.5)
+    s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), 0.5)
+    return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
+
+
+def chroma_map(image):
+    """CIELAB chroma C* = sqrt(a*^2 + b*^2) of an RGB image (OpenCV's 8-bit Lab), lightly blurred
+    as :func:`blurred_index` is. Grey and brown soil score low, green leaves high.
+
+    Examples
+    --------
+    >>> img = np.zeros((1, 2, 3), np.uint8); img[0, 0] = (40, 160, 40); img[0, 1] = (90, 85, 80)
+    >>> c = chroma_map(np.repeat(np.repeat(img, 9, 0), 9, 1))
+    >>> bool(c[4, 2] > 40 > 5 > c[4, 15])
+    True
+    """
+    image = np.ascontiguousarray(check_rgb("image", image))
+    if image.dtype.kind == "f":  # floating point is [0, 1] (check_rgb)
+        image = np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        image = np.clip(image, 0, 255).astype(np.uint8)
+    lab = cv2.cvtColor(image, cv2.COLOR_RGB2LAB)
+    a = lab[..., 1].astype(np.float32) - np.float32(128.0)
+    b = lab[..., 2].astype(np.float32) - np.float32(128.0)
+    return cv2.GaussianBlur(np.hypot(a, b), (0, 0), 1.0)
 
 
 def _valley(values, split, thresholds):
@@ -289,7 +405,12 @@ def bare_soil(image, *, valid=None, index="auto"):
         valid = np.asarray(valid, dtype=bool)
         if valid.shape != vi.shape:
             raise CliffTerrainError(f"`valid` must have shape {vi.shape}, got {valid.shape}")
-    threshold = index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    chroma = chroma_map(image) if name == "green" else None
+    if valid is None:
+        rule = index_threshold(vi, index=name, chroma=chroma)
+    else:
+        rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
+    threshold = rule.threshold
     candidates = vi <= threshold
     if valid is not None:
         candidates &= valid
