@@ -189,17 +189,18 @@ def index_threshold(values, *, index="green", chroma=None):
       mean density between the two class means (an almost empty valley);
     * ``"colour"``: the two sides of Otsu's split differ plainly in colour: Ashman's D of their
       CIELAB chroma C* (`chroma`, the upper side the more chromatic) is at least
-      ``COLOUR_SEPARATION`` (2, Ashman's bound). Green plants over grey-brown soil pass however
-      dark and wet the soil and however much JPEG blur and mixed pixels fill the valley; the
-      sunlit and shaded halves of a closed canopy, both green, do not.
+      ``COLOUR_SEPARATION`` (2, Ashman's bound), and the band's threshold lies in the body of a
+      class (the density there at least the mean between the class means). Green plants over
+      grey-brown soil pass however dark and wet the soil and however much JPEG blur and mixed
+      pixels fill the valley; the sunlit and shaded halves of a closed canopy, both green, do not.
 
     Otherwise the prior stands: one class (bare soil, or a closed canopy that Otsu would split into
     sunlit and shaded leaves), or two classes whose valley holds the prior too (then either
     threshold gives the same mask but for the blurred rims, and the prior keeps every figure
     measured with it). The band's lower end is a floor in both cases: soil and grey objects score
-    at or below 0. When Otsu's threshold lies *below* the floor and the two sides differ in colour
-    (yellow, senescent canopy over brown soil, or straw and residue over soil), colour alone cannot
-    tell which is plant: the floor stands and ``note`` says so.
+    at or below 0. When Otsu's threshold lies *below* the floor and most of its upper class lies
+    below the floor too (yellow, senescent canopy over brown soil, or straw and residue over soil),
+    colour alone cannot tell which is plant: the floor stands and ``note`` says so.
 
     Parameters
     ----------
@@ -281,13 +282,19 @@ def index_threshold(values, *, index="green", chroma=None):
     if otsu > high and not at_band <= TWO_CLASS_VALLEY:
         if valley <= TWO_CLASS_VALLEY:
             return ThresholdRule(otsu, index, "photo", valley, separation)
-        if separation >= COLOUR_SEPARATION:
+        # By colour only where the band's threshold lies in the body of a class, the histogram
+        # there at least its mean between the class means (1 on the valley's scale: no dip at
+        # all): the soil's own peak, as on dark, wet soil. On the flank of a shallow valley (mixed
+        # rims of plots on a coarse orthophoto) both thresholds give the same plants but for rims.
+        if separation >= COLOUR_SEPARATION and at_band >= 1.0:
             return ThresholdRule(otsu, index, "photo (colour)", valley, separation)
-    if otsu < low and (separation >= COLOUR_SEPARATION or valley <= TWO_CLASS_VALLEY):
+    upper = flat > otsu
+    below_floor = float(np.count_nonzero(upper & (flat <= low))) / max(1, int(np.count_nonzero(upper)))
+    if otsu < low and below_floor > 0.5:
         note = (
-            "undecided: a class below the index floor differs from the rest (yellow, senescent "
-            "canopy, or straw and residue, over soil?); colour alone cannot tell which is plant, "
-            "so it stays flat"
+            "undecided: most of the upper class of the photo's own split lies below the index "
+            "floor (yellow, senescent canopy, or straw and residue, over soil?); colour alone "
+            "cannot tell which is plant, so it stays flat"
         )
     elif otsu > high and not at_band <= TWO_CLASS_VALLEY:
         note = (
