@@ -40,7 +40,7 @@ TWO_CLASS_VALLEY = 0.5
 # shaded halves of a closed canopy are both green (0.6-1.8 on real canopies).
 COLOUR_SEPARATION = 2.0
 # A photo whose index spans less than this between its 0.5th and 99.5th percentiles (about two
-# 8-bit steps of ExG) has no usable colour: nothing in it can be told apart, so nothing rises.
+# 8-bit steps of ExG) has no usable colour: nothing in it can be told apart, the prior decides.
 UNIFORM_SPREAD = 0.01
 # Soil sure enough to carry the ground: index within this many robust standard deviations of the
 # soil class's mode (the lower side of the soil peak, which no plant pixel widens).
@@ -218,8 +218,7 @@ def index_threshold(values, *, index="green", chroma=None):
     -------
     ThresholdRule
         ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"band"``, or
-        ``"uniform"`` when the index has no spread: then the threshold is its largest value and
-        nothing lies above it),
+        ``"uniform"`` when the index has no spread: the band's threshold then decides alone),
         ``valley`` (the density ratio; NaN when there is no spread), ``separation`` (the chroma's
         Ashman D; NaN without `chroma`) and ``note`` (empty, or why the photo could not decide).
 
@@ -267,11 +266,14 @@ def index_threshold(values, *, index="green", chroma=None):
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = otsu_threshold(flat)
     if flat.size == 0 or float(np.subtract(*np.percentile(flat, (99.5, 0.5)))) < UNIFORM_SPREAD:
-        top = float(flat.max()) if flat.size else 0.0
+        # Nothing to tell apart: the prior alone decides (a green frame is canopy seen close, a
+        # brown or grey one bare soil), and the record says that the photo could not.
+        value = float(np.clip(otsu, low, high)) if index != "ndvi" else NDVI_FLOOR
         note = (
-            "uniform: the photo has no usable colour (one index value); nothing is told apart, nothing rises"
+            "uniform: the photo has one colour, nothing in it can be told apart; the prior decides "
+            "(green rises whole, soil and grey stay flat)"
         )
-        return ThresholdRule(max(top, otsu), index, "uniform", float("nan"), float("nan"), note)
+        return ThresholdRule(value, index, "uniform", float("nan"), float("nan"), note)
     if index == "ndvi":
         valley = _valley(flat, otsu, (otsu,))[0]
         return ThresholdRule(max(otsu, NDVI_FLOOR), index, "photo", valley)
