@@ -220,7 +220,16 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
     else:
         image, metadata = _from_array(image_or_path, params.gsd)
         bands = None
-    stages = _image_stages(image, metadata, params, clock=clock, bands=bands)
+    # A surface model may decide what colour cannot (a class below the index floor: senescent canopy
+    # or straw?): only read when the photo's rule was undecided.
+    surface = None
+    if params.dsm is not None:
+        from .measure.canopy import surface_on_grid
+
+        def surface(shape):
+            return surface_on_grid(image_or_path, metadata, shape, params.dsm)
+
+    stages = _image_stages(image, metadata, params, clock=clock, bands=bands, surface=surface)
     seg = stages.segmentation
     # Which plant/soil threshold the photo got, and why (the photo's own, or the prior band).
     threshold = {
@@ -384,8 +393,12 @@ class _ImageStages:
     heights_px: np.ndarray
 
 
-def _image_stages(image, metadata, params, *, clock, bands=None):
-    """Resize, filter, segment (by NDVI when `bands` hold NIR and red) and inflate (`clock` is at "load")."""
+def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
+    """Resize, filter, segment (by NDVI when `bands` hold NIR and red) and inflate (`clock` is at "load").
+
+    `surface(shape)`, when given, returns the DSM on the processing grid: it is read only when the
+    photo's threshold rule was undecided (see :func:`_surface_decides`).
+    """
     clock.start("resize", 0.1)
     working = resize_longest(image, params.max_size)
 
@@ -399,6 +412,8 @@ def _image_stages(image, metadata, params, *, clock, bands=None):
         valid = cv2.resize(metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
     ndvi = nir_index_map(bands, shape=working.shape[:2]) if params.segmentation == "vegetation" else None
     seg = segment(working, method=params.segmentation, filtered=filtered, valid=valid, index_map=ndvi)
+    if surface is not None and seg.threshold_note.startswith("undecided"):
+        seg = _surface_decides(seg, working, filtered, valid, surface)
 
     clock.start("heights", 0.6)
     distance = seg.region_distance  # distance_map(seg.labels), computed with the watershed
@@ -415,6 +430,35 @@ def _image_stages(image, metadata, params, *, clock, bands=None):
         mask_distance=seg.distance,
     )
     return _ImageStages(image, metadata, working, filtered, seg, distance, heights_px)
+
+
+def _surface_decides(seg, working, filtered, valid, surface):
+    """The undecided class decided by the DSM: plant when it stands above the rest.
+
+    The photo's own split (Otsu's threshold, below the index floor) is used when the pixels above
+    it stand above the others on the DSM by Ashman's D >= ``COLOUR_SEPARATION`` (2), a plane
+    fitted to the others (the ground) taken off first: senescent canopy stands, straw and residue
+    lie on the ground. Otherwise the floor stands and the note says the DSM did not tell either.
+    """
+    from .relief.vegetation import blurred_index, otsu_threshold, surface_separation
+
+    vi, _ = blurred_index(working)
+    split = otsu_threshold(vi if valid is None else vi[valid])
+    d = surface_separation(surface(vi.shape), vi > split, valid=valid)
+    if not d >= COLOUR_SEPARATION:
+        note = seg.threshold_note + f"; the DSM does not show it standing above the rest either (D {d:.2f})"
+        return dataclasses.replace(seg, threshold_note=note)
+    decided = segment(
+        working, method="vegetation", filtered=filtered, valid=valid, threshold=split, index=seg.index
+    )
+    note = f"decided by the DSM: the class above the photo's own split stands above the rest (D {d:.2f})"
+    return dataclasses.replace(
+        decided,
+        threshold_source="photo (dsm)",
+        valley=seg.valley,
+        separation=seg.separation,
+        threshold_note=note,
+    )
 
 
 class _Clock:

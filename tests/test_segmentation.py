@@ -534,3 +534,49 @@ def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = otsu_threshold(vi if valid is None else vi[valid])
     assert seg.threshold == pytest.approx(float(np.clip(otsu, low, high)), abs=1e-6)
+
+
+@pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "straw-on-the-ground"])
+def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
+    # Yellow canopy (or straw: the same colour) over brown soil, a georeferenced orthophoto and its
+    # DSM on a sloping field. Canopy stands 0.7 m above the ground and rises; straw lies on it and
+    # stays flat, still undecided.
+    from test_measured_heights import UTM16N, geokeys, write_tiff
+
+    from cliff_terrain.evaluate.mask_quality import mask_agreement
+    from cliff_terrain.io.geotiff import write_geotiff
+
+    rng = np.random.default_rng(4)
+    rows, cols, gsd = 200, 300, 0.02
+    truth = np.zeros((rows, cols), bool)
+    for c0 in range(20, cols, 70):
+        truth[:, c0 : c0 + 40] = True
+    soil, straw = np.array([120.0, 85.0, 60.0]), np.array([200.0, 175.0, 95.0])
+    rgb = np.where(truth[..., None], straw, soil) * (1 + 0.05 * rng.standard_normal((rows, cols, 1)))
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    write_tiff(
+        tmp_path / "ortho.tif",
+        rgb,
+        scale=(gsd, gsd),
+        tie=(500000.0, 4000000.0),
+        keys=geokeys(UTM16N),
+        photometric="rgb",
+    )
+    rr, cc = np.mgrid[:rows, :cols]
+    ground = 250.0 + 0.004 * rr + 0.002 * cc  # a slope of 0.2-0.1 m/m... across the field
+    dsm = ground + (0.7 * truth if stands else 0.0) + rng.normal(0, 0.01, (rows, cols))
+    transform = [[gsd, 0, 500000.0], [0, -gsd, 4000000.0]]
+    write_geotiff(tmp_path / "dsm.tif", dsm.astype(np.float32), transform=transform, crs=UTM16N)
+
+    alone = build_relief(tmp_path / "ortho.tif", mesh=None)
+    assert alone.params["threshold"]["note"].startswith("undecided:")
+    relief = build_relief(tmp_path / "ortho.tif", dsm=tmp_path / "dsm.tif", mesh=None)
+    record = relief.params["threshold"]
+    if stands:
+        assert record["source"] == "photo (dsm)" and record["note"].startswith("decided by the DSM")
+        assert mask_agreement(relief.mask, truth)["iou"] > 0.9
+        # The ground is fitted on the soil, not on the canopy: the canopy stands about 0.7 m.
+        assert np.median(relief.canopy.chm[truth & relief.mask]) == pytest.approx(0.7, abs=0.1)
+    else:
+        assert record["source"] == "band" and "the DSM does not show it" in record["note"]
+        assert relief.mask.mean() < 0.05

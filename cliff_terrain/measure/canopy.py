@@ -69,6 +69,16 @@ def photo_grid(path, metadata, shape):
     return transform @ np.diag([*metadata.grid_scale(shape), 1.0]), crs
 
 
+def surface_on_grid(path, metadata, shape, dsm):
+    """The DSM `dsm` (a path or :class:`GeoRaster`) resampled onto the processing grid `shape` of
+    georeferenced photo `path` (NaN where it has no height)."""
+    from ..io.geotiff import resample
+
+    transform, crs = photo_grid(path, metadata, shape)
+    surface = load_surfaces(dsm)[0]
+    return resample(surface, transform=transform, shape=shape, crs=crs, target=str(path))
+
+
 def photo_valid(metadata, shape):
     """The photo's pixels with data (an orthophoto's alpha) on the processing grid `shape`; None: all."""
     if getattr(metadata, "valid_mask", None) is None:
@@ -258,7 +268,10 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAUL
     valid = photo_valid(stages.metadata, plants.shape)  # an orthophoto's no-data is neither soil nor plant
     from ..relief.vegetation import bare_soil
 
-    soil = None if dtm is not None else bare_soil(stages.working, valid=valid)
+    seg = stages.segmentation
+    # The ground's soil by the threshold the plants got (the DSM's, when it decided a senescent class).
+    given = seg.threshold if seg.threshold_source == "photo (dsm)" else None
+    soil = None if dtm is not None else bare_soil(stages.working, valid=valid, threshold=given)
     canopy = measure_canopy(
         dsm,
         plants=plants,

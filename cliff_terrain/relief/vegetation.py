@@ -332,6 +332,46 @@ def colour_separation(chroma, upper):
     return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
 
 
+def surface_separation(surface, upper, *, valid=None):
+    """How far the pixels where `upper` is True stand above the others on a surface model.
+
+    Ashman's D (as :func:`colour_separation`, signed: positive when `upper` stands higher) of the
+    surface's heights after a plane fitted to the other pixels (the ground, by least squares) is
+    taken off, so that a field's slope or a flight's tilt does not pass for canopy. NaN when either
+    side has fewer than 10 pixels with a height.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[:60, :80]
+    >>> ground = 100 + 0.05 * rr + 0.02 * cc            # a sloping field
+    >>> canopy = (cc > 30) & (cc < 60)
+    >>> bool(surface_separation(ground + 0.6 * canopy, canopy) > 2)
+    True
+    >>> bool(abs(surface_separation(ground, canopy)) < 2)  # straw lies on the ground
+    True
+    """
+    surface = np.asarray(surface, dtype=np.float64)
+    upper = np.asarray(upper, dtype=bool)
+    ok = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
+    lower = ok & ~upper
+    upper = ok & upper
+    if np.count_nonzero(upper) < 10 or np.count_nonzero(lower) < 10:
+        return float("nan")
+    rr, cc = np.nonzero(lower)
+    step = max(1, rr.size // 100_000)
+    rr, cc = rr[::step], cc[::step]
+    design = np.column_stack([np.ones(rr.size), rr, cc]).astype(np.float64)
+    coef, *_ = np.linalg.lstsq(design, surface[rr, cc], rcond=None)
+    gr, gc = np.nonzero(ok)
+    residual = surface[gr, gc] - (coef[0] + coef[1] * gr + coef[2] * gc)
+    # Heights are continuous: spreads of at least 1 cm, the photogrammetric DSM's own noise.
+    hi, lo = residual[upper[gr, gc]], residual[lower[gr, gc]]
+    m_hi, m_lo = float(np.median(hi)), float(np.median(lo))
+    s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), 0.01)
+    s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), 0.01)
+    return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
+
+
 def chroma_map(image):
     """CIELAB chroma C* = sqrt(a*^2 + b*^2) of an RGB image (OpenCV's 8-bit Lab), lightly blurred
     as :func:`blurred_index` is. Grey and brown soil score low, green leaves high.
@@ -377,7 +417,7 @@ def _valley(values, split, thresholds):
     return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
 
 
-def bare_soil(image, *, valid=None, index="auto"):
+def bare_soil(image, *, valid=None, index="auto", threshold=None):
     """Pixels that are surely soil, by colour: the ground's support, stricter than "not a plant".
 
     A pixel is bare soil when its (blurred) index lies below the photo's plant threshold
@@ -394,6 +434,9 @@ def bare_soil(image, *, valid=None, index="auto"):
     valid : (rows, cols) bool array, optional
         Pixels with data.
     index : {"auto", "green", "nir"}, optional
+    threshold : float, optional
+        The plant threshold the segmentation used, when it was not the photo's own rule's (for
+        instance a senescent canopy that the DSM showed standing above the ground).
 
     Returns
     -------
@@ -414,12 +457,13 @@ def bare_soil(image, *, valid=None, index="auto"):
         valid = np.asarray(valid, dtype=bool)
         if valid.shape != vi.shape:
             raise CliffTerrainError(f"`valid` must have shape {vi.shape}, got {valid.shape}")
-    chroma = chroma_map(image) if name == "green" else None
-    if valid is None:
-        rule = index_threshold(vi, index=name, chroma=chroma)
-    else:
-        rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
-    threshold = rule.threshold
+    if threshold is None:
+        chroma = chroma_map(image) if name == "green" else None
+        if valid is None:
+            rule = index_threshold(vi, index=name, chroma=chroma)
+        else:
+            rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
+        threshold = rule.threshold
     candidates = vi <= threshold
     if valid is not None:
         candidates &= valid
