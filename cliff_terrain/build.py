@@ -23,7 +23,7 @@ from .relief.indices import nir_index_map
 from .relief.inflate import inflate, resolve_profile
 from .relief.quaternion import quaternion_filter
 from .relief.resize import resize_longest, resized_shape
-from .relief.segmentation import Segmentation, segment
+from .relief.segmentation import Segmentation, decide_by_surface, segment
 from .relief.vegetation import COLOUR_SEPARATION
 from .settings import DEFAULT_GROUND_BLOCK_M
 
@@ -397,7 +397,7 @@ def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
     """Resize, filter, segment (by NDVI when `bands` hold NIR and red) and inflate (`clock` is at "load").
 
     `surface(shape)`, when given, returns the DSM on the processing grid: it is read only when the
-    photo's threshold rule was undecided (see :func:`_surface_decides`).
+    photo's threshold rule was undecided (see :func:`~cliff_terrain.relief.segmentation.decide_by_surface`).
     """
     clock.start("resize", 0.1)
     working = resize_longest(image, params.max_size)
@@ -413,7 +413,7 @@ def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
     ndvi = nir_index_map(bands, shape=working.shape[:2]) if params.segmentation == "vegetation" else None
     seg = segment(working, method=params.segmentation, filtered=filtered, valid=valid, index_map=ndvi)
     if surface is not None and seg.threshold_note.startswith("undecided"):
-        seg = _surface_decides(seg, working, filtered, valid, surface)
+        seg = decide_by_surface(seg, working, surface(working.shape[:2]), filtered=filtered, valid=valid)
 
     clock.start("heights", 0.6)
     distance = seg.region_distance  # distance_map(seg.labels), computed with the watershed
@@ -430,35 +430,6 @@ def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
         mask_distance=seg.distance,
     )
     return _ImageStages(image, metadata, working, filtered, seg, distance, heights_px)
-
-
-def _surface_decides(seg, working, filtered, valid, surface):
-    """The undecided class decided by the DSM: plant when it stands above the rest.
-
-    The photo's own split (Otsu's threshold, below the index floor) is used when the pixels above
-    it stand above the others on the DSM by Ashman's D >= ``COLOUR_SEPARATION`` (2), a plane
-    fitted to the others (the ground) taken off first: senescent canopy stands, straw and residue
-    lie on the ground. Otherwise the floor stands and the note says the DSM did not tell either.
-    """
-    from .relief.vegetation import blurred_index, otsu_threshold, surface_separation
-
-    vi, _ = blurred_index(working)
-    split = otsu_threshold(vi if valid is None else vi[valid])
-    d = surface_separation(surface(vi.shape), vi > split, valid=valid)
-    if not d >= COLOUR_SEPARATION:
-        note = seg.threshold_note + f"; the DSM does not show it standing above the rest either (D {d:.2f})"
-        return dataclasses.replace(seg, threshold_note=note)
-    decided = segment(
-        working, method="vegetation", filtered=filtered, valid=valid, threshold=split, index=seg.index
-    )
-    note = f"decided by the DSM: the class above the photo's own split stands above the rest (D {d:.2f})"
-    return dataclasses.replace(
-        decided,
-        threshold_source="photo (dsm)",
-        valley=seg.valley,
-        separation=seg.separation,
-        threshold_note=note,
-    )
 
 
 class _Clock:

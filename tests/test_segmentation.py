@@ -428,12 +428,12 @@ def _maize_on_dark_wet_soil(shape=(480, 720), seed=0):
 
 def test_maize_on_dark_wet_soil_without_a_valley_is_split_by_its_colour():
     from cliff_terrain.evaluate.mask_quality import mask_agreement, volume_fraction
+    from cliff_terrain.relief.separation import chroma_map
     from cliff_terrain.relief.vegetation import (
         _GREEN_BAND,
         COLOUR_SEPARATION,
         TWO_CLASS_VALLEY,
         blurred_index,
-        chroma_map,
         index_threshold,
     )
 

@@ -185,7 +185,8 @@ def plant_mask(rgb, *, valid=None):
     Cheaper than :func:`cliff_terrain.relief.segmentation.segment` on large orthophotos, where only
     plant/soil matters (the ground, plot cover).
     """
-    from ..relief.vegetation import blurred_index, chroma_map, index_threshold
+    from ..relief.separation import chroma_map
+    from ..relief.vegetation import blurred_index, index_threshold
 
     vi, name = blurred_index(rgb)
     # The same rule as the segmentation's, colour test included.

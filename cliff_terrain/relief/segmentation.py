@@ -38,7 +38,8 @@ from .._validate import check_choice, check_float, check_int, check_rgb
 from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
 from .labels import distance_map, inner_boundaries
-from .vegetation import ThresholdRule, blurred_index, chroma_map, index_threshold, otsu_threshold
+from .separation import chroma_map, surface_separation
+from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, index_threshold, otsu_threshold
 from .watershed import colour_edges, split_regions
 
 METHODS = ids(SEGMENTATIONS)
@@ -239,6 +240,52 @@ def segment(
         region_distance=region_distance,
         separation=rule.separation,
         threshold_note=rule.note,
+    )
+
+
+def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
+    """A :func:`segment` result whose threshold was undecided, decided by a surface model.
+
+    The photo's own split (Otsu's threshold, below the index floor) is used when the pixels above
+    it stand above the others on `surface` by Ashman's D >= ``COLOUR_SEPARATION`` (2), a plane
+    fitted to the others (the ground) taken off first (see
+    :func:`~cliff_terrain.relief.separation.surface_separation`): senescent canopy stands, straw
+    and residue lie on the ground. Otherwise `seg` is returned with its note saying that the
+    surface did not tell either.
+
+    Parameters
+    ----------
+    seg : Segmentation
+        The vegetation mode's result for `image`.
+    image : (rows, cols, 3) uint8 array
+    surface : (rows, cols) float array
+        Heights on the image's grid (a DSM; NaN where there is none).
+    filtered, valid : optional
+        As :func:`segment`'s.
+
+    Returns
+    -------
+    Segmentation
+        ``threshold_source`` ``"photo (dsm)"`` when the surface decided.
+    """
+    import dataclasses
+
+    vi, _ = blurred_index(image, index=seg.index)
+    split = otsu_threshold(vi if valid is None else vi[valid])
+    d = surface_separation(surface, vi > split, valid=valid)
+    if not d >= COLOUR_SEPARATION:
+        note = seg.threshold_note + f"; the DSM does not show it standing above the rest either (D {d:.2f})"
+        return dataclasses.replace(seg, threshold_note=note)
+    decided = segment(
+        image, method="vegetation", filtered=filtered, valid=valid, threshold=split, index=seg.index
+    )
+    note = f"decided by the DSM: the class above the photo's own split stands above the rest (D {d:.2f})"
+    return dataclasses.replace(
+        decided,
+        threshold_source="photo (dsm)",
+        valley=seg.valley,
+        separation=seg.separation,
+        threshold_note=note,
     )
 
 
