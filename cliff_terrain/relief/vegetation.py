@@ -38,7 +38,8 @@ TWO_CLASS_VALLEY = 0.5
 # classes, not a fitted number; leave-one-source-out on the annotated sets picks it from every
 # fold (see bench/mask_sources.py). Green leaves are chromatic and grey-brown soil is not, however
 # dark and wet, and however much blur and mixed pixels fill the valley between them; the sunlit and
-# shaded halves of a closed canopy are both green (0.6-1.8 on real canopies).
+# shaded halves of a closed canopy are both green (-0.4 to 1.8 on the annotated closed wheat
+# canopies; 2.1-5.6 on dark-soil carrot photos).
 COLOUR_SEPARATION = 2.0
 # A photo whose index spans less than this between its 0.5th and 99.5th percentiles (about two
 # 8-bit steps of ExG) has no usable colour: nothing in it can be told apart, the prior decides.
