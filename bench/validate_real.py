@@ -74,7 +74,9 @@ def read_mask(path, shape):
 def image_rows(data_dir, max_size):
     rows = []
     for kind in ("masks", "photos"):
-        for folder in sorted((data_dir / kind).glob("*")) if (data_dir / kind).is_dir() else []:
+        # Folders only: a SOURCES.md beside them describes them.
+        base = data_dir / kind
+        for folder in sorted(p for p in base.glob("*") if p.is_dir()) if base.is_dir() else []:
             photos = [
                 p
                 for p in folder.iterdir()
@@ -105,6 +107,8 @@ def image_rows(data_dir, max_size):
                         "threshold": relief.params["threshold"]["value"],
                         "threshold_source": relief.params["threshold"]["source"],
                         "valley": relief.params["threshold"]["valley"],
+                        "colour_separation": relief.params["threshold"].get("colour_separation"),
+                        "note": relief.params["threshold"].get("note", ""),
                     }
                 )
                 print(_image_line(rows[-1]), flush=True)
@@ -115,7 +119,7 @@ def _image_line(row):
     return (
         f"  {row['set']}/{row['image']} [{row['half']}]: IoU {row['iou']:.3f}, F1 {row['f1']:.3f}, "
         f"volume on plants {row['volume_on_plants']:.1%} (threshold {row['threshold']:.3f}, "
-        f"{row['threshold_source']}; reference {row['reference']})"
+        f"{row['threshold_source']}, colour D {row.get('colour_separation')}; reference {row['reference']})"
     )
 
 
@@ -338,7 +342,9 @@ def summarise(rows, half):
     return {
         "images": len(picked),
         "iou_median": float(np.median([r["iou"] for r in picked])),
+        "iou_worst": float(min(r["iou"] for r in picked)),
         "f1_median": float(np.median([r["f1"] for r in picked])),
+        "f1_worst": float(min(r["f1"] for r in picked)),
         "volume_on_plants_min": float(min(r["volume_on_plants"] for r in picked)),
         "volume_on_plants_median": float(np.median([r["volume_on_plants"] for r in picked])),
     }
@@ -629,8 +635,9 @@ def main(argv=None):
     for key, value in record["summary"].items():
         if value:
             print(
-                f"{key}: {value['images']} images, IoU median {value['iou_median']:.3f}, F1 median "
-                f"{value['f1_median']:.3f}, volume on plants min {value['volume_on_plants_min']:.1%} "
+                f"{key}: {value['images']} images, IoU median {value['iou_median']:.3f} worst "
+                f"{value['iou_worst']:.3f}, F1 median {value['f1_median']:.3f} worst "
+                f"{value['f1_worst']:.3f}, volume on plants min {value['volume_on_plants_min']:.1%} "
                 f"median {value['volume_on_plants_median']:.1%}"
             )
     if args.json:

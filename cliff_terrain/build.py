@@ -24,7 +24,8 @@ from .relief.indices import nir_index_map
 from .relief.inflate import inflate, resolve_profile
 from .relief.quaternion import quaternion_filter
 from .relief.resize import resize_longest, resized_shape
-from .relief.segmentation import Segmentation, segment
+from .relief.segmentation import Segmentation, decide_by_surface, segment
+from .relief.vegetation import COLOUR_SEPARATION
 from .settings import DEFAULT_GROUND_BLOCK_M
 
 
@@ -229,7 +230,16 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
     else:
         image, metadata = _from_array(image_or_path, params.gsd)
         bands = None
-    stages = _image_stages(image, metadata, params, clock=clock, bands=bands)
+    # A surface model may decide what colour cannot (a class below the index floor: senescent canopy
+    # or straw?): only read when the photo's rule was undecided.
+    surface = None
+    if params.dsm is not None:
+        from .measure.canopy import surface_on_grid
+
+        def surface(shape):
+            return surface_on_grid(image_or_path, metadata, shape, params.dsm)
+
+    stages = _image_stages(image, metadata, params, clock=clock, bands=bands, surface=surface)
     seg = stages.segmentation
     # Which plant/soil threshold the photo got, and why (the photo's own, or the prior band).
     threshold = {
@@ -237,7 +247,12 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         "value": round(float(seg.threshold), 4),
         "source": seg.threshold_source,
         "valley": round(float(seg.valley), 3),  # NaN in paper mode
+        # Ashman's D of the chroma across Otsu's split: the colour test (NaN where not measured).
+        "colour_separation": round(float(seg.separation), 3),
+        "colour_test": {"statistic": "ashman_d_chroma", "min": COLOUR_SEPARATION},
     }
+    if seg.threshold_note:
+        threshold["note"] = seg.threshold_note
     clock.start("mesh", 0.8)
     pixel_size = metadata.grid_pixel_size(stages.working.shape[:2])
     units = "px" if pixel_size is None else "m"
@@ -389,8 +404,12 @@ class _ImageStages:
     heights_px: np.ndarray
 
 
-def _image_stages(image, metadata, params, *, clock, bands=None):
-    """Resize, filter, segment (by NDVI when `bands` hold NIR and red) and inflate (`clock` is at "load")."""
+def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
+    """Resize, filter, segment (by NDVI when `bands` hold NIR and red) and inflate (`clock` is at "load").
+
+    `surface(shape)`, when given, returns the DSM on the processing grid: it is read only when the
+    photo's threshold rule was undecided (see :func:`~cliff_terrain.relief.segmentation.decide_by_surface`).
+    """
     clock.start("resize", 0.1)
     working = resize_longest(image, params.max_size)
 
@@ -404,6 +423,8 @@ def _image_stages(image, metadata, params, *, clock, bands=None):
         valid = cv2.resize(metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
     ndvi = nir_index_map(bands, shape=working.shape[:2]) if params.segmentation == "vegetation" else None
     seg = segment(working, method=params.segmentation, filtered=filtered, valid=valid, index_map=ndvi)
+    if surface is not None and seg.threshold_note.startswith("undecided"):
+        seg = decide_by_surface(seg, working, surface(working.shape[:2]), filtered=filtered, valid=valid)
 
     clock.start("heights", 0.6)
     distance = seg.region_distance  # distance_map(seg.labels), computed with the watershed

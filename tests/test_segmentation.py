@@ -402,6 +402,109 @@ def test_a_closed_canopy_is_not_split_into_sunlit_and_shaded_leaves():
     assert seg.mask.mean() > 0.99
 
 
+def _maize_on_dark_wet_soil(shape=(480, 720), seed=0):
+    """Maize rows on dark, wet soil with a faint green cast, blurred and JPEG-compressed: the mixed
+    pixels fill the index histogram's valley (as on the unseen photo of issue #39, whose soil
+    spread -0.04-0.38 and plants 0.46-0.93). Returns the image and the true plant mask."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    rows, cols = shape
+    yy, xx = np.mgrid[:rows, :cols]
+    truth = np.zeros(shape, bool)
+    for r0 in range(30, rows, 80):  # rows of leaves, 16-36 px wide, the soil between them open
+        centre = r0 + 6 * np.sin(xx / 23.0 + r0)
+        truth |= np.abs(yy - centre) < 13 + 5 * np.sin(xx / 9.0 + r0 * 0.3)
+    clods = cv2.GaussianBlur(rng.standard_normal(shape).astype(np.float32), (0, 0), 4)
+    soil = np.array([66.0, 68.0, 58.0]) * (1 + 0.18 * (clods / clods.std())[..., None])
+    soil = soil + rng.normal(0, 4, shape + (3,))
+    light = cv2.GaussianBlur(rng.standard_normal(shape).astype(np.float32), (0, 0), 3)
+    leaves = np.array([70.0, 125.0, 45.0]) * (1 + 0.75 * light[..., None]) + rng.normal(0, 5, shape + (3,))
+    rgb = cv2.GaussianBlur(np.where(truth[..., None], leaves, soil).astype(np.float32), (0, 0), 2.0)
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    _, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 55])
+    return np.ascontiguousarray(cv2.imdecode(jpeg, cv2.IMREAD_COLOR)[..., ::-1]), truth
+
+
+def test_maize_on_dark_wet_soil_without_a_valley_is_split_by_its_colour():
+    from cliff_terrain.evaluate.mask_quality import mask_agreement, volume_fraction
+    from cliff_terrain.relief.separation import chroma_map
+    from cliff_terrain.relief.vegetation import (
+        _GREEN_BAND,
+        COLOUR_SEPARATION,
+        TWO_CLASS_VALLEY,
+        blurred_index,
+        index_threshold,
+    )
+
+    image, truth = _maize_on_dark_wet_soil()
+    vi, _ = blurred_index(image)
+    # The soil reaches well above the band and no valley separates it from the plants...
+    assert np.percentile(vi[~truth], 90) > 2 * _GREEN_BAND[1]
+    by_index = index_threshold(vi)
+    assert by_index.source == "band" and by_index.valley > TWO_CLASS_VALLEY
+    assert mask_agreement(vi > by_index.threshold, truth)["iou"] < 0.8  # the band raises the soil
+    # ...but grey-brown soil and green leaves differ plainly in chroma: the photo's own split.
+    rule = index_threshold(vi, chroma=chroma_map(image))
+    assert rule.source == "photo (colour)" and rule.separation >= COLOUR_SEPARATION
+    relief = build_relief(image, mesh=None)
+    assert mask_agreement(relief.mask, truth)["iou"] > 0.85
+    assert volume_fraction(relief.heights, truth) >= 0.9
+    record = relief.params["threshold"]
+    assert record["source"] == "photo (colour)" and record["value"] == pytest.approx(rule.threshold, abs=1e-4)
+    assert record["colour_separation"] == pytest.approx(rule.separation, abs=1e-3)
+    assert record["colour_test"] == {"statistic": "ashman_d_chroma", "min": COLOUR_SEPARATION}
+
+
+def test_a_closed_canopy_does_not_pass_the_colour_test():
+    # Sunlit and shaded leaves are both green: their chroma does not separate them, the band stands.
+    import cv2
+
+    from cliff_terrain.relief.vegetation import COLOUR_SEPARATION
+
+    rng = np.random.default_rng(1)
+    field = cv2.GaussianBlur(rng.standard_normal((240, 320)), (0, 0), 6.0)
+    shade = 1.0 / (1.0 + np.exp(-field / field.std() * 1.5))
+    sunlit, shaded = np.array([150.0, 180.0, 60.0]), np.array([30.0, 90.0, 35.0])
+    rgb = sunlit * (1 - shade[..., None]) + shaded * shade[..., None] + rng.normal(0, 3.0, (240, 320, 3))
+    seg = segment(np.clip(np.round(rgb), 0, 255).astype(np.uint8))
+    assert seg.threshold_source == "band" and seg.separation < COLOUR_SEPARATION
+    assert seg.mask.mean() > 0.99
+
+
+def test_a_uniform_photo_builds_and_says_the_prior_decided(tmp_path, capsys):
+    from cliff_terrain.cli import main as cli
+
+    # One colour: nothing can be told apart, the prior band alone decides. Soil stays flat; a green
+    # frame is canopy seen close and rises whole.
+    for colour, covered in (((40, 160, 40), True), ((120, 90, 60), False), ((128, 128, 128), False)):
+        relief = build_relief(np.full((60, 80, 3), colour, np.uint8), mesh=None)
+        assert bool(relief.mask.all()) is covered and bool(relief.mask.any()) is covered
+        assert relief.params["threshold"]["source"] == "uniform"
+        assert relief.params["threshold"]["note"].startswith("uniform:")
+    from PIL import Image
+
+    Image.fromarray(np.full((60, 80, 3), (40, 160, 40), np.uint8)).save(tmp_path / "green.png")
+    assert cli(["relief", str(tmp_path / "green.png"), "--out", str(tmp_path / "out")]) == 0
+    assert "uniform:" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "out" / "relief.json").read_text())
+    assert summary["threshold"]["source"] == "uniform" and summary["threshold"]["note"].startswith("uniform:")
+
+
+def test_yellow_canopy_over_brown_soil_is_undecided_not_guessed():
+    # Ripe, yellow wheat (index below 0) over brown soil: colour tells two classes apart but not
+    # which is plant (straw and residue look the same). The floor stands and the record says so.
+    rng = np.random.default_rng(3)
+    truth = np.zeros((200, 300), bool)
+    truth[:, 60:240] = True
+    soil, straw = np.array([120.0, 85.0, 60.0]), np.array([200.0, 175.0, 95.0])
+    rgb = np.where(truth[..., None], straw, soil) * (1 + 0.05 * rng.standard_normal((200, 300, 1)))
+    relief = build_relief(np.clip(rgb, 0, 255).astype(np.uint8), mesh=None)
+    record = relief.params["threshold"]
+    assert record["source"] == "band" and record["note"].startswith("undecided:")
+    assert relief.mask.mean() < 0.05  # nothing raised that the photo cannot justify
+
+
 @pytest.mark.parametrize(
     "name",
     [
@@ -431,3 +534,49 @@ def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = otsu_threshold(vi if valid is None else vi[valid])
     assert seg.threshold == pytest.approx(float(np.clip(otsu, low, high)), abs=1e-6)
+
+
+@pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "straw-on-the-ground"])
+def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
+    # Yellow canopy (or straw: the same colour) over brown soil, a georeferenced orthophoto and its
+    # DSM on a sloping field. Canopy stands 0.7 m above the ground and rises; straw lies on it and
+    # stays flat, still undecided.
+    from test_measured_heights import UTM16N, geokeys, write_tiff
+
+    from cliff_terrain.evaluate.mask_quality import mask_agreement
+    from cliff_terrain.io.geotiff import write_geotiff
+
+    rng = np.random.default_rng(4)
+    rows, cols, gsd = 200, 300, 0.02
+    truth = np.zeros((rows, cols), bool)
+    for c0 in range(20, cols, 70):
+        truth[:, c0 : c0 + 40] = True
+    soil, straw = np.array([120.0, 85.0, 60.0]), np.array([200.0, 175.0, 95.0])
+    rgb = np.where(truth[..., None], straw, soil) * (1 + 0.05 * rng.standard_normal((rows, cols, 1)))
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    write_tiff(
+        tmp_path / "ortho.tif",
+        rgb,
+        scale=(gsd, gsd),
+        tie=(500000.0, 4000000.0),
+        keys=geokeys(UTM16N),
+        photometric="rgb",
+    )
+    rr, cc = np.mgrid[:rows, :cols]
+    ground = 250.0 + 0.004 * rr + 0.002 * cc  # a slope of 0.2-0.1 m/m... across the field
+    dsm = ground + (0.7 * truth if stands else 0.0) + rng.normal(0, 0.01, (rows, cols))
+    transform = [[gsd, 0, 500000.0], [0, -gsd, 4000000.0]]
+    write_geotiff(tmp_path / "dsm.tif", dsm.astype(np.float32), transform=transform, crs=UTM16N)
+
+    alone = build_relief(tmp_path / "ortho.tif", mesh=None)
+    assert alone.params["threshold"]["note"].startswith("undecided:")
+    relief = build_relief(tmp_path / "ortho.tif", dsm=tmp_path / "dsm.tif", mesh=None)
+    record = relief.params["threshold"]
+    if stands:
+        assert record["source"] == "photo (dsm)" and record["note"].startswith("decided by the DSM")
+        assert mask_agreement(relief.mask, truth)["iou"] > 0.9
+        # The ground is fitted on the soil, not on the canopy: the canopy stands about 0.7 m.
+        assert np.median(relief.canopy.chm[truth & relief.mask]) == pytest.approx(0.7, abs=0.1)
+    else:
+        assert record["source"] == "band" and "the DSM does not show it" in record["note"]
+        assert relief.mask.mean() < 0.05

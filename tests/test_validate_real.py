@@ -194,3 +194,51 @@ def test_the_committed_validation_page_is_its_record_written_out(validate):
 def _write_json(path, value):
     path.write_text(json.dumps(value))
     return path
+
+
+@pytest.fixture(scope="module")
+def sources():
+    spec = importlib.util.spec_from_file_location("mask_sources", REPO / "bench" / "mask_sources.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_colour_bound_is_chosen_without_the_source_it_is_reported_on(sources):
+    inf = float("inf")
+
+    def row(iou_on, iou_off, d):  # one image: its IoU with the colour test passed / off, its D
+        return {b: {"iou": iou_on if np.isfinite(b) and d >= b else iou_off} for b in sources.CANDIDATES}
+
+    table = {
+        # Source a gains from the test only at bounds <= 1.5, source b at bounds <= 3: each fold's
+        # bound comes from the other source (ties to the bound nearest 2).
+        "a": [row(0.9, 0.5, 1.6), row(0.9, 0.5, 1.6)],
+        "b": [row(0.8, 0.4, 3.2)],
+        "c": [row(0.2, 0.9, 1.2)],  # the test hurts c below 1.2
+    }
+    assert sources.choose_bound(table, "a") == 2.0  # b gains up to 3, c loses below 1.2
+    assert sources.choose_bound(table, "b") == 1.5  # a gains only up to 1.5 (c: D 1.2 < 1.5)
+    assert sources.choose_bound(table, "c") == 1.5  # a and b both gain at 1.5
+    assert inf in sources.CANDIDATES
+
+
+def test_mask_sources_reports_each_source_left_out(sources, tmp_path, capsys):
+    folder = tmp_path / "masks" / "synthetic_open"
+    folder.mkdir(parents=True)
+    (tmp_path / "masks" / "SOURCES.md").write_text("what each source is\n")  # not a source
+    image, truth = synthetic_field(shape=(160, 240), seed=1)
+    Image.fromarray(image).save(folder / "a.png")
+    Image.fromarray((truth.mask * 255).astype(np.uint8)).save(folder / "a_mask.png")
+    photos = tmp_path / "photos" / "no_mask"
+    photos.mkdir(parents=True)
+    Image.fromarray(image[:, ::-1].copy()).save(photos / "b.png")
+    out = tmp_path / "table.json"
+    result = sources.main([str(tmp_path), "--max-size", "240", "--json", str(out)])
+    assert set(result) == {"synthetic_open", "no_mask"}
+    assert result["synthetic_open"]["reference"] == "annotation"
+    assert result["no_mask"]["reference"].endswith("(no hand mask)")
+    assert result["synthetic_open"]["ours"]["iou_median"] > 0.8
+    assert result["synthetic_open"]["ours"]["volume_on_plants_worst"] > 0.9
+    assert "| synthetic_open | 1 |" in capsys.readouterr().out
+    assert json.loads(out.read_text())["sources"]["synthetic_open"]["images"][0]["image"] == "a.png"

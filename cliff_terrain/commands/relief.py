@@ -60,6 +60,8 @@ def run(args):
         "params": {
             k: v for k, v in relief.params.items() if isinstance(v, (str, int, float, bool, type(None)))
         },
+        # Which plant/soil threshold the photo got and why (its note says when it could not decide).
+        "threshold": relief.params.get("threshold"),
         "timings_s": {k: round(float(v), 4) for k, v in relief.timings.items()},
     }
     files = {
@@ -79,4 +81,7 @@ def run(args):
         f"{args.image}: {relief.n_regions} regions, cover {summary['cover']:.1%}, max height "
         f"{relief.max_height:.3g} {relief.units}; wrote {', '.join(outputs)} into {out}"
     )
+    note = (relief.params.get("threshold") or {}).get("note")
+    if note:
+        print(f"{args.image}: {note}")
     return 0

@@ -77,6 +77,16 @@ def photo_grid(path, metadata, shape):
     return transform @ np.diag([*metadata.grid_scale(shape), 1.0]), crs
 
 
+def surface_on_grid(path, metadata, shape, dsm):
+    """The DSM `dsm` (a path or :class:`GeoRaster`) resampled onto the processing grid `shape` of
+    georeferenced photo `path` (NaN where it has no height)."""
+    from ..io.geotiff import resample
+
+    transform, crs = photo_grid(path, metadata, shape)
+    surface = load_surfaces(dsm)[0]
+    return resample(surface, transform=transform, shape=shape, crs=crs, target=str(path))
+
+
 def photo_valid(metadata, shape):
     """The photo's pixels with data (an orthophoto's alpha) on the processing grid `shape`; None: all."""
     if getattr(metadata, "valid_mask", None) is None:
@@ -192,10 +202,17 @@ def plant_mask(rgb, *, valid=None):
     Cheaper than :func:`cliff_terrain.relief.segmentation.segment` on large orthophotos, where only
     plant/soil matters (the ground, plot cover).
     """
+    from ..relief.separation import chroma_map
     from ..relief.vegetation import blurred_index, index_threshold
 
     vi, name = blurred_index(rgb)
-    mask = vi > index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    # The same rule as the segmentation's, colour test included.
+    chroma = chroma_map(rgb) if name == "green" else None
+    if valid is None:
+        rule = index_threshold(vi, index=name, chroma=chroma)
+    else:
+        rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
+    mask = vi > rule.threshold
     if valid is not None:
         mask &= valid
     return mask
@@ -271,7 +288,10 @@ def relief_heights(
     valid = photo_valid(stages.metadata, plants.shape)  # an orthophoto's no-data is neither soil nor plant
     from ..relief.vegetation import bare_soil
 
-    soil = None if dtm is not None else bare_soil(stages.working, valid=valid)
+    seg = stages.segmentation
+    # The ground's soil by the threshold the plants got (the DSM's, when it decided a senescent class).
+    given = seg.threshold if seg.threshold_source == "photo (dsm)" else None
+    soil = None if dtm is not None else bare_soil(stages.working, valid=valid, threshold=given)
     canopy = measure_canopy(
         dsm,
         plants=plants,

@@ -38,7 +38,8 @@ from .._validate import check_choice, check_float, check_int, check_rgb
 from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
 from .labels import distance_map, inner_boundaries
-from .vegetation import ThresholdRule, blurred_index, index_threshold, otsu_threshold
+from .separation import chroma_map, surface_separation
+from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, index_threshold, otsu_threshold
 from .watershed import colour_edges, split_regions
 
 METHODS = ids(SEGMENTATIONS)
@@ -61,12 +62,18 @@ class Segmentation:
     index : str
         ``"green"``, ``"nir"`` or ``"grey"`` (paper mode).
     threshold_source : str
-        ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"band"`` (Otsu's
+        ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"photo (colour)"``
+        (the photo's own: its two sides differ plainly in chroma), ``"band"`` (Otsu's
         kept within the prior band), ``"otsu"`` (paper mode: Otsu's on the grey level) or
         ``"given"`` (the caller's, see :func:`segment`).
     valley : float
         The histogram at the threshold relative to its mean between the class means (see
         :func:`index_threshold`); NaN in paper mode.
+    separation : float
+        Ashman's D of the chroma between the two sides of Otsu's split (see
+        :func:`~cliff_terrain.relief.vegetation.colour_separation`); NaN where not measured.
+    threshold_note : str
+        Empty, or why the photo could not decide (see :func:`index_threshold`).
     distance : (rows, cols) float32
         ``distance_map(mask)``: each plant pixel's distance to flat ground (the watershed's, kept
         for the plateau profile).
@@ -85,6 +92,8 @@ class Segmentation:
     threshold_source: str = "band"
     valley: float = float("nan")
     region_distance: np.ndarray | None = None
+    separation: float = float("nan")
+    threshold_note: str = ""
 
     @property
     def n_regions(self) -> int:
@@ -229,6 +238,54 @@ def segment(
         threshold_source=source,
         valley=valley,
         region_distance=region_distance,
+        separation=rule.separation,
+        threshold_note=rule.note,
+    )
+
+
+def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
+    """A :func:`segment` result whose threshold was undecided, decided by a surface model.
+
+    The photo's own split (Otsu's threshold, below the index floor) is used when the pixels above
+    it stand above the others on `surface` by Ashman's D >= ``COLOUR_SEPARATION`` (2), a plane
+    fitted to the others (the ground) taken off first (see
+    :func:`~cliff_terrain.relief.separation.surface_separation`): senescent canopy stands, straw
+    and residue lie on the ground. Otherwise `seg` is returned with its note saying that the
+    surface did not tell either.
+
+    Parameters
+    ----------
+    seg : Segmentation
+        The vegetation mode's result for `image`.
+    image : (rows, cols, 3) uint8 array
+    surface : (rows, cols) float array
+        Heights on the image's grid (a DSM; NaN where there is none).
+    filtered, valid : optional
+        As :func:`segment`'s.
+
+    Returns
+    -------
+    Segmentation
+        ``threshold_source`` ``"photo (dsm)"`` when the surface decided.
+    """
+    import dataclasses
+
+    vi, _ = blurred_index(image, index=seg.index)
+    split = otsu_threshold(vi if valid is None else vi[valid])
+    d = surface_separation(surface, vi > split, valid=valid)
+    if not d >= COLOUR_SEPARATION:
+        note = seg.threshold_note + f"; the DSM does not show it standing above the rest either (D {d:.2f})"
+        return dataclasses.replace(seg, threshold_note=note)
+    decided = segment(
+        image, method="vegetation", filtered=filtered, valid=valid, threshold=split, index=seg.index
+    )
+    note = f"decided by the DSM: the class above the photo's own split stands above the rest (D {d:.2f})"
+    return dataclasses.replace(
+        decided,
+        threshold_source="photo (dsm)",
+        valley=seg.valley,
+        separation=seg.separation,
+        threshold_note=note,
     )
 
 
@@ -277,7 +334,12 @@ def _vegetation_mask(image, index, valid, threshold=None, index_map=None):
         valid = finite if valid is None else valid & finite
         vi, name = cv2.GaussianBlur(np.where(finite, index_map, np.float32(-1.0)), (0, 0), 1.0), "ndvi"
     if threshold is None:
-        rule = index_threshold(vi if valid is None else vi[valid], index=name)
+        # The colour test reads the photo's chroma (not for false-colour NIR or NDVI frames).
+        chroma = chroma_map(image) if name == "green" else None
+        if valid is None:
+            rule = index_threshold(vi, index=name, chroma=chroma)
+        else:
+            rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
     else:
         rule = ThresholdRule(threshold, name, "given", float("nan"))
     return vi > rule.threshold, rule, vi

@@ -15,6 +15,7 @@ import numpy as np
 from .._threads import map_row_bands
 from .._validate import check_choice, check_rgb
 from ..errors import CliffTerrainError
+from .separation import chroma_map, colour_separation
 
 INDICES = ("auto", "green", "nir")
 
@@ -31,6 +32,18 @@ NDVI_FLOOR = 0.1
 # annotated photos (README, "Validation on real fields") dark-soil fields whose own threshold is
 # right measured 0.09-0.38, closed canopies that Otsu splits in two 0.75-1.11.
 TWO_CLASS_VALLEY = 0.5
+# ...or when its two sides differ plainly in colour: Ashman's D of the CIELAB chroma C* of the pixels
+# on either side of Otsu's split, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2) (medians, robust
+# spreads), is at least this much. 2 is Ashman et al.'s (1994) own bound for two cleanly separated
+# classes, not a fitted number; leave-one-source-out on the annotated sets picks it from every
+# fold (see bench/mask_sources.py). Green leaves are chromatic and grey-brown soil is not, however
+# dark and wet, and however much blur and mixed pixels fill the valley between them; the sunlit and
+# shaded halves of a closed canopy are both green (-0.4 to 1.8 on the annotated closed wheat
+# canopies; 2.1-5.6 on dark-soil carrot photos).
+COLOUR_SEPARATION = 2.0
+# A photo whose index spans less than this between its 0.5th and 99.5th percentiles (about two
+# 8-bit steps of ExG) has no usable colour: nothing in it can be told apart, the prior decides.
+UNIFORM_SPREAD = 0.01
 # Soil sure enough to carry the ground: index within this many robust standard deviations of the
 # soil class's mode (the lower side of the soil peak, which no plant pixel widens).
 SOIL_SPREAD = 5.0
@@ -162,21 +175,34 @@ class ThresholdRule:
     index: str
     source: str
     valley: float
+    separation: float = float("nan")
+    note: str = ""
 
 
-def index_threshold(values, *, index="green"):
+def index_threshold(values, *, index="green", chroma=None):
     """The plant/soil threshold of a vegetation index: the photo's own when clearly two-class.
 
     Otsu's threshold is the photo's own. The prior is Otsu's threshold kept within the band of
-    `index`. The photo's own wins when the histogram is clearly two-class and the prior is not in
-    its valley: the density at Otsu's threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the
-    mean density between the two class means, and the density at the prior's is above that, so
-    the band would cut into a class. Dark, wet soil whose index reaches 0.3 beside green plants
-    is such a case. Otherwise the prior stands: one class (bare soil, or a closed canopy that
-    Otsu would split into sunlit and shaded leaves), or two classes whose valley holds the prior
-    too (then either threshold gives the same mask but for the blurred rims, and the prior keeps
-    every figure measured with it). The band's lower end is a floor in both cases: soil and grey
-    objects score at or below 0.
+    `index`. The photo's own wins when Otsu's threshold lies above the band, the band's threshold is
+    not in an empty valley (it would cut into a class) and the photo is clearly two-class by either
+    of two tests:
+
+    * ``"valley"``: the density at Otsu's threshold is at most ``TWO_CLASS_VALLEY`` (0.5) times the
+      mean density between the two class means (an almost empty valley);
+    * ``"colour"``: the two sides of Otsu's split differ plainly in colour: Ashman's D of their
+      CIELAB chroma C* (`chroma`, the upper side the more chromatic) is at least
+      ``COLOUR_SEPARATION`` (2, Ashman's bound), and the band's threshold lies in the body of a
+      class (the density there at least the mean between the class means). Green plants over
+      grey-brown soil pass however dark and wet the soil and however much JPEG blur and mixed
+      pixels fill the valley; the sunlit and shaded halves of a closed canopy, both green, do not.
+
+    Otherwise the prior stands: one class (bare soil, or a closed canopy that Otsu would split into
+    sunlit and shaded leaves), or two classes whose valley holds the prior too (then either
+    threshold gives the same mask but for the blurred rims, and the prior keeps every figure
+    measured with it). The band's lower end is a floor in both cases: soil and grey objects score
+    at or below 0. When Otsu's threshold lies *below* the floor and most of its upper class lies
+    below the floor too (yellow, senescent canopy over brown soil, or straw and residue over soil),
+    colour alone cannot tell which is plant: the floor stands and ``note`` says so.
 
     Parameters
     ----------
@@ -186,12 +212,17 @@ def index_threshold(values, *, index="green"):
         Which index, for its prior band. ``"ndvi"`` (a multispectral orthomosaic's NDVI, see
         :func:`cliff_terrain.relief.indices.nir_index_map`) has none: its threshold is the photo's
         own, Otsu's, never below ``NDVI_FLOOR`` (0.1).
+    chroma : array of float, optional
+        CIELAB chroma of the same pixels, in the same order (see :func:`~cliff_terrain.relief.separation.chroma_map`); without it
+        (false-colour and NDVI frames) only the valley test applies.
 
     Returns
     -------
     ThresholdRule
-        ``threshold``, ``index``, ``source`` (``"photo"`` or ``"band"``) and ``valley`` (the
-        density ratio; NaN when there is no spread).
+        ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"band"``, or
+        ``"uniform"`` when the index has no spread: the band's threshold then decides alone),
+        ``valley`` (the density ratio; NaN when there is no spread), ``separation`` (the chroma's
+        Ashman D; NaN without `chroma`) and ``note`` (empty, or why the photo could not decide).
 
     Examples
     --------
@@ -203,30 +234,80 @@ def index_threshold(values, *, index="green"):
     >>> rule.source, bool(0.35 < rule.threshold < 0.65)
     ('photo', True)
 
+    The same classes blurred into each other (no valley), the soil grey and the plants green:
+
+    >>> vi = np.concatenate([rng.normal(0.17, 0.16, 5500), rng.normal(0.7, 0.18, 4500)])
+    >>> chroma = np.concatenate([rng.normal(6, 3, 5500), rng.normal(40, 8, 4500)])
+    >>> index_threshold(vi).source, index_threshold(vi, chroma=chroma).source
+    ('band', 'photo (colour)')
+
     One class only (a closed canopy): Otsu's threshold would split it, the band keeps it whole.
 
-    >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000))
+    >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000), chroma=rng.normal(40, 8, 10000))
     >>> rule.source, rule.threshold
     ('band', 0.14)
     """
     check_choice("index", index, ("green", "nir", "ndvi"))
     flat = np.asarray(values, dtype=np.float32).ravel()
-    flat = flat[np.isfinite(flat)]
+    if chroma is not None:
+        chroma = np.asarray(chroma, dtype=np.float32).ravel()
+        if chroma.shape != flat.shape:
+            raise CliffTerrainError(
+                f"`chroma` must have {flat.size} values (one per index value), got {chroma.size}"
+            )
+    keep = np.isfinite(flat)
+    flat = flat[keep]
+    if chroma is not None:
+        chroma = chroma[keep]
     if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
-        flat = flat[:: flat.size // 400_000]
+        step = flat.size // 400_000
+        flat = flat[::step]
+        chroma = None if chroma is None else chroma[::step]
     # float64: numpy 2 refuses 128 histogram bins over a float32 range of a few ulps.
     flat = flat.astype(np.float64)
     low, high = _GREEN_BAND if index == "green" else _NIR_BAND
     otsu = otsu_threshold(flat)
+    if flat.size == 0 or float(np.subtract(*np.percentile(flat, (99.5, 0.5)))) < UNIFORM_SPREAD:
+        # Nothing to tell apart: the prior alone decides (a green frame is canopy seen close, a
+        # brown or grey one bare soil), and the record says that the photo could not.
+        value = float(np.clip(otsu, low, high)) if index != "ndvi" else NDVI_FLOOR
+        note = (
+            "uniform: the photo has one colour, nothing in it can be told apart; the prior decides "
+            "(green rises whole, soil and grey stay flat)"
+        )
+        return ThresholdRule(value, index, "uniform", float("nan"), float("nan"), note)
     if index == "ndvi":
         valley = _valley(flat, otsu, (otsu,))[0]
         return ThresholdRule(max(otsu, NDVI_FLOOR), index, "photo", valley)
     banded = float(np.clip(otsu, low, high))
     valley, at_band = _valley(flat, otsu, (otsu, banded))
+    separation = float("nan") if chroma is None else colour_separation(chroma, flat > otsu)
     # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
-    if otsu > high and valley <= TWO_CLASS_VALLEY and not at_band <= TWO_CLASS_VALLEY:
-        return ThresholdRule(otsu, index, "photo", valley)
-    return ThresholdRule(banded, index, "band", valley)
+    if otsu > high and not at_band <= TWO_CLASS_VALLEY:
+        if valley <= TWO_CLASS_VALLEY:
+            return ThresholdRule(otsu, index, "photo", valley, separation)
+        # By colour only where the band's threshold lies in the body of a class, the histogram
+        # there at least its mean between the class means (1 on the valley's scale: no dip at
+        # all): the soil's own peak, as on dark, wet soil. On the flank of a shallow valley (mixed
+        # rims of plots on a coarse orthophoto) both thresholds give the same plants but for rims.
+        if separation >= COLOUR_SEPARATION and at_band >= 1.0:
+            return ThresholdRule(otsu, index, "photo (colour)", valley, separation)
+    upper = flat > otsu
+    below_floor = float(np.count_nonzero(upper & (flat <= low))) / max(1, int(np.count_nonzero(upper)))
+    if otsu < low and below_floor > 0.5:
+        note = (
+            "undecided: most of the upper class of the photo's own split lies below the index "
+            "floor (yellow, senescent canopy, or straw and residue, over soil?); colour alone "
+            "cannot tell which is plant, so it stays flat"
+        )
+    elif otsu > high and not at_band <= TWO_CLASS_VALLEY:
+        note = (
+            "one class: neither an empty valley nor a colour difference splits the photo; the "
+            "prior band decides (a closed canopy rises whole, bare soil stays flat)"
+        )
+    else:
+        note = ""
+    return ThresholdRule(banded, index, "band", valley, separation, note)
 
 
 def _valley(values, split, thresholds):
@@ -252,7 +333,7 @@ def _valley(values, split, thresholds):
     return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
 
 
-def bare_soil(image, *, valid=None, index="auto"):
+def bare_soil(image, *, valid=None, index="auto", threshold=None):
     """Pixels that are surely soil, by colour: the ground's support, stricter than "not a plant".
 
     A pixel is bare soil when its (blurred) index lies below the photo's plant threshold
@@ -269,6 +350,9 @@ def bare_soil(image, *, valid=None, index="auto"):
     valid : (rows, cols) bool array, optional
         Pixels with data.
     index : {"auto", "green", "nir"}, optional
+    threshold : float, optional
+        The plant threshold the segmentation used, when it was not the photo's own rule's (for
+        instance a senescent canopy that the DSM showed standing above the ground).
 
     Returns
     -------
@@ -289,7 +373,13 @@ def bare_soil(image, *, valid=None, index="auto"):
         valid = np.asarray(valid, dtype=bool)
         if valid.shape != vi.shape:
             raise CliffTerrainError(f"`valid` must have shape {vi.shape}, got {valid.shape}")
-    threshold = index_threshold(vi if valid is None else vi[valid], index=name).threshold
+    if threshold is None:
+        chroma = chroma_map(image) if name == "green" else None
+        if valid is None:
+            rule = index_threshold(vi, index=name, chroma=chroma)
+        else:
+            rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
+        threshold = rule.threshold
     candidates = vi <= threshold
     if valid is not None:
         candidates &= valid

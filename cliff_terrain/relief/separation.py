@@ -1,0 +1,101 @@
+"""How plainly two classes of pixels differ: in colour (chroma) and in height (a surface model).
+
+Ashman's D, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2), with medians and robust spreads (1.4826 times
+the median absolute deviation): 2 or more is Ashman, Bird and Zepf's (1994) bound for two cleanly
+separated classes. :func:`cliff_terrain.relief.vegetation.index_threshold` reads the chroma's to
+take the photo's own split without a valley; ``build_relief`` the surface's to decide a class that
+colour cannot (senescent canopy or straw?).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .._validate import check_rgb
+
+
+def chroma_map(image):
+    """CIELAB chroma C* = sqrt(a*^2 + b*^2) of an RGB image (OpenCV's 8-bit Lab), lightly blurred
+    as :func:`blurred_index` is. Grey and brown soil score low, green leaves high.
+
+    Examples
+    --------
+    >>> img = np.zeros((1, 2, 3), np.uint8); img[0, 0] = (40, 160, 40); img[0, 1] = (90, 85, 80)
+    >>> c = chroma_map(np.repeat(np.repeat(img, 9, 0), 9, 1))
+    >>> bool(c[4, 2] > 40 > 5 > c[4, 15])
+    True
+    """
+    image = np.ascontiguousarray(check_rgb("image", image))
+    if image.dtype.kind == "f":  # floating point is [0, 1] (check_rgb)
+        image = np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        image = np.clip(image, 0, 255).astype(np.uint8)
+    lab = cv2.cvtColor(image, cv2.COLOR_RGB2LAB)
+    a = lab[..., 1].astype(np.float32) - np.float32(128.0)
+    b = lab[..., 2].astype(np.float32) - np.float32(128.0)
+    return cv2.GaussianBlur(np.hypot(a, b), (0, 0), 1.0)
+
+
+def colour_separation(chroma, upper):
+    """Ashman's D of `chroma` between the pixels where `upper` is True and the others.
+
+    D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2) with medians m and robust spreads s (1.4826 times the
+    median absolute deviation, at least 0.5: chroma is read on a whole-number scale), signed:
+    positive when the upper side is the more chromatic. NaN when a side is empty.
+
+    Examples
+    --------
+    >>> c = np.r_[np.full(50, 5.0), np.full(50, 40.0)]
+    >>> round(colour_separation(c, np.arange(100) >= 50), 1)
+    70.0
+    """
+    chroma = np.asarray(chroma, dtype=np.float64).ravel()
+    upper = np.asarray(upper, dtype=bool).ravel()
+    hi, lo = chroma[upper], chroma[~upper]
+    if hi.size == 0 or lo.size == 0:
+        return float("nan")
+    m_hi, m_lo = float(np.median(hi)), float(np.median(lo))
+    s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), 0.5)
+    s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), 0.5)
+    return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
+
+
+def surface_separation(surface, upper, *, valid=None):
+    """How far the pixels where `upper` is True stand above the others on a surface model.
+
+    Ashman's D (as :func:`colour_separation`, signed: positive when `upper` stands higher) of the
+    surface's heights after a plane fitted to the other pixels (the ground, by least squares) is
+    taken off, so that a field's slope or a flight's tilt does not pass for canopy. NaN when either
+    side has fewer than 10 pixels with a height.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[:60, :80]
+    >>> ground = 100 + 0.05 * rr + 0.02 * cc            # a sloping field
+    >>> canopy = (cc > 30) & (cc < 60)
+    >>> bool(surface_separation(ground + 0.6 * canopy, canopy) > 2)
+    True
+    >>> bool(abs(surface_separation(ground, canopy)) < 2)  # straw lies on the ground
+    True
+    """
+    surface = np.asarray(surface, dtype=np.float64)
+    upper = np.asarray(upper, dtype=bool)
+    ok = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
+    lower = ok & ~upper
+    upper = ok & upper
+    if np.count_nonzero(upper) < 10 or np.count_nonzero(lower) < 10:
+        return float("nan")
+    rr, cc = np.nonzero(lower)
+    step = max(1, rr.size // 100_000)
+    rr, cc = rr[::step], cc[::step]
+    design = np.column_stack([np.ones(rr.size), rr, cc]).astype(np.float64)
+    coef, *_ = np.linalg.lstsq(design, surface[rr, cc], rcond=None)
+    gr, gc = np.nonzero(ok)
+    residual = surface[gr, gc] - (coef[0] + coef[1] * gr + coef[2] * gc)
+    # Heights are continuous: spreads of at least 1 cm, the photogrammetric DSM's own noise.
+    hi, lo = residual[upper[gr, gc]], residual[lower[gr, gc]]
+    m_hi, m_lo = float(np.median(hi)), float(np.median(lo))
+    s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), 0.01)
+    s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), 0.01)
+    return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
