@@ -392,7 +392,9 @@ def key_figures(relief):
         rows = relief.heights.shape[0]  # the mesh's grid
         t = canopy.transform
         figures["map_offset"] = [float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2])]
-        figures["crs"] = int(canopy.crs)
+        from ..cliff_terrain.io.crs import crs_record
+
+        figures["crs"] = crs_record(canopy.crs)  # an EPSG code, or a user-defined CRS's WKT
         figures["ground"] = canopy.ground_source
     return figures
 

@@ -55,7 +55,9 @@ class MapFrame:
             )
         if "map_offset" in info:
             self.offset = np.array(info["map_offset"], dtype=np.float64)
-            self.crs = int(info["crs"])
+            from ..cliff_terrain.io.crs import crs_from_record
+
+            self.crs = crs_from_record(info["crs"], source=relief.name)
         else:
             from ..cliff_terrain.io.geotiff import read_georeference
 

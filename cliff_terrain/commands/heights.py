@@ -137,6 +137,9 @@ def run(args):
             "cols": int(relief.mask.shape[1]),
             "pixel_size_m": canopy.pixel_size,
         },
+        # The CRS: its EPSG code, or the WKT of a user-defined one (no EPSG code) as the files carry it.
+        "crs": canopy.crs if isinstance(canopy.crs, int) else None,
+        "crs_wkt": getattr(canopy.crs, "wkt", None),
         "ortho": str(args.ortho),
         "dsm": str(args.dsm),
         "dtm": None if args.dtm is None else str(args.dtm),

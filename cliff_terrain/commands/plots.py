@@ -97,6 +97,7 @@ def run(args):
     import json
 
     from ..errors import CliffTerrainError
+    from ..io.crs import crs_text
     from ..io.geotiff import read_orthophoto
     from ..io.plot_files import check_plots_fit, read_field_book, write_plots
     from ..measure.plot_grid import parse_pair, place_grid, plots_from
@@ -166,7 +167,7 @@ def run(args):
             out.with_name(out.name + ".fit.json").write_text(json.dumps(report, indent=2) + "\n")
     except OSError as exc:
         raise CliffTerrainError(f"cannot write {str(out)!r}: {exc}") from None
-    line = f"{args.ortho}: {len(plots)} plots ({columns} columns x {rows} rows) in EPSG:{ortho.crs}"
+    line = f"{args.ortho}: {len(plots)} plots ({columns} columns x {rows} rows) in {crs_text(ortho.crs)}"
     if report is not None:
         line += (
             f"; fitted: angle {report['angle_deg']:.2f} deg, pitch {report['column_pitch_m']:.3f} x "

@@ -176,7 +176,12 @@ def _ccw(ring):
 
 
 def epsg_wkt(crs):
-    """ESRI WKT of an EPSG code for a .prj: WGS 84 / UTM zones in full, other codes by authority only."""
+    """ESRI WKT of a CRS for a .prj: WGS 84 / UTM zones in full, other codes by authority only, a
+    user-defined CRS (:class:`cliff_terrain.io.crs.UserCrs`) as it was read."""
+    from .crs import UserCrs
+
+    if isinstance(crs, UserCrs):
+        return crs.wkt
     crs = int(crs)
     if 32601 <= crs <= 32660 or 32701 <= crs <= 32760:
         zone, north = crs % 100, crs < 32700

@@ -12,6 +12,7 @@ import numpy as np
 
 from .._validate import check_float
 from ..errors import GeoreferenceError
+from ..io.crs import crs_record, crs_text
 from ..io.geotiff import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
 from .ground import DEFAULT_BLOCK_M, canopy_height, check_enough_soil, estimate_ground, ground_support
 
@@ -24,8 +25,8 @@ class Canopy:
     ----------
     transform : (3, 3) float64
         Pixel (col, row) -> map (x, y) of the grid.
-    crs : int
-        EPSG code.
+    crs : int or UserCrs
+        EPSG code, or a user-defined CRS (:mod:`cliff_terrain.io.crs`).
     dsm, ground, chm : (rows, cols) float32
     ground_source : {"dtm", "estimated"}
     pixel_size : float
@@ -36,7 +37,7 @@ class Canopy:
     """
 
     transform: np.ndarray
-    crs: int
+    crs: object
     dsm: np.ndarray
     ground: np.ndarray
     chm: np.ndarray
@@ -143,7 +144,7 @@ def measure_canopy(
     transform = np.asarray(transform, dtype=np.float64)
     if crs != dsm.crs:
         raise GeoreferenceError(
-            f"{dsm.path!r} is in EPSG:{dsm.crs} but {grid_name} is in EPSG:{crs}; reproject one"
+            f"{dsm.path!r} is in {crs_text(dsm.crs)} but {grid_name} is in {crs_text(crs)}; reproject one"
         )
     surface = resample(dsm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
     if not np.isfinite(surface).any():
@@ -166,7 +167,7 @@ def measure_canopy(
     chm = canopy_height(surface, ground)
     if valid is not None:  # where the photo has no data, nothing tells plant from soil
         chm[~np.asarray(valid, dtype=bool)] = np.nan
-    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size, support)
+    return Canopy(transform, crs, surface, ground, chm, source, pixel_size, support)
 
 
 def plant_mask(rgb, *, valid=None):
@@ -286,7 +287,7 @@ def relief_heights(path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAUL
         heights = stages.heights_px.astype(np.float32) * np.float32(pixel_size)
     x0, y0 = canopy.origin
     georeference = {
-        "crs": int(crs),
+        "crs": crs_record(crs),
         "origin": [x0, y0],
         "transform": [float(v) for v in transform[:2].ravel()],
         "pixel_size_m": pixel_size,

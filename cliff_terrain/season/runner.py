@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .._validate import check_float, check_int
 from ..errors import CliffTerrainError
+from ..io.crs import crs_record
 from .cache import file_hash
 from .cluster import choose_runner, run_on_dask
 from .table import chart_rows, date_record, plot_rows, season_columns, write_csv
@@ -180,7 +181,7 @@ def run_season(
     manifest = {
         "version": __version__,
         "plots": jobs[0].plots if jobs else None,
-        "crs": plot_set.crs,
+        "crs": crs_record(plot_set.crs),
         "params": jobs[0].params if jobs else {},
         "color_by": color_by,
         "runner": {"runner": runner, "reason": reason},
