@@ -12,7 +12,7 @@ MAX_LINES = 500
 
 # Each subpackage may import the shared modules and the stages listed before it, never after.
 STAGES = ("io", "data", "relief", "mesh", "evaluate", "measure", "build", "figures", "season", "commands")
-SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "params"}
+SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "_progress", "params"}
 
 
 def _modules():

@@ -16,6 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import settings
+from .._progress import add_progress_argument
 from .index_options import add_index_arguments
 
 HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write the CHM and tables"
@@ -49,6 +50,7 @@ def configure(parser):
         help=f"block size of the ground estimate in metres (default {settings.DEFAULT_GROUND_BLOCK_M})",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_progress_argument(parser)
     add_index_arguments(parser)
 
 
@@ -81,6 +83,7 @@ def run(args):
 
     import numpy as np
 
+    from .._progress import stage_bar
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..evaluate.views import json_safe
@@ -91,15 +94,17 @@ def run(args):
     from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, REGIONS_CSV, REGIONS_GEOJSON, write_files
     from ..params import ReliefParams
     from .index_options import relief_index_maps, requested_bands
+    from .out_folder import check_out_folder, finished_outputs
 
     out = args.out
+    check_out_folder(out)
     outputs = ["chm.tif", "ground_support.tif", REGIONS_CSV, REGIONS_GEOJSON]
     outputs += [PLOTS_CSV, PLOTS_GEOJSON] if args.plots else []
     outputs += ["summary.json"]
     if args.dtm is not None:
         outputs.remove("ground_support.tif")
-    if not args.overwrite:
-        existing = [name for name in outputs if (out / name).exists()]
+    if not args.overwrite:  # summary.json is written last: without it, outputs are an interrupted run's
+        existing = finished_outputs(out, outputs, marker="summary.json")
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     plots = read_plots(args.plots) if args.plots else None  # a bad plot file fails before the work
@@ -114,7 +119,8 @@ def run(args):
         mesh=None,
         ground_block=args.block,
     )
-    relief = build_relief(args.ortho, params)
+    with stage_bar(f"heights {args.ortho.name}", enabled=not args.no_progress) as progress:
+        relief = build_relief(args.ortho, params, progress=progress)
     canopy = relief.canopy
     maps = relief_index_maps(args, bands, relief.mask.shape)
     tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .._progress import add_progress_argument
+
 HELP = "plot polygons from a trial layout (columns x rows, plot size, alleys), optionally fitted to the crop"
 
 
@@ -64,6 +66,7 @@ def configure(parser):
     )
     parser.add_argument("--out", type=Path, required=True, help="plots.geojson or plots.shp")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_progress_argument(parser)
 
 
 def _counts(text):
@@ -94,6 +97,13 @@ def _alleys(text):
 
 
 def run(args):
+    from .._progress import stage_bar
+
+    with stage_bar(f"plots {args.ortho.name}", enabled=not args.no_progress) as progress:
+        return _run(args, progress or (lambda fraction, stage: None))
+
+
+def _run(args, progress):
     import json
 
     from ..errors import CliffTerrainError
@@ -122,6 +132,7 @@ def run(args):
         if existing:
             raise CliffTerrainError(f"{str(existing[0])!r} exists; pass --overwrite to replace it")
     book = read_field_book(args.field_book) if args.field_book else None  # a bad book fails before the work
+    progress(0.0, "reading the orthophoto")
     ortho = read_orthophoto(args.ortho)
     if corners is None and origin is None:  # placed by the fit alone: a layout at the map's origin
         layout, placement = place_grid(
@@ -138,6 +149,7 @@ def run(args):
         from ..measure.canopy import plant_mask
         from ..measure.plot_fit import fit_grid
 
+        progress(0.3, "fitting the grid to the crop")
         plants = plant_mask(ortho.data, valid=ortho.valid)
         fit = fit_grid(
             plants,
@@ -159,6 +171,7 @@ def run(args):
         field_book=book,
         crs=ortho.crs,
     )
+    progress(0.9, "writing")
     check_plots_fit(plots, transform=ortho.transform, shape=ortho.shape, source=str(args.ortho))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

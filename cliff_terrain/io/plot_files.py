@@ -22,7 +22,12 @@ def read_field_book(path):
     try:
         with open(path, newline="", encoding="utf-8-sig") as stream:
             rows = list(csv.DictReader(stream))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+    except UnicodeDecodeError as exc:
+        raise PlotFileError(
+            f"the field book {str(path)!r} is not a text CSV (byte {exc.object[exc.start]:#04x} at "
+            f"{exc.start} is not UTF-8); save it as CSV UTF-8"
+        ) from None
+    except (OSError, csv.Error) as exc:
         raise PlotFileError(f"cannot read the field book {str(path)!r}: {exc}") from None
     if not rows:
         raise PlotFileError(f"the field book {str(path)!r} has no rows")

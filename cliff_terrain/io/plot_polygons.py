@@ -83,6 +83,8 @@ def read_plots(path):
     name = str(path)
     if not path.is_file():
         raise PlotFileError(f"plot file {name!r} does not exist")
+    if path.stat().st_size == 0:
+        raise PlotFileError(f"plot file {name!r} is empty (0 bytes)")
     suffix = path.suffix.lower()
     if suffix == ".shp":
         plots = _read_shapefile(path, name)
@@ -183,6 +185,16 @@ def _read_shapefile(path, name):
         import shapefile
     except ImportError:
         raise PlotFileError(f"cannot read {name!r}: reading Shapefiles needs the pyshp package") from None
+    missing = [
+        path.with_suffix(s).name
+        for s in (".shx", ".dbf")
+        if not (path.with_suffix(s).is_file() or path.with_suffix(s.upper()).is_file())
+    ]
+    if missing:
+        raise PlotFileError(
+            f"Shapefile {name!r} lacks {' and '.join(missing)} beside it (a Shapefile is its .shp, .shx "
+            "and .dbf together); copy all its files"
+        )
     try:
         with shapefile.Reader(str(path)) as reader:
             fields = tuple(field[0] for field in reader.fields[1:])
