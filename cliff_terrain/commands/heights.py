@@ -50,6 +50,13 @@ def configure(parser):
         help=f"block size of the ground estimate in metres (default {settings.DEFAULT_GROUND_BLOCK_M})",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    parser.add_argument(
+        "--max-memory",
+        type=float,
+        default=4.0,
+        metavar="GIB",
+        help="refuse, before the work, a run estimated to need more memory than this (GiB; default 4)",
+    )
     add_progress_argument(parser)
     add_index_arguments(parser)
 
@@ -94,6 +101,7 @@ def run(args):
     from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, REGIONS_CSV, REGIONS_GEOJSON, write_files
     from ..params import ReliefParams
     from .index_options import relief_index_maps, requested_bands
+    from .memory_estimate import check_heights_memory
     from .out_folder import check_out_folder, finished_outputs
 
     out = args.out
@@ -110,6 +118,7 @@ def run(args):
     plots = read_plots(args.plots) if args.plots else None  # a bad plot file fails before the work
     bands = requested_bands(args, args.ortho)  # and so does an index whose band the file lacks
     size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
+    check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
     params = ReliefParams(
         max_size=size,
         dsm=args.dsm,
