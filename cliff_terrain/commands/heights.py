@@ -135,11 +135,11 @@ def run(args):
     tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps)
     files = {out / name: text for name, text in tables.items()}
     files[out / "chm.tif"] = lambda tmp: write_geotiff(
-        tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan")
+        tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan"), overviews=True
     )
     if canopy.support is not None:
         files[out / "ground_support.tif"] = lambda tmp: write_geotiff(
-            tmp, canopy.support, transform=canopy.transform, crs=canopy.crs
+            tmp, canopy.support, transform=canopy.transform, crs=canopy.crs, overviews=True
         )
     figures = key_figures(relief)
     summary = {

@@ -5,13 +5,13 @@ never kills it: a run that would pass the cap is refused in one line naming the 
 The estimate is linear in the pixels, with coefficients measured (``bench/bench_heights_memory.py``,
 the shared OpenDroneMap pair tiled 4 x 4 and 7 x 7, peak RSS by ``/usr/bin/time -v``) and rounded up:
 
-============================  ==========  ==========  ==========  ==========
-orthophoto (MP) / grid (MP)   4.7 / 4.7   14.4 / 14.4 14.4 / 3.9  14.4 / 1.0
-measured peak (GiB)           1.80        5.25        1.57        0.76
-estimate (GiB)                2.18        6.16        2.23        1.05
-============================  ==========  ==========  ==========  ==========
+=============================  =========  ===========  ==========  ==========
+orthophoto (MP) / grid (MP)    4.7 / 4.7  14.4 / 14.4  14.4 / 3.9  14.4 / 1.0
+measured peak (GiB)            1.80       5.25         1.59        0.76
+estimate (GiB)                 2.26       6.40         2.40        1.29
+=============================  =========  ===========  ==========  ==========
 
-(issue 40 measured 25.7 MP: 9.0 GiB; the estimate says 10.8). Reading costs about 0.03 GiB per
+(issue 40 measured 25.7 MP: 9.66 GB; the estimate says 10.8 GiB). Reading costs about 0.03 GiB per
 megapixel of each file (the orthophoto, DSM and DTM are decoded whole); the measuring grid about
 0.38 GiB per megapixel (the relief's stages, the ground, the CHM and the tables). These are the
 current code's figures: re-measure them with the bench when the ground estimator or the readers

@@ -9,6 +9,7 @@ written beside FILE as ``FILE.fit.json``. The output feeds ``heights --plots`` a
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from .._progress import add_progress_argument
@@ -96,6 +97,26 @@ def _alleys(text):
         raise CliffTerrainError(f"`--alleys` must be numbers, got {text!r}") from None
 
 
+def _write_together(out, write, report):
+    """Write the plot files into a temporary folder beside `out`, then rename them into place, `out`
+    last: Ctrl-C or a kill never leaves files that look like a finished run."""
+    import json
+    import shutil
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.part-", dir=out.parent))
+    try:
+        written = write(folder / out.name)
+        if report is not None:
+            fit = folder / (out.name + ".fit.json")
+            fit.write_text(json.dumps(report, indent=2) + "\n")
+            written.append(fit)
+        for path in sorted(written, key=lambda p: p.name == out.name):
+            os.replace(path, out.with_name(path.name))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def run(args):
     from .._progress import stage_bar
 
@@ -104,8 +125,6 @@ def run(args):
 
 
 def _run(args, progress):
-    import json
-
     from ..errors import CliffTerrainError
     from ..io.crs import crs_text
     from ..io.geotiff import read_orthophoto
@@ -128,7 +147,8 @@ def _run(args, progress):
     if args.fit:
         outputs.append(out.with_name(out.name + ".fit.json"))
     if not args.overwrite:
-        existing = [p for p in outputs if p.exists()]
+        # FILE is renamed last: without it, the others are an interrupted run's and are replaced.
+        existing = [p for p in outputs if p.exists()] if out.exists() else []
         if existing:
             raise CliffTerrainError(f"{str(existing[0])!r} exists; pass --overwrite to replace it")
     book = read_field_book(args.field_book) if args.field_book else None  # a bad book fails before the work
@@ -175,9 +195,7 @@ def _run(args, progress):
     check_plots_fit(plots, transform=ortho.transform, shape=ortho.shape, source=str(args.ortho))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_plots(plots, out, crs=ortho.crs)
-        if report is not None:
-            out.with_name(out.name + ".fit.json").write_text(json.dumps(report, indent=2) + "\n")
+        _write_together(out, lambda tmp: write_plots(plots, tmp, crs=ortho.crs), report)
     except OSError as exc:
         raise CliffTerrainError(f"cannot write {str(out)!r}: {exc}") from None
     line = f"{args.ortho}: {len(plots)} plots ({columns} columns x {rows} rows) in {crs_text(ortho.crs)}"

@@ -18,6 +18,7 @@ from .._progress import count_bar
 from .._validate import check_float, check_int
 from ..errors import CliffTerrainError
 from ..io.crs import crs_record
+from ..measure.tables import write_files
 from .cache import file_hash
 from .cluster import choose_runner, run_on_dask
 from .table import chart_rows, date_record, plot_rows, season_columns, write_csv
@@ -189,11 +190,13 @@ def run_season(
         "runner": {"runner": runner, "reason": reason},
         "dates": dates,
     }
-    (out / "season.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    # Written whole or not at all (temporary names, then renamed): a kill leaves no half file.
+    files = {out / "season.json": json.dumps(manifest, indent=2) + "\n"}
     if chart:
         from .charts import growth_chart
 
-        growth_chart(chart_rows(rows), out / "growth.png", color_by=color_by)
+        files[out / "growth.png"] = lambda tmp: growth_chart(chart_rows(rows), tmp, color_by=color_by)
+    write_files(files)
     cached = sum(1 for r in results.values() if r.get("cached"))
     return Season(
         rows=rows,
