@@ -235,3 +235,19 @@ def test_feet_and_degrees_are_still_refused(tmp_path):
         RasterReadError, match="'.*unknown.tif' has an unknown CRS .*save it with an EPSG CRS"
     ):
         read_surface(unknown)
+
+
+def test_geojson_plots_without_a_crs_near_the_centre_of_a_user_crs_are_not_taken_for_degrees(trial):
+    # GeoJSON names CRSs by EPSG URN only, so plots in a user-defined CRS come without one; centred
+    # on the field, their coordinates (a few metres) would pass for longitude/latitude.
+    folder, _ = trial
+    doc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"plot": 1}, "geometry": {"type": "Polygon", "coordinates": [PLOT]}}]}  # fmt: skip
+    (folder / "plots.geojson").write_text(json.dumps(doc))
+    done = run_cli(
+        "heights", folder / "ortho.tif", "--dsm", folder / "dsm.tif", "--plots", folder / "plots.geojson",
+        "--out", folder / "out", "--no-progress",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    header, row = (folder / "out" / "plots.csv").read_text().splitlines()[:2]
+    assert dict(zip(header.split(","), row.split(","), strict=True))["area_m2"].startswith("9.0")

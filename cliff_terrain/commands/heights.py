@@ -9,6 +9,14 @@ bare soil that carried the ground around each pixel, 0 where it is interpolated 
 ``plots.geojson`` (one row per polygon), with ``--indices NDVI,NDRE`` their index columns
 (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...), and ``summary.json`` (the key figures, the ground's source
 and the plant/soil threshold). All files appear together or none does.
+
+The rasters and plots may be in an EPSG CRS or in a user-defined projected CRS in metres (no EPSG
+code; ``summary.json``'s ``crs_wkt``) when their definitions agree (:mod:`cliff_terrain.io.crs`).
+The run's memory is estimated before the work and refused past ``--max-memory`` (4 GiB) with the
+``--max-size``/``--resolution`` that fit (:mod:`.memory_estimate`). ``chm.tif`` and
+``ground_support.tif`` are tiled, compressed and have overviews. On a terminal a progress bar shows
+the stage and its ETA (``--no-progress``); an interrupted run leaves no ``summary.json``, and the
+same command then runs again (:mod:`.out_folder`).
 """
 
 from __future__ import annotations

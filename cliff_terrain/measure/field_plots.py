@@ -37,7 +37,9 @@ def check_plot_crs(plots, crs, *, raster):
             f"plot file {plots.path!r} is in {crs_text(plots.crs)} but raster {raster!r} is in {crs_text(crs)}; "
             "reproject the plots to the raster's CRS"
         )
-    if plots.crs is None and crs is not None and crs != 4326:
+    # Only against an EPSG CRS: a user-defined one centred on its field (an R export's AEQD) has map
+    # coordinates of a few metres, which look like degrees, and its plots' GeoJSON carries no CRS.
+    if plots.crs is None and isinstance(crs, int) and crs != 4326:
         points = np.concatenate([ring for rings in plots.polygons for ring in rings])
         if np.all(np.abs(points[:, 0]) <= 180) and np.all(np.abs(points[:, 1]) <= 90):
             raise GeoreferenceError(
