@@ -71,3 +71,40 @@ def test_the_default_cap_lets_the_shared_pair_through_and_refuses_a_nonsense_cap
     done = heights(tmp_path, "--max-memory", "-1")
     assert done.returncode == 2 and "`--max-memory` must be > 0.0, got -1.0" in done.stderr
     assert heights_estimate(pair[2], pair[0] * pair[1] / 1e6) < 4.0
+
+
+def test_an_orthophoto_past_the_readers_limit_is_refused_whatever_the_grid(tmp_path):
+    # A 151 MP header with almost no data (tiles of zeros compress to nothing; never decoded).
+    import numpy as np
+    import tifffile
+
+    from cliff_terrain.io.photo import MAX_PIXELS
+
+    rows, cols = 12_300, 12_300
+    assert rows * cols > MAX_PIXELS
+    path = tmp_path / "huge.tif"
+    keys = (1, 1, 0, 3, 1024, 0, 1, 1, 3072, 0, 1, 32616, 3076, 0, 1, 9001)
+    geo = [(33550, 12, 3, (0.01, 0.01, 0.0), True), (33922, 12, 6, (0, 0, 0, 5e5, 4e6, 0), True)]
+    with tifffile.TiffWriter(path, bigtiff=True) as tif:
+        tif.write(
+            shape=(rows, cols, 3), dtype=np.uint8, tile=(1024, 1024), compression="zlib",
+            extratags=[*geo, (34735, 3, len(keys), keys, True)],
+            data=iter([np.zeros((1024, 1024, 3), np.uint8)] * (((rows + 1023) // 1024) ** 2)),
+        )  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "cliff_terrain",
+        "heights",
+        str(path),
+        "--dsm",
+        str(DSM),
+        "--max-size",
+        "1000",
+    ]
+    done = subprocess.run(
+        [*command, "--out", str(tmp_path / "out")], capture_output=True, text=True, cwd=REPO, timeout=600
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert f"'{path}' is 12300 x 12300 pixels (151 MP), more than the 150 MP" in done.stderr
+    assert "even with --max-size or --resolution; crop or split it" in done.stderr

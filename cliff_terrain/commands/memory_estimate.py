@@ -45,9 +45,16 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
     """
     from .._validate import check_float
     from ..io.geotiff import raster_size, read_georeference
+    from ..io.photo import MAX_PIXELS
 
     cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
     rows, cols = raster_size(ortho)
+    if rows * cols > MAX_PIXELS:  # the photo reader's own guard, whatever the grid
+        raise CliffTerrainError(
+            f"orthophoto {str(ortho)!r} is {cols} x {rows} pixels ({rows * cols / 1e6:.0f} MP), more than the "
+            f"{MAX_PIXELS / 1e6:.0f} MP an orthophoto is read whole up to, even with --max-size or --resolution; "
+            "crop or split it and its DSM into parts"
+        )
     files_mp = [rows * cols / 1e6] + [math.prod(raster_size(p)) / 1e6 for p in others if p is not None]
     scale = min(1.0, longest / max(rows, cols))
     grid_mp = rows * cols * scale**2 / 1e6
