@@ -251,3 +251,17 @@ def test_geojson_plots_without_a_crs_near_the_centre_of_a_user_crs_are_not_taken
     assert done.returncode == 0, done.stderr
     header, row = (folder / "out" / "plots.csv").read_text().splitlines()[:2]
     assert dict(zip(header.split(","), row.split(","), strict=True))["area_m2"].startswith("9.0")
+
+
+def test_a_utm_zone_spelt_out_without_its_code_agrees_with_the_epsg_code_and_no_other():
+    # OGC WKT of WGS 84 / UTM 16N with no AUTHORITY (as some exporters write .prj files).
+    wkt = (
+        'PROJCS["UTM Zone 16, Northern Hemisphere",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",'
+        '6378137,298.257223563]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],'
+        'PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",-87],'
+        'PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER["false_northing",0],'
+        'UNIT["Meter",1]]'
+    )
+    crs = wkt_crs(wkt, source="plots.prj")
+    assert crs == 32616 and 32616 == crs and crs != 32615 and crs != 32716 and crs != 3857
+    assert wkt_crs(wkt.replace("-87", "-86.9"), source="x.prj") != 32616

@@ -142,6 +142,11 @@ class UserCrs:
     wkt: str
 
     def __eq__(self, other):
+        if isinstance(other, int) and not isinstance(other, bool):
+            # An EPSG code this module can define (WGS 84 / UTM): a .prj that spells a UTM zone out
+            # without its code is that zone.
+            wkt = utm_wkt(other)
+            return wkt is not None and self == wkt_crs(wkt, source=f"EPSG:{other}")
         if not isinstance(other, UserCrs):
             return NotImplemented
         if self.method != other.method:
@@ -160,7 +165,7 @@ class UserCrs:
                 return False
         return True
 
-    def __hash__(self):
+    def __hash__(self):  # not a dict key beside EPSG codes: equal to one, it hashes apart from it
         return hash(self.method)
 
     def __str__(self):
@@ -174,6 +179,21 @@ class UserCrs:
             f"a user-defined {self.method.replace('_', ' ')} CRS ({where}{', ' if where else ''}on {body} "
             f"of {self.semi_major:.0f} m, no EPSG code)"
         )
+
+
+def utm_wkt(code):
+    """ESRI WKT1 of a WGS 84 / UTM EPSG code (326xx north, 327xx south), None for any other code."""
+    if not (32601 <= code <= 32660 or 32701 <= code <= 32760):
+        return None
+    zone, north = code % 100, code < 32700
+    return (
+        f'PROJCS["WGS_1984_UTM_Zone_{zone}{"N" if north else "S"}",GEOGCS["GCS_WGS_1984",'
+        'DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,298.257223563]],PRIMEM["Greenwich",0.0],'
+        'UNIT["Degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+        f'PARAMETER["False_Easting",500000.0],PARAMETER["False_Northing",{0.0 if north else 10000000.0}],'
+        f'PARAMETER["Central_Meridian",{-183 + 6 * zone}.0],PARAMETER["Scale_Factor",0.9996],'
+        'PARAMETER["Latitude_Of_Origin",0.0],UNIT["Meter",1.0]]'
+    )
 
 
 def crs_text(crs):
