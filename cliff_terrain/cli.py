@@ -2,7 +2,8 @@
 
 Each subcommand lives in its own module under :mod:`cliff_terrain.commands`, imported only when it
 runs, so ``--help`` answers at once. A module defines ``HELP`` (one line), ``configure(parser)`` and
-``run(args) -> int``. Bad input exits with status 2 and one line on stderr, never a traceback.
+``run(args) -> int``. Bad input exits with status 2 and one line on stderr, never a traceback;
+library warnings and log lines are kept off stderr (``CLIFF_TERRAIN_DEBUG=1`` shows them).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ def main(argv=None):
     from .errors import CliffTerrainError
 
     args = build_parser().parse_args(argv)
+    _quiet_libraries()
     try:
         check_required()
         return int(command_module(args.command).run(args) or 0)
@@ -68,6 +70,28 @@ def main(argv=None):
     except KeyboardInterrupt:
         print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _quiet_libraries():
+    """Keep library warnings and log lines off the user's stderr: it gets the one-line error, or
+    the summary line (and progress bar) on success. ``CLIFF_TERRAIN_DEBUG=1`` lets them through.
+
+    Pillow warns about truncated files and tifffile logs what it cannot parse; the readers turn
+    both into the one-line error themselves. Worker processes (a local Dask cluster) inherit
+    ``PYTHONWARNINGS``.
+    """
+    import logging
+    import os
+    import warnings
+
+    if os.environ.get("CLIFF_TERRAIN_DEBUG"):
+        return
+    warnings.simplefilter("ignore")
+    os.environ.setdefault("PYTHONWARNINGS", "ignore")
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")  # a local cluster's workers and scheduler
+    # A handler on the root logger: without one, logging's last resort prints WARNING and above.
+    logging.getLogger().addHandler(logging.NullHandler())
+    logging.captureWarnings(True)
 
 
 if __name__ == "__main__":

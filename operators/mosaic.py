@@ -16,6 +16,7 @@ import bpy
 import numpy as np
 from bpy.props import FloatProperty, IntProperty, StringProperty
 
+from ..cliff_terrain.io.crs import crs_record
 from ..scene.datablocks import textured_object
 from ..scene.material import image_from_array
 from ..scene.mesh_data import mesh_from_arrays
@@ -86,7 +87,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                 context.collection.objects.link(root)
                 root["cliff_terrain_mosaic"] = {
                     "source": path,
-                    "crs": int(reader.crs),
+                    "crs": crs_record(reader.crs),  # EPSG code or a user-defined CRS's WKT
                     # Map (x, y) of the mosaic's top-left corner, and the 3x3 pixel -> map transform.
                     "origin": [float(reader.transform[0, 2]), float(reader.transform[1, 2])],
                     "transform": [float(v) for v in np.asarray(reader.transform).ravel()],

@@ -8,6 +8,7 @@ snaps the grid to the crop of the relief's orthophoto.
 
 import bpy
 
+from ..cliff_terrain.io.crs import crs_text
 from ..scene.record import Record, is_relief
 from .file_operator import FileOperator
 from .reports import report_failure
@@ -99,7 +100,7 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
                 from ..cliff_terrain.errors import GeoreferenceError
 
                 raise GeoreferenceError(
-                    f"{frame.source!r} is in EPSG:{ortho.crs}, the relief in EPSG:{frame.crs}"
+                    f"{frame.source!r} is in {crs_text(ortho.crs)}, the relief in {crs_text(frame.crs)}"
                 )
             plants = plant_mask(ortho.data, valid=ortho.valid)
             fit = fit_grid(plants, ortho.transform, layout, placement=Placement(corners), valid=ortho.valid)
@@ -175,7 +176,7 @@ class CLIFF_TERRAIN_OT_export_plots(_OnAGrid, FileOperator, bpy.types.Operator):
             return {"CANCELLED"}
         except Exception as exc:
             return report_failure(self, exc)
-        self.report({"INFO"}, f"{len(plots)} plots in EPSG:{frame.crs} written to {written[0]}")
+        self.report({"INFO"}, f"{len(plots)} plots in {crs_text(frame.crs)} written to {written[0]}")
         return {"FINISHED"}
 
 

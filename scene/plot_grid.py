@@ -57,7 +57,9 @@ class MapFrame:
             )
         if record.map_offset is not None:
             self.offset = np.array(record.map_offset, dtype=np.float64)
-            self.crs = int(record.crs)
+            from ..cliff_terrain.io.crs import crs_from_record
+
+            self.crs = crs_from_record(record.crs, source=relief.name)
         else:
             from ..cliff_terrain.io.geotiff import read_georeference
 

@@ -66,7 +66,7 @@ class Record:
     canopy_p90_cm: float = -1.0
     # With a surface model: the map (x, y) of the mesh's local (0, 0) in EPSG `crs`, and the ground's source.
     map_offset: tuple | None = None
-    crs: int | None = None
+    crs: int | str | None = None  # an EPSG code, or a user-defined CRS's WKT
     ground: str | None = None
 
     __hash__ = None  # `params` is a dict
@@ -191,6 +191,8 @@ def key_figures(relief):
         rows = relief.heights.shape[0]  # the mesh's grid
         t = canopy.transform
         figures["map_offset"] = (float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2]))
-        figures["crs"] = int(canopy.crs)
+        from ..cliff_terrain.io.crs import crs_record
+
+        figures["crs"] = crs_record(canopy.crs)  # an EPSG code, or a user-defined CRS's WKT
         figures["ground"] = canopy.ground_source
     return figures

@@ -24,7 +24,7 @@ STAGES = (
     "season",
     "commands",
 )
-SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "_dask", "params"}
+SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "_dask", "_progress", "params"}
 
 
 def _modules():

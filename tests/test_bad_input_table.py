@@ -552,3 +552,233 @@ def test_render_views_refuses_views_too_thin_to_compare(tmp_path, cols, args, me
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr
     assert lines[0] == f"render_views.py: error: {message}"
     assert files_under(tmp_path) == before
+
+
+# ---- (c) the measuring commands (cliff-terrain heights, plots, season, traits), as subprocesses ----
+#
+# Issue #40's corpus: every case exits 2 with one line on stderr, the `cliff-terrain COMMAND: error:`
+# line that names the file (or option) and what is wrong, and nothing else: no library warning, no
+# log line, no traceback. Nothing is written or overwritten. Real inputs where there are some: the
+# shared OpenDroneMap pair and the Lamberton soybean season.
+
+SHARED = ROOT.parent / "shared" / "data"
+ODM_PAIR = SHARED / "dsm" / "fieldimager_ex2"
+SOYBEAN = SHARED / "uav" / "lamberton_soybean"
+ORTHO, DSM = ODM_PAIR / "odm_orthophoto.tif", ODM_PAIR / "dsm.tif"
+ORIGIN = "296600,4888200"  # inside the ODM pair's orthophoto
+
+
+def _cut(source, path, fraction=0.5):
+    path.write_bytes(source.read_bytes()[: int(source.stat().st_size * fraction)])
+    return path
+
+
+def _heights(folder, *, dsm=DSM, plots=None, out=None):
+    extra = ["--plots", plots] if plots else []
+    return ["heights", ORTHO, "--dsm", dsm, *extra, "--out", out or folder / "out"]
+
+
+def _plots(folder, *args):
+    return ["plots", ORTHO, "--plot-size", "2x2", *args, "--out", folder / "plots.geojson"]
+
+
+def _lone_shapefile(folder):
+    import shapefile
+
+    with shapefile.Writer(str(folder / "lone")) as writer:
+        writer.field("plot", "N")
+        writer.poly([[[296600, 4888200], [296600, 4888190], [296610, 4888190], [296600, 4888200]]])
+        writer.record(1)
+    (folder / "lone.dbf").unlink()
+    (folder / "lone.shx").unlink()
+    return folder / "lone.shp"
+
+
+def _all_no_data(folder):
+    with tifffile.TiffFile(DSM) as tif:
+        page = tif.pages[0]
+        keep = [(t.code, t.dtype, t.count, t.value, True) for t in page.tags.values() if t.code >= 33550]
+        shape = page.shape
+    path = folder / "nodata.tif"
+    tifffile.imwrite(path, np.full(shape, -3.4e38, np.float32), extratags=keep)
+    return path
+
+
+def _season_with_a_truncated_date(folder):
+    season = folder / "season"
+    season.mkdir()
+    for date in ("20180815", "20180829"):
+        (season / f"{date}_Lamberton_clipped.tif").write_bytes(
+            (SOYBEAN / f"{date}_Lamberton_clipped.tif").read_bytes()
+        )
+    _cut(SOYBEAN / "20180822_Lamberton_clipped.tif", season / "20180822_Lamberton_clipped.tif")
+    return season
+
+
+def _corrupt(folder):
+    data = bytearray(DSM.read_bytes())
+    rng = np.random.default_rng(1)
+    data[2000::97] = rng.integers(0, 256, len(data[2000::97]), dtype=np.uint8).tobytes()
+    path = folder / "corrupt.tif"
+    path.write_bytes(bytes(data))
+    return path
+
+
+def _write(folder, name, content):
+    path = folder / name
+    path.write_bytes(content) if isinstance(content, bytes) else path.write_text(content)
+    return path
+
+
+# id -> (args made in the folder, the file the line names, what it says)
+COMMAND_CASES = {
+    "empty-plot-file": (
+        lambda f: _heights(f, plots=_write(f, "plots.geojson", b"")),
+        "plots.geojson",
+        "is empty (0 bytes)",
+    ),
+    "broken-plot-file": (
+        lambda f: _heights(
+            f, plots=_write(f, "plots.geojson", '{"type": "FeatureCollection", "features": [')
+        ),
+        "plots.geojson",
+        "is not valid JSON",
+    ),
+    "feature-less-plot-file": (
+        lambda f: _heights(
+            f, plots=_write(f, "plots.geojson", '{"type": "FeatureCollection", "features": []}')
+        ),
+        "plots.geojson",
+        "holds no polygon",
+    ),
+    "shapefile-without-dbf-shx": (
+        lambda f: _heights(f, plots=_lone_shapefile(f)),
+        "lone.shp",
+        "lacks lone.shx and lone.dbf beside it",
+    ),
+    "truncated-dsm": (
+        lambda f: _heights(f, dsm=_cut(DSM, f / "half.tif")),
+        "half.tif",
+        f"is truncated: the file has {DSM.stat().st_size // 2} bytes, its image data needs {DSM.stat().st_size}",
+    ),
+    "corrupt-dsm": (
+        lambda f: _heights(f, dsm=_corrupt(f)),
+        "corrupt.tif",
+        "cannot decode",
+    ),
+    "all-no-data-dsm": (
+        lambda f: _heights(f, dsm=_all_no_data(f)),
+        "nodata.tif",
+        "holds no data (every pixel is no-data)",
+    ),
+    "jpeg-as-dsm": (
+        lambda f: _heights(f, dsm=save(f / "dsm.jpg", FIELD, quality=90)),
+        "dsm.jpg",
+        "is a JPEG image, not a TIFF",
+    ),
+    "out-names-a-file": (
+        lambda f: _heights(f, out=_write(f, "results", "my notes\n")),
+        "results",
+        "`--out` '",
+    ),
+    "grid-0x5": (
+        lambda f: _plots(f, "--grid", "0x5", "--origin", ORIGIN),
+        "--grid",
+        "needs at least one column and one row, got '0x5'",
+    ),
+    "three-corners": (
+        lambda f: _plots(f, "--grid", "3x5", "--corners", "1,1", "2,2", "3,3"),
+        "--corners",
+        "expected 4 arguments",
+    ),
+    "binary-field-book": (
+        lambda f: _plots(
+            f,
+            "--grid",
+            "3x5",
+            "--origin",
+            ORIGIN,
+            "--field-book",
+            _write(f, "book.csv", bytes(range(256)) * 4),
+        ),
+        "book.csv",
+        "is not a text CSV",
+    ),
+    "empty-season-folder": (
+        lambda f: [
+            "season",
+            (f / "flights").mkdir() or f / "flights",
+            "--plots",
+            SOYBEAN / "plots.geojson",
+            "--out",
+            f / "out",
+        ],
+        "flights",
+        "no images in folder",
+    ),  # fmt: skip
+    "traits-without-a-season": (
+        lambda f: ["traits", (f / "flights").mkdir() or f / "flights"],
+        "season.csv",
+        "does not exist: run `cliff-terrain season` first",
+    ),
+    "one-truncated-date": (
+        lambda f: [
+            "season",
+            _season_with_a_truncated_date(f),
+            "--plots",
+            SOYBEAN / "plots.geojson",
+            "--out",
+            f / "out",
+            "--workers",
+            "0",
+        ],
+        "20180822_Lamberton_clipped.tif",
+        "is truncated",
+    ),  # fmt: skip
+}
+
+
+def _tree(folder):
+    return {
+        str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None)
+        for p in sorted(folder.rglob("*"))
+    }
+
+
+@pytest.mark.parametrize("case", list(COMMAND_CASES))
+def test_measuring_commands_refuse_bad_input_in_one_line(case, tmp_path):
+    if not (ORTHO.is_file() and (SOYBEAN / "plots.geojson").is_file()):
+        pytest.skip(f"the shared data are not at {SHARED}")
+    make, name, words = COMMAND_CASES[case]
+    args = make(tmp_path)
+    before = _tree(tmp_path)
+    done = subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=600,
+    )
+    assert done.returncode == 2, done.stdout + done.stderr
+    # Exactly one line: no warning, log line or traceback before or after it.
+    assert done.stderr.endswith("\n") and done.stderr.count("\n") == 1, done.stderr
+    line = done.stderr.rstrip("\n")
+    assert line.startswith(f"cliff-terrain {args[0]}: error: "), line
+    assert name in line and words in line, line
+    assert done.stdout == ""
+    assert _tree(tmp_path) == before  # nothing written, nothing overwritten
+
+
+def test_a_measurement_that_succeeds_prints_its_summary_line_and_nothing_else(tmp_path):
+    # The ODM pair's GDAL_NODATA (-3.4e38, not a float32) makes tifffile log a line on every read.
+    if not ORTHO.is_file():
+        pytest.skip(f"the shared data are not at {SHARED}")
+    done = subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", *map(str, _heights(tmp_path)), "--no-progress"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=600,
+    )
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert done.stdout.count("\n") == 1 and "wrote chm.tif" in done.stdout, done.stdout

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tifffile
 from conftest import REPO, SHARED_UAV
 
 from cliff_terrain.errors import CliffTerrainError
@@ -140,10 +141,9 @@ def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
 
     for ours, theirs in zip(read_season(tmp_path).dates, read_season(serial).dates, strict=True):
         assert ours.heights.tobytes() == theirs.heights.tobytes()
-    # The progress bar (one line per step when stderr is not a terminal), from 0 to 7 of 7.
-    bars = re.findall(r"season \[([#-]{30})\] (\d)/7 images", done.stderr)
-    assert [int(n) for _, n in bars] == list(range(8))
-    assert bars[-1][0] == "#" * 30
+    # The progress bar is drawn on a terminal only (test_bad_input_table.py draws one): a pipe gets
+    # the summary lines, and stderr nothing at all.
+    assert done.stderr == "", done.stderr
 
 
 def test_small_season_runs_in_process_by_default(serial, soybean, tmp_path):
@@ -327,7 +327,13 @@ def test_failed_image_gets_its_error_on_its_rows(serial, soybean, tmp_path):
     names = sorted(p.name for p in soybean.glob("*.tif"))[:3]
     photos = _subset(soybean, tmp_path / "photos", names)
     broken = photos / names[1]
-    broken.write_bytes(broken.read_bytes()[:200_000])  # the header survives, the pixels do not
+    # Its header and georeference are whole (the season is planned), its pixels are not a photo: the
+    # failure comes while it is computed. (A truncated file is refused before any work: issue 40.)
+    with tifffile.TiffFile(soybean / names[1]) as tif:
+        page = tif.pages[0]
+        geo = [(t.code, t.dtype, t.count, t.value, True) for t in page.tags.values() if t.code >= 33550]
+        shape = page.shape
+    tifffile.imwrite(broken, np.full(shape, 1000.0, np.float32), extratags=geo, photometric="rgb")
     done = season(photos, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", "--workers", "0")
     assert done.returncode == 1
     assert "1 of 3 images failed" in done.stderr and names[1] in done.stderr

@@ -12,6 +12,13 @@ index columns (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant
 ``--ruler`` the measured heights (``ruler_height_m``; ``height_calibrated_m`` with ``--calibrate``),
 and ``summary.json`` (the key figures, the ground's source, method and held-out check, the ruler's
 agreement and the plant/soil threshold). All files appear together or none does.
+The rasters and plots may be in an EPSG CRS or in a user-defined projected CRS in metres (no EPSG
+code; ``summary.json``'s ``crs_wkt``) when their definitions agree (:mod:`cliff_terrain.io.crs`).
+The run's memory is estimated before the work and refused past ``--max-memory`` (4 GiB) with the
+``--max-size``/``--resolution`` that fit (:mod:`.memory_estimate`). ``chm.tif`` and
+``ground_support.tif`` are tiled, compressed and have overviews. On a terminal a progress bar shows
+the stage and its ETA (``--no-progress``); an interrupted run leaves no ``summary.json``, and the
+same command then runs again (:mod:`.out_folder`).
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import settings
+from .._progress import add_progress_argument
 from ..measure.ground import GROUND_METHODS
 from .index_options import add_index_arguments
 
@@ -83,6 +91,14 @@ def configure(parser):
         "(height_calibrated_m) and report its leave-one-out error",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    parser.add_argument(
+        "--max-memory",
+        type=float,
+        default=4.0,
+        metavar="GIB",
+        help="refuse, before the work, a run estimated to need more memory than this (GiB; default 4)",
+    )
+    add_progress_argument(parser)
     add_index_arguments(parser)
 
 
@@ -113,6 +129,7 @@ def grid_size(ortho, *, resolution=None, max_size=None):
 def run(args):
     import json
 
+    from .._progress import stage_bar
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..evaluate.views import json_safe
@@ -123,8 +140,11 @@ def run(args):
     from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, REGIONS_CSV, REGIONS_GEOJSON, write_files
     from ..params import ReliefParams
     from .index_options import relief_index_maps, requested_bands
+    from .memory_estimate import check_heights_memory
+    from .out_folder import check_out_folder, finished_outputs
 
     out = args.out
+    check_out_folder(out)
     outputs = ["chm.tif", "ground_support.tif", "chm_err.tif", REGIONS_CSV, REGIONS_GEOJSON]
     outputs += [PLOTS_CSV, PLOTS_GEOJSON] if args.plots else []
     outputs += ["summary.json"]
@@ -135,8 +155,8 @@ def run(args):
         raise CliffTerrainError(f"--ruler {str(args.ruler)!r} needs --plots: its heights belong to plots")
     if args.calibrate and args.ruler is None:
         raise CliffTerrainError("--calibrate needs --ruler: the measured heights it is fitted on")
-    if not args.overwrite:
-        existing = [name for name in outputs if (out / name).exists()]
+    if not args.overwrite:  # summary.json is written last: without it, outputs are an interrupted run's
+        existing = finished_outputs(out, outputs, marker="summary.json")
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     plots = read_plots(args.plots) if args.plots else None  # a bad plot file fails before the work
@@ -153,6 +173,7 @@ def run(args):
         )
     bands = requested_bands(args, args.ortho)  # and so does an index whose band the file lacks
     size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
+    check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
     params = ReliefParams(
         max_size=size,
         dsm=args.dsm,
@@ -163,7 +184,8 @@ def run(args):
         ground_block=args.block,
         ground_method=args.ground,
     )
-    relief = build_relief(args.ortho, params)
+    with stage_bar(f"heights {args.ortho.name}", enabled=not args.no_progress) as progress:
+        relief = build_relief(args.ortho, params, progress=progress)
     canopy = relief.canopy
     maps = relief_index_maps(args, bands, relief.mask.shape)
     ruler_record = {}
@@ -179,14 +201,14 @@ def run(args):
     tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps, extra=extra)
     files = {out / name: text for name, text in tables.items()}
     files[out / "chm.tif"] = lambda tmp: write_geotiff(
-        tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan")
+        tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan"), overviews=True
     )
     if canopy.support is not None:
         files[out / "ground_support.tif"] = lambda tmp: write_geotiff(
-            tmp, canopy.support, transform=canopy.transform, crs=canopy.crs
+            tmp, canopy.support, transform=canopy.transform, crs=canopy.crs, overviews=True
         )
         files[out / "chm_err.tif"] = lambda tmp: write_geotiff(
-            tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs
+            tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs, overviews=True
         )
     figures = key_figures(relief)
     check = canopy.check or {}
@@ -204,6 +226,9 @@ def run(args):
             "cols": int(relief.mask.shape[1]),
             "pixel_size_m": canopy.pixel_size,
         },
+        # The CRS: its EPSG code, or the WKT of a user-defined one (no EPSG code) as the files carry it.
+        "crs": canopy.crs if isinstance(canopy.crs, int) else None,
+        "crs_wkt": getattr(canopy.crs, "wkt", None),
         "ortho": str(args.ortho),
         "dsm": str(args.dsm),
         "dtm": None if args.dtm is None else str(args.dtm),

@@ -9,7 +9,10 @@ written beside FILE as ``FILE.fit.json``. The output feeds ``heights --plots`` a
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+from .._progress import add_progress_argument
 
 HELP = "plot polygons from a trial layout (columns x rows, plot size, alleys), optionally fitted to the crop"
 
@@ -64,6 +67,7 @@ def configure(parser):
     )
     parser.add_argument("--out", type=Path, required=True, help="plots.geojson or plots.shp")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_progress_argument(parser)
 
 
 def _counts(text):
@@ -93,10 +97,36 @@ def _alleys(text):
         raise CliffTerrainError(f"`--alleys` must be numbers, got {text!r}") from None
 
 
-def run(args):
+def _write_together(out, write, report):
+    """Write the plot files into a temporary folder beside `out`, then rename them into place, `out`
+    last: Ctrl-C or a kill never leaves files that look like a finished run."""
     import json
+    import shutil
+    import tempfile
 
+    folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.part-", dir=out.parent))
+    try:
+        written = write(folder / out.name)
+        if report is not None:
+            fit = folder / (out.name + ".fit.json")
+            fit.write_text(json.dumps(report, indent=2) + "\n")
+            written.append(fit)
+        for path in sorted(written, key=lambda p: p.name == out.name):
+            os.replace(path, out.with_name(path.name))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def run(args):
+    from .._progress import stage_bar
+
+    with stage_bar(f"plots {args.ortho.name}", enabled=not args.no_progress) as progress:
+        return _run(args, progress or (lambda fraction, stage: None))
+
+
+def _run(args, progress):
     from ..errors import CliffTerrainError
+    from ..io.crs import crs_text
     from ..io.geotiff import read_orthophoto
     from ..io.plot_files import check_plots_fit, read_field_book, write_plots
     from ..measure.plot_grid import parse_pair, place_grid, plots_from
@@ -117,10 +147,12 @@ def run(args):
     if args.fit:
         outputs.append(out.with_name(out.name + ".fit.json"))
     if not args.overwrite:
-        existing = [p for p in outputs if p.exists()]
+        # FILE is renamed last: without it, the others are an interrupted run's and are replaced.
+        existing = [p for p in outputs if p.exists()] if out.exists() else []
         if existing:
             raise CliffTerrainError(f"{str(existing[0])!r} exists; pass --overwrite to replace it")
     book = read_field_book(args.field_book) if args.field_book else None  # a bad book fails before the work
+    progress(0.0, "reading the orthophoto")
     ortho = read_orthophoto(args.ortho)
     if corners is None and origin is None:  # placed by the fit alone: a layout at the map's origin
         layout, placement = place_grid(
@@ -137,6 +169,7 @@ def run(args):
         from ..measure.canopy import plant_mask
         from ..measure.plot_fit import fit_grid
 
+        progress(0.3, "fitting the grid to the crop")
         plants = plant_mask(ortho.data, valid=ortho.valid)
         fit = fit_grid(
             plants,
@@ -158,15 +191,14 @@ def run(args):
         field_book=book,
         crs=ortho.crs,
     )
+    progress(0.9, "writing")
     check_plots_fit(plots, transform=ortho.transform, shape=ortho.shape, source=str(args.ortho))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_plots(plots, out, crs=ortho.crs)
-        if report is not None:
-            out.with_name(out.name + ".fit.json").write_text(json.dumps(report, indent=2) + "\n")
+        _write_together(out, lambda tmp: write_plots(plots, tmp, crs=ortho.crs), report)
     except OSError as exc:
         raise CliffTerrainError(f"cannot write {str(out)!r}: {exc}") from None
-    line = f"{args.ortho}: {len(plots)} plots ({columns} columns x {rows} rows) in EPSG:{ortho.crs}"
+    line = f"{args.ortho}: {len(plots)} plots ({columns} columns x {rows} rows) in {crs_text(ortho.crs)}"
     if report is not None:
         line += (
             f"; fitted: angle {report['angle_deg']:.2f} deg, pitch {report['column_pitch_m']:.3f} x "

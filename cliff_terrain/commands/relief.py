@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .._progress import add_progress_argument
 from ..figures.outputs import HEIGHT_MAP, MASK
 from ..params import ReliefParams
 
@@ -23,6 +24,7 @@ def configure(parser):
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     ReliefParams.add_arguments(parser)
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_progress_argument(parser)
 
 
 def run(args):
@@ -30,19 +32,23 @@ def run(args):
     import tifffile
     from PIL import Image
 
+    from .._progress import stage_bar
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..figures.outputs import write_height_map
     from ..measure.tables import REGION_COLUMNS, REGIONS_CSV, region_table, table_csv, write_files
+    from .out_folder import check_out_folder, finished_outputs
 
     outputs = (HEIGHT_MAP, MASK, LABELS, REGIONS_CSV, SUMMARY)
 
     out = args.out
-    if not args.overwrite:
-        existing = [name for name in outputs if (out / name).exists()]
+    check_out_folder(out)
+    if not args.overwrite:  # relief.json is written last: without it, outputs are an interrupted run's
+        existing = finished_outputs(out, outputs, marker=SUMMARY)
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
-    relief = build_relief(str(args.image), ReliefParams.from_args(args))
+    with stage_bar(f"relief {args.image.name}", enabled=not args.no_progress) as progress:
+        relief = build_relief(str(args.image), ReliefParams.from_args(args), progress=progress)
     metric = relief.units == "m"
     regions = region_table(
         relief.labels,

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from .. import settings
+from .._progress import add_progress_argument
 from .index_options import add_index_arguments
 
 HELP = "per-plot growth over a season of dated orthophotos (cover, heights, volume), on Dask"
@@ -93,7 +94,7 @@ def configure(parser):
         help="take each date's georeference as it is (by default each date's shift against the season's "
         "consensus is measured and corrected: season.json's shift_px and shift_m)",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_argument(parser)
     add_index_arguments(parser, band_files=False)
 
 
@@ -103,6 +104,7 @@ def run(args):
     from ..season.plan import plan_season
     from ..season.runner import run_season
     from ..season.security import scheduler_security
+    from .out_folder import check_out_folder
 
     security = None
     if args.scheduler:  # checked before any work
@@ -116,6 +118,7 @@ def run(args):
     elif args.tls_ca_file or args.tls_cert or args.tls_key:
         raise CliffTerrainError("--tls-ca-file, --tls-cert and --tls-key are for a tls:// --scheduler")
 
+    check_out_folder(args.out)
     jobs, plot_set = plan_season(
         args.inputs,
         plots=args.plots,

@@ -36,6 +36,7 @@ def run(args):
     from ..errors import CliffTerrainError
     from ..measure.tables import table_csv, write_files
     from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, season_traits
+    from .out_folder import check_out_folder, finished_outputs
 
     table = args.season / "season.csv"
     if not table.is_file():
@@ -49,8 +50,9 @@ def run(args):
         outputs.insert(1, "traits.geojson")
     else:
         outputs.remove("traits_map.png")
-    if not args.overwrite:
-        existing = [name for name in outputs if (out / name).exists()]
+    check_out_folder(out)
+    if not args.overwrite:  # the last file written marks a finished run
+        existing = finished_outputs(out, outputs, marker=outputs[-1])
         if existing:
             raise CliffTerrainError(f"{str(out / existing[0])!r} exists; pass --overwrite to replace it")
     with open(table, newline="", encoding="utf-8") as stream:

@@ -21,16 +21,19 @@ def _json_value(value):
 
 
 def table_geojson(rows, geometries, *, crs):
-    """GeoJSON text: one Feature per row, with its geometry (a GeoJSON geometry dict) and EPSG `crs`."""
+    """GeoJSON text: one Feature per row, with its geometry (a GeoJSON geometry dict) and EPSG `crs`.
+
+    A CRS without an EPSG code (a :class:`cliff_terrain.io.crs.UserCrs`, or its WKT as a record
+    holds it) is left out, as GDAL does: GeoJSON's ``crs`` member names CRSs by URN only.
+    """
     features = [
         {"type": "Feature", "properties": {k: _json_value(v) for k, v in row.items()}, "geometry": geometry}
         for row, geometry in zip(rows, geometries, strict=True)
     ]
-    doc = {
-        "type": "FeatureCollection",
-        "crs": {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs}"}},
-        "features": features,
-    }
+    doc = {"type": "FeatureCollection"}
+    if isinstance(crs, int | np.integer):
+        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs}"}}
+    doc["features"] = features
     return json.dumps(doc, allow_nan=False) + "\n"
 
 

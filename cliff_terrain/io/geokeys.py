@@ -2,9 +2,11 @@
 
 One parser of each, with one behaviour everywhere:
 
-* :func:`geo_keys` reads the GeoKeyDirectoryTag's inline (SHORT) keys; a truncated or malformed
+* :func:`geo_keys` reads the GeoKeyDirectoryTag's keys (inline SHORT values, and with the
+  GeoDoubleParams and GeoAsciiParams tags the values stored there); a truncated or malformed
   directory gives the keys read before the damage (so a CRS it cannot tell is refused below as
-  unknown, not guessed).
+  unknown, not guessed). A user-defined projected CRS in metres (no EPSG code) is read by
+  :mod:`.crs`.
 * Map units come from :data:`LINEAR_UNITS` (EPSG unit codes, with the international foot and the US
   survey foot told apart). A surface model or orthophoto whose map or height units are not metres is
   refused by :func:`georeference` (heights, areas and volumes are computed in metres, and a DSM's
@@ -46,13 +48,17 @@ LINEAR_UNITS = {
 }
 
 
-def geo_keys(directory):
-    """GeoKey id -> value for the keys stored inline (SHORT values) in a GeoKeyDirectoryTag value.
+def geo_keys(directory, doubles=None, ascii=None):
+    """GeoKey id -> value of a GeoKeyDirectoryTag value: the keys stored inline (SHORT values), and
+    with `doubles` (GeoDoubleParamsTag) and `ascii` (GeoAsciiParamsTag) those stored there (a float,
+    or the text without its ``|`` terminator), which a user-defined CRS needs.
 
     Examples
     --------
     >>> geo_keys((1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32616))
     {1024: 1, 3072: 32616}
+    >>> geo_keys((1, 1, 0, 2, 3088, 34736, 1, 0, 1026, 34737, 8, 0), doubles=(-96.9,), ascii="unknown|")
+    {3088: -96.9, 1026: 'unknown'}
     """
     keys = {}
     if directory is None:
@@ -63,13 +69,28 @@ def geo_keys(directory):
         return keys
     if len(values) < 4:
         return keys
+    if isinstance(ascii, bytes):
+        ascii = ascii.decode("latin-1")
     for k in range(values[3]):
         entry = values[4 + 4 * k : 8 + 4 * k]
         if len(entry) < 4:
             break
-        if entry[1] == 0:
-            keys[entry[0]] = entry[3]
+        key, location, count, offset = entry
+        if location == 0:
+            keys[key] = offset
+        elif location == GEO_DOUBLE_PARAMS and doubles is not None and count >= 1:
+            try:
+                keys[key] = float(doubles[offset]) if count == 1 else tuple(doubles[offset : offset + count])
+            except (IndexError, TypeError, ValueError):
+                continue
+        elif location == GEO_ASCII_PARAMS and isinstance(ascii, str) and count >= 1:
+            keys[key] = ascii[offset : offset + count].rstrip("|\x00")
     return keys
+
+
+def tag_geo_keys(tags):
+    """:func:`geo_keys` of a mapping tag code -> value, every stored key resolved."""
+    return geo_keys(tags.get(GEO_KEY_DIRECTORY), tags.get(GEO_DOUBLE_PARAMS), tags.get(GEO_ASCII_PARAMS))
 
 
 def unit_metres(code):
@@ -79,8 +100,12 @@ def unit_metres(code):
 
 
 def georeference(tags, name):
-    """(3x3 transform, EPSG code) from the GeoTIFF tags (tag code -> value), refusing what is not a metric map."""
-    keys = geo_keys(tags.get(GEO_KEY_DIRECTORY))
+    """(3x3 transform, CRS) from the GeoTIFF tags (tag code -> value), refusing what is not a metric map.
+
+    The CRS is the EPSG code of ProjectedCSTypeGeoKey, or for a user-defined projected CRS in metres
+    (code 32767, or none) a :class:`cliff_terrain.io.crs.UserCrs` from its keys and citation.
+    """
+    keys = tag_geo_keys(tags)
     if MODEL_TIEPOINT in tags and MODEL_PIXEL_SCALE in tags:
         tie = [float(v) for v in tags[MODEL_TIEPOINT]]
         sx, sy = (float(v) for v in tags[MODEL_PIXEL_SCALE][:2])
@@ -124,9 +149,19 @@ def georeference(tags, name):
         )
     code = keys.get(PROJECTED_CS_TYPE)
     if code is None or code == USER_DEFINED:
-        raise RasterReadError(
-            f"raster {name!r} has an unknown CRS (no EPSG code in its GeoKeys); save it with an EPSG CRS"
+        from .crs import geokeys_crs
+
+        crs = (
+            geokeys_crs(keys, name=name)
+            if keys.get(GT_MODEL_TYPE, MODEL_PROJECTED) == MODEL_PROJECTED
+            else None
         )
+        if crs is None:
+            raise RasterReadError(
+                f"raster {name!r} has an unknown CRS (no EPSG code in its GeoKeys, and no projection "
+                "method, parameters and ellipsoid that define one); save it with an EPSG CRS"
+            )
+        return transform, crs
     return transform, code
 
 

@@ -22,8 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import GeoreferenceError, RasterReadError
+from .crs import UserCrs, crs_text, user_geokeys
 from .geokeys import (
     GDAL_NODATA,
+    GEO_ASCII_PARAMS,
+    GEO_DOUBLE_PARAMS,
     GEO_KEY_DIRECTORY,
     METRE,
     MODEL_PIXEL_SCALE,
@@ -49,8 +52,8 @@ class GeoRaster:
         Surface models: heights in metres, NaN where there is no data. Photos: RGB.
     transform : (3, 3) float64 array
         Pixel (col, row) -> map (x, y), (0, 0) being the top-left pixel's top-left corner.
-    crs : int
-        EPSG code of a projected CRS in metres.
+    crs : int or UserCrs
+        EPSG code of a projected CRS in metres, or a user-defined one (:mod:`.crs`).
     nodata : float or None
         The file's no-data value.
     path : str
@@ -61,7 +64,7 @@ class GeoRaster:
 
     data: np.ndarray
     transform: np.ndarray
-    crs: int
+    crs: int | UserCrs
     nodata: float | None
     path: str
     valid: np.ndarray | None = None
@@ -245,7 +248,7 @@ def check_same_crs(a, b):
     """Refuse two rasters in different CRSs, naming both."""
     if a.crs != b.crs:
         raise GeoreferenceError(
-            f"{a.path!r} is in EPSG:{a.crs} but {b.path!r} is in EPSG:{b.crs}; reproject one"
+            f"{a.path!r} is in {crs_text(a.crs)} but {b.path!r} is in {crs_text(b.crs)}; reproject one"
         )
 
 
@@ -269,8 +272,8 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
         Pixel (col, row) -> map (x, y) of the target grid.
     shape : (int, int)
         (rows, cols) of the target grid.
-    crs : int, optional
-        EPSG code of the target grid; must be the raster's.
+    crs : int or UserCrs, optional
+        CRS of the target grid; must be the raster's (a user-defined one: agree with it).
     target : str, optional
         Name of the target grid (a file) for error messages.
 
@@ -296,7 +299,7 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
     rows, cols = (int(n) for n in shape)
     if crs is not None and crs != raster.crs:
         raise GeoreferenceError(
-            f"{raster.path!r} is in EPSG:{raster.crs} but {target} is in EPSG:{crs}; reproject one"
+            f"{raster.path!r} is in {crs_text(raster.crs)} but {target} is in {crs_text(crs)}; reproject one"
         )
     if overlap_fraction(t, (rows, cols), raster.transform, raster.shape) <= 0.0:
         raise GeoreferenceError(f"{raster.path!r} does not overlap {target}")
@@ -340,13 +343,20 @@ def _block_mean(data, factor):
         return (sums / counts).astype(np.float32)
 
 
-def write_geotiff(path, data, *, transform, crs, nodata=None):
+def write_geotiff(path, data, *, transform, crs, nodata=None, overviews=False):
     """Write a float32 (or other) single-band GeoTIFF with a georeference, atomically.
 
     The file is written beside `path` under a temporary name and renamed, so a failure never
     leaves a half-written raster. NaN stays NaN; `nodata` (e.g. ``float('nan')``) is recorded as
     GDAL_NODATA. The transform must be north-up (no rotation) for the scale/tie-point tags; a
     rotated one is written as a ModelTransformation.
+
+    With `overviews`, the layout a GIS opens quickly (GDAL's COG driver's, as far as tifffile
+    writes it): 512 x 512 tiles, Deflate with the floating-point (or horizontal) predictor, and
+    reduced-resolution images (NewSubfileType 1, which GDAL and QGIS use as overviews) halving the
+    size until one tile holds it, each the mean of the valid pixels below it. Unlike a strict COG,
+    each image's directory sits before its own tiles, not all at the file's head: fast from a disk,
+    ``gdal_translate -of COG`` rewrites it for reading over HTTP.
     """
     import tifffile
 
@@ -360,16 +370,43 @@ def write_geotiff(path, data, *, transform, crs, nodata=None):
     else:
         matrix = (t[0, 0], t[0, 1], 0.0, t[0, 2], t[1, 0], t[1, 1], 0.0, t[1, 2], 0, 0, 0, 0, 0, 0, 0, 1)
         geo = [(MODEL_TRANSFORMATION, 12, 16, tuple(float(v) for v in matrix), True)]
-    keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
+    if isinstance(crs, UserCrs):
+        keys, doubles, text = user_geokeys(crs)
+        geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
+    else:
+        keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
     extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
     if nodata is not None:
         extratags.append((GDAL_NODATA, 2, 0, ("nan" if math.isnan(nodata) else repr(float(nodata))), True))
     path = os.fspath(path)
     tmp = f"{path}.part-{os.getpid()}"
     try:
-        tifffile.imwrite(tmp, data, extratags=extratags, compression="zlib" if data.size > 4096 else None)
+        if overviews:
+            _write_tiled_with_overviews(tmp, data, extratags)
+        else:
+            tifffile.imwrite(tmp, data, extratags=extratags, compression="zlib" if data.size > 4096 else None)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
+
+
+# GDAL's COG driver's default block size.
+COG_TILE = 512
+
+
+def _write_tiled_with_overviews(path, data, extratags):
+    import tifffile
+
+    options = dict(tile=(COG_TILE, COG_TILE), compression="zlib", predictor=True, photometric="minisblack")
+    with tifffile.TiffWriter(path, bigtiff=data.nbytes > 2**31) as tif:
+        tif.write(data, extratags=extratags, **options)
+        level = data
+        while max(level.shape[:2]) > COG_TILE:
+            level = (
+                _block_mean(level.astype(np.float32), 2).astype(data.dtype)
+                if data.dtype.kind == "f"
+                else level[::2, ::2]
+            )
+            tif.write(level, subfiletype=1, **options)

@@ -22,7 +22,12 @@ def read_field_book(path):
     try:
         with open(path, newline="", encoding="utf-8-sig") as stream:
             rows = list(csv.DictReader(stream))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+    except UnicodeDecodeError as exc:
+        raise PlotFileError(
+            f"the field book {str(path)!r} is not a text CSV (byte {exc.object[exc.start]:#04x} at "
+            f"{exc.start} is not UTF-8); save it as CSV UTF-8"
+        ) from None
+    except (OSError, csv.Error) as exc:
         raise PlotFileError(f"cannot read the field book {str(path)!r}: {exc}") from None
     if not rows:
         raise PlotFileError(f"the field book {str(path)!r} has no rows")
@@ -176,16 +181,11 @@ def _ccw(ring):
 
 
 def epsg_wkt(crs):
-    """ESRI WKT of an EPSG code for a .prj: WGS 84 / UTM zones in full, other codes by authority only."""
+    """ESRI WKT of a CRS for a .prj: WGS 84 / UTM zones in full, other codes by authority only, a
+    user-defined CRS (:class:`cliff_terrain.io.crs.UserCrs`) as it was read."""
+    from .crs import UserCrs, utm_wkt
+
+    if isinstance(crs, UserCrs):
+        return crs.wkt
     crs = int(crs)
-    if 32601 <= crs <= 32660 or 32701 <= crs <= 32760:
-        zone, north = crs % 100, crs < 32700
-        return (
-            f'PROJCS["WGS_1984_UTM_Zone_{zone}{"N" if north else "S"}",GEOGCS["GCS_WGS_1984",'
-            'DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,298.257223563]],PRIMEM["Greenwich",0.0],'
-            'UNIT["Degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
-            f'PARAMETER["False_Easting",500000.0],PARAMETER["False_Northing",{0.0 if north else 10000000.0}],'
-            f'PARAMETER["Central_Meridian",{-183 + 6 * zone}.0],PARAMETER["Scale_Factor",0.9996],'
-            'PARAMETER["Latitude_Of_Origin",0.0],UNIT["Meter",1.0]]'
-        )
-    return f'PROJCS["EPSG:{crs}",AUTHORITY["EPSG","{crs}"]]'
+    return utm_wkt(crs) or f'PROJCS["EPSG:{crs}",AUTHORITY["EPSG","{crs}"]]'

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CliffTerrainError, PlotFileError
+from .crs import UserCrs, wkt_crs
 
 
 @dataclass
@@ -30,8 +31,9 @@ class PlotSet:
         One dict per plot: its own attributes (GeoJSON properties, Shapefile records).
     fields : tuple of str
         The attribute names, in file order (the union over all features for GeoJSON).
-    crs : int or None
-        The EPSG code the file declares, None when it declares none.
+    crs : int, UserCrs or None
+        The EPSG code the file declares, a user-defined projected CRS in metres its .prj declares
+        (:class:`cliff_terrain.io.crs.UserCrs`), None when it declares none.
     path : str
         The file read.
     """
@@ -39,7 +41,7 @@ class PlotSet:
     polygons: list
     attributes: list
     fields: tuple
-    crs: int | None
+    crs: int | UserCrs | None
     path: str
 
     def __len__(self):
@@ -81,6 +83,8 @@ def read_plots(path):
     name = str(path)
     if not path.is_file():
         raise PlotFileError(f"plot file {name!r} does not exist")
+    if path.stat().st_size == 0:
+        raise PlotFileError(f"plot file {name!r} is empty (0 bytes)")
     suffix = path.suffix.lower()
     if suffix == ".shp":
         plots = _read_shapefile(path, name)
@@ -181,6 +185,16 @@ def _read_shapefile(path, name):
         import shapefile
     except ImportError:
         raise PlotFileError(f"cannot read {name!r}: reading Shapefiles needs the pyshp package") from None
+    missing = [
+        path.with_suffix(s).name
+        for s in (".shx", ".dbf")
+        if not (path.with_suffix(s).is_file() or path.with_suffix(s.upper()).is_file())
+    ]
+    if missing:
+        raise PlotFileError(
+            f"Shapefile {name!r} lacks {' and '.join(missing)} beside it (a Shapefile is its .shp, .shx "
+            "and .dbf together); copy all its files"
+        )
     try:
         with shapefile.Reader(str(path)) as reader:
             fields = tuple(field[0] for field in reader.fields[1:])
@@ -227,7 +241,8 @@ def _prj_crs(prj, name):
 
 
 def wkt_epsg(wkt, *, source):
-    """EPSG code of a WKT1 CRS: its outermost AUTHORITY, else a WGS 84 UTM or geographic name.
+    """EPSG code of a WKT1 CRS: its outermost AUTHORITY, else a WGS 84 UTM or geographic name; a
+    projected CRS in metres without either is a :class:`cliff_terrain.io.crs.UserCrs`.
 
     Examples
     --------
@@ -242,6 +257,8 @@ def wkt_epsg(wkt, *, source):
         return (32600 if utm.group(2).upper() == "N" else 32700) + int(utm.group(1))
     if wkt.startswith("GEOGCS[") and re.search(r"WGS_?\s?(19)?84", wkt):
         return 4326
+    if wkt.startswith(("PROJCS[", "GEOGCS[")):
+        return wkt_crs(wkt, source=source, error=PlotFileError)
     raise PlotFileError(
         f"{source!r}: its CRS is not one Cliff Terrain recognises (no EPSG code): {wkt[:60]!r}"
     )

@@ -85,14 +85,41 @@ class TiffRaster:
         if not os.path.isfile(name):
             raise error(f"{what} {name!r} does not exist")
         try:
-            with quiet_tifffile():
+            with quiet_tifffile(), _header_problems() as problems:
                 self._tif = tifffile.TiffFile(name)
                 page = self._tif.pages[0]
                 self.tags = {tag.code: tag.value for tag in page.tags.values() if tag.code in GEO_TAGS}
+                end = _data_end(page)
         except Exception as exc:  # tifffile raises TiffFileError, OSError, and others on corrupt headers
             if hasattr(self, "_tif"):
                 self._tif.close()
-            raise error(f"cannot read {name!r} as a TIFF: {first_line(exc)}") from None
+            size = os.path.getsize(name)
+            kind = _other_format(name)
+            if size == 0:
+                raise error(f"{what} {name!r} is empty (0 bytes); copy or export it again") from None
+            if kind is not None:
+                raise error(
+                    f"{what} {name!r} is {kind}, not a TIFF; give the GeoTIFF the survey exported"
+                ) from None
+            if isinstance(exc, tifffile.TiffFileError | EOFError | OSError) and _looks_cut(name, size):
+                raise error(
+                    f"{what} {name!r} is truncated: its TIFF header ends early ({size} bytes); copy or export it again"
+                ) from None
+            raise error(
+                f"{what} {name!r} is corrupt: tifffile cannot read it as a TIFF ({first_line(exc)})"
+            ) from None
+        size = os.path.getsize(name)
+        # A file cut short (a copy or download interrupted) is told as such, before any pixel is
+        # decoded: its header points past its end (tifffile logs and skips such tags), or its strips
+        # or tiles end beyond it. Otherwise tifffile would report a missing georeference or a strip
+        # that "cannot be reshaped".
+        if end > size or any("invalid value offset" in p or "missing data offset" in p for p in problems):
+            self._tif.close()
+            needs = f", its image data needs {end}" if end > size else ""
+            raise error(
+                f"{what} {name!r} is truncated: the file has {size} bytes{needs} (its header points past "
+                "its end); copy or export it again"
+            )
         self.page = page
         self.shape = (int(page.imagelength), int(page.imagewidth))
         self.samples = int(page.samplesperpixel)
@@ -162,17 +189,79 @@ class TiffRaster:
             with quiet_tifffile():
                 yield
         except (tifffile.TiffFileError, OSError, EOFError) as exc:
-            raise RasterReadError(f"cannot read {name!r} as a TIFF: {first_line(exc)}") from None
+            raise RasterReadError(
+                f"cannot read {name!r} as a TIFF: the file is corrupt ({first_line(exc)})"
+            ) from None
         except ValueError as exc:
             if "imagecodecs" in str(exc):
                 raise DependencyError(
                     f"cannot decode {name!r}: its compression needs the imagecodecs package ({first_line(exc)})"
                 ) from None
-            raise RasterReadError(f"cannot decode {name!r}: {first_line(exc)}") from None
+            raise RasterReadError(
+                f"cannot decode {name!r}: the file is corrupt ({first_line(exc)})"
+            ) from None
         except Exception as exc:  # decoders raise their own errors on corrupt data
             raise RasterReadError(
-                f"cannot decode {name!r}: {type(exc).__name__}: {first_line(exc)}"
+                f"cannot decode {name!r}: the file is corrupt ({type(exc).__name__}: {first_line(exc)})"
             ) from None
+
+
+class _Problems(logging.Handler):
+    """Collects what tifffile logs about this thread's file while its header is parsed."""
+
+    def __init__(self):
+        super().__init__(level=logging.DEBUG)
+        self.thread = threading.get_ident()
+        self.messages = []
+
+    def emit(self, record):
+        if record.thread == self.thread:
+            self.messages.append(record.getMessage())
+
+
+@contextmanager
+def _header_problems():
+    logger = logging.getLogger("tifffile")
+    handler = _Problems()
+    logger.addHandler(handler)  # also keeps them off stderr (logging's last-resort handler)
+    try:
+        yield handler.messages
+    finally:
+        logger.removeHandler(handler)
+
+
+def _data_end(page):
+    """The byte just past the page's last strip or tile (0 when it has none)."""
+    try:
+        return max(
+            (int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts, strict=False)), default=0
+        )
+    except (TypeError, ValueError):
+        return 0
+
+
+def _looks_cut(name, size):
+    """A TIFF whose header tifffile cannot parse, and that starts like a TIFF: cut, not another format."""
+    with open(name, "rb") as stream:
+        head = stream.read(4)
+    return size > 0 and head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+
+
+_SIGNATURES = {
+    b"\xff\xd8\xff": "a JPEG image",
+    b"\x89PNG": "a PNG image",
+    b"RIFF": "a RIFF file (WebP?)",
+    b"BM": "a BMP image",
+    b"%PDF": "a PDF document",
+    b"PK\x03\x04": "a ZIP archive",
+}
+
+
+def _other_format(name):
+    """What a file that is not a TIFF is, from its first bytes (None: not one of these)."""
+    with open(name, "rb") as stream:
+        head = stream.read(8)
+    return next((kind for magic, kind in _SIGNATURES.items() if head.startswith(magic)), None)
 
 
 def first_line(exc):

@@ -12,6 +12,7 @@ import numpy as np
 
 from .._validate import check_float
 from ..errors import GeoreferenceError
+from ..io.crs import crs_record, crs_text
 from ..io.geotiff import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
 from .ground import DEFAULT_BLOCK_M, canopy_height, fit_ground
 
@@ -24,8 +25,8 @@ class Canopy:
     ----------
     transform : (3, 3) float64
         Pixel (col, row) -> map (x, y) of the grid.
-    crs : int
-        EPSG code.
+    crs : int or UserCrs
+        EPSG code, or a user-defined CRS (:mod:`cliff_terrain.io.crs`).
     dsm, ground, chm : (rows, cols) float32
     ground_source : {"dtm", "estimated"}
     pixel_size : float
@@ -42,7 +43,7 @@ class Canopy:
     """
 
     transform: np.ndarray
-    crs: int
+    crs: object
     dsm: np.ndarray
     ground: np.ndarray
     chm: np.ndarray
@@ -165,7 +166,7 @@ def measure_canopy(
     transform = np.asarray(transform, dtype=np.float64)
     if crs != dsm.crs:
         raise GeoreferenceError(
-            f"{dsm.path!r} is in EPSG:{dsm.crs} but {grid_name} is in EPSG:{crs}; reproject one"
+            f"{dsm.path!r} is in {crs_text(dsm.crs)} but {grid_name} is in {crs_text(crs)}; reproject one"
         )
     surface = resample(dsm, transform=transform, shape=shape, crs=crs, target=repr(grid_name))
     if not np.isfinite(surface).any():
@@ -193,7 +194,7 @@ def measure_canopy(
     chm = canopy_height(surface, ground)
     if valid is not None:  # where the photo has no data, nothing tells plant from soil
         chm[~np.asarray(valid, dtype=bool)] = np.nan
-    return Canopy(transform, int(crs), surface, ground, chm, source, pixel_size, support, sigma, check)
+    return Canopy(transform, crs, surface, ground, chm, source, pixel_size, support, sigma, check)
 
 
 def plant_mask(rgb, *, valid=None):
@@ -326,7 +327,7 @@ def relief_heights(
         heights = stages.heights_px.astype(np.float32) * np.float32(pixel_size)
     x0, y0 = canopy.origin
     georeference = {
-        "crs": int(crs),
+        "crs": crs_record(crs),
         "origin": [x0, y0],
         "transform": [float(v) for v in transform[:2].ravel()],
         "pixel_size_m": pixel_size,

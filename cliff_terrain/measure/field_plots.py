@@ -14,6 +14,7 @@ import numpy as np
 
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError, GeoreferenceError
+from ..io.crs import crs_text
 from ..io.plot_polygons import polygon_area
 from ..io.transform import affine_inverse, apply_affine, as_affine
 from .index_figures import index_columns, index_figures
@@ -25,22 +26,25 @@ HEIGHT_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
 def check_plot_crs(plots, crs, *, raster):
-    """Refuse plots that do not use the raster's CRS (EPSG code `crs`, read from file `raster`).
+    """Refuse plots that do not use the raster's CRS (`crs`, read from file `raster`): another EPSG
+    code, or a user-defined CRS that does not agree (:class:`cliff_terrain.io.crs.UserCrs`).
 
     Plots that declare no CRS are taken to be in the raster's, unless their coordinates all look
     like longitude/latitude while the raster's are projected (GeoJSON without a ``crs`` is WGS 84).
     """
     if plots.crs is not None and crs is not None and plots.crs != crs:
         raise GeoreferenceError(
-            f"plot file {plots.path!r} is in EPSG:{plots.crs} but raster {raster!r} is in EPSG:{crs}; "
+            f"plot file {plots.path!r} is in {crs_text(plots.crs)} but raster {raster!r} is in {crs_text(crs)}; "
             "reproject the plots to the raster's CRS"
         )
-    if plots.crs is None and crs is not None and crs != 4326:
+    # Only against an EPSG CRS: a user-defined one centred on its field (an R export's AEQD) has map
+    # coordinates of a few metres, which look like degrees, and its plots' GeoJSON carries no CRS.
+    if plots.crs is None and isinstance(crs, int) and crs != 4326:
         points = np.concatenate([ring for rings in plots.polygons for ring in rings])
         if np.all(np.abs(points[:, 0]) <= 180) and np.all(np.abs(points[:, 1]) <= 90):
             raise GeoreferenceError(
                 f"plot file {plots.path!r} declares no CRS and looks like longitude/latitude, but raster "
-                f"{raster!r} is in EPSG:{crs}; save the plots in EPSG:{crs}"
+                f"{raster!r} is in {crs_text(crs)}; save the plots in the raster's CRS"
             )
 
 

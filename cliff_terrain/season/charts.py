@@ -79,7 +79,7 @@ def growth_chart(rows, path, *, color_by=None, title=None):
     if axes[0].get_legend_handles_labels()[0]:
         axes[0].legend(fontsize=8, loc="best", title=color_by if len(groups) > 1 else None)
     fig.suptitle(title or f"{len(plots)} plots, {len(dates)} dates")
-    fig.savefig(path)
+    fig.savefig(path, format="png")  # the path may be a temporary name without .png
     plt.close(fig)
 
 

@@ -33,8 +33,8 @@ class SeasonDate:
     transform : (2, 3) float64 array
         Pixel (col, row) -> map (x, y) of the grid, (0, 0) being the top-left pixel's top-left
         corner (as in :mod:`cliff_terrain.io.transform`).
-    crs : int or None
-        EPSG code.
+    crs : int, str or None
+        EPSG code, or the WKT of a user-defined CRS (:func:`cliff_terrain.io.crs.crs_record`).
     units, height_mode : str
     """
 
@@ -43,7 +43,7 @@ class SeasonDate:
     heights: np.ndarray
     mask: np.ndarray
     transform: np.ndarray
-    crs: int | None
+    crs: int | str | None
     units: str
     height_mode: str
 
@@ -56,7 +56,7 @@ class SeasonOutputs:
     dates: list
     failed: list  # (date, image, error)
     plots: str | None
-    crs: int | None
+    crs: int | str | None
 
 
 def read_season(folder):

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
+from .._progress import count_bar
 from .._validate import check_float, check_int
 from ..errors import CliffTerrainError
+from ..io.crs import crs_record
+from ..measure.tables import write_files
 from .cache import file_hash
 from .cluster import choose_runner, run_on_dask
 from .table import chart_rows, date_record, plot_rows, season_columns, write_csv
@@ -82,7 +85,7 @@ def run_season(
     memory_limit : str or int, optional
         Per local worker (Dask's syntax, e.g. ``"2GiB"``; ``"auto"`` shares the machine's memory).
     progress : bool, optional
-        Draw a progress bar on stderr.
+        Draw a progress bar (tqdm's, with its ETA) on stderr when it is a terminal.
     chart : bool, optional
         Draw ``growth.png`` (needs matplotlib).
     color_by : str, optional
@@ -135,7 +138,8 @@ def run_season(
                 aligning = None
             else:
                 pool.shutdown(wait=False)
-    bar = _Bar(len(jobs), enabled=progress)
+    stack = ExitStack()
+    step = stack.enter_context(count_bar("season", len(jobs), enabled=progress))
     results = {}
     peaks = {}
 
@@ -143,27 +147,27 @@ def run_season(
         if result.get("ok") and not result.get("cached"):
             peaks[result["worker"]] = max(peaks.get(result["worker"], 0), result["peak_rss"] or 0)
         results[index] = result
-        bar.step(Path(jobs[index].path).name, ok=result.get("ok", False))
+        step(Path(jobs[index].path).name, ok=result.get("ok", False))
 
-    if in_process:
-        for index, job in enumerate(jobs):
-            finished(index, process_image(job.as_dict()))
-    elif jobs:
-        try:
-            run_on_dask(
-                jobs,
-                finished,
-                workers=workers,
-                scheduler=scheduler,
-                security=security,
-                timeout=timeout,
-                memory_limit=memory_limit,
-                client=client,
-            )
-        finally:
-            if aligning is not None:
-                _set_shifts(jobs, aligning.result())
-    bar.close()
+    with stack:  # the bar closes however the jobs end (an error, Ctrl-C)
+        if in_process:
+            for index, job in enumerate(jobs):
+                finished(index, process_image(job.as_dict()))
+        elif jobs:
+            try:
+                run_on_dask(
+                    jobs,
+                    finished,
+                    workers=workers,
+                    scheduler=scheduler,
+                    security=security,
+                    timeout=timeout,
+                    memory_limit=memory_limit,
+                    client=client,
+                )
+            finally:
+                if aligning is not None:
+                    _set_shifts(jobs, aligning.result())
 
     rows, failures, dates = [], [], []
     for index, job in enumerate(jobs):
@@ -180,17 +184,19 @@ def run_season(
     manifest = {
         "version": __version__,
         "plots": jobs[0].plots if jobs else None,
-        "crs": plot_set.crs,
+        "crs": crs_record(plot_set.crs),
         "params": jobs[0].params if jobs else {},
         "color_by": color_by,
         "runner": {"runner": runner, "reason": reason},
         "dates": dates,
     }
-    (out / "season.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    # Written whole or not at all (temporary names, then renamed): a kill leaves no half file.
+    files = {out / "season.json": json.dumps(manifest, indent=2) + "\n"}
     if chart:
         from .charts import growth_chart
 
-        growth_chart(chart_rows(rows), out / "growth.png", color_by=color_by)
+        files[out / "growth.png"] = lambda tmp: growth_chart(chart_rows(rows), tmp, color_by=color_by)
+    write_files(files)
     cached = sum(1 for r in results.values() if r.get("cached"))
     return Season(
         rows=rows,
@@ -229,42 +235,3 @@ def _flag_shifts(dates, plot_set):
                 f"shifted {record['shift_m']:.3f} m from the reference date, more than a quarter of the "
                 f"smallest plot width ({limit:.3f} m)"
             )
-
-
-class _Bar:
-    """A one-line progress bar on stderr: ``season [#####-----] 3/7 20180829.tif``."""
-
-    WIDTH = 30
-
-    def __init__(self, total, *, enabled):
-        self.total, self.done, self.failed = total, 0, 0
-        self.enabled = enabled and total > 0
-        self.tty = sys.stderr.isatty()
-        self.started = time.perf_counter()
-        if self.enabled:
-            self._draw("")
-
-    def step(self, name, *, ok):
-        self.done += 1
-        self.failed += not ok
-        if self.enabled:
-            self._draw(name)
-
-    def _draw(self, name):
-        filled = self.WIDTH * self.done // max(self.total, 1)
-        bar = "#" * filled + "-" * (self.WIDTH - filled)
-        failed = f", {self.failed} failed" if self.failed else ""
-        line = (
-            f"season [{bar}] {self.done}/{self.total} images{failed} "
-            f"{time.perf_counter() - self.started:5.1f} s {name}"
-        )
-        if self.tty:
-            sys.stderr.write("\r" + line[:120].ljust(120))
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
-
-    def close(self):
-        if self.enabled and self.tty:
-            sys.stderr.write("\n")
-            sys.stderr.flush()

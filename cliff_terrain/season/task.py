@@ -12,6 +12,7 @@ import platform
 import time
 
 from .._memory import peak_rss
+from ..io.crs import crs_record
 from ..params import ReliefParams
 from .cache import Cache, cache_key, file_hash
 
@@ -109,7 +110,7 @@ def _process(job):
         "table": [_plain(row) for row in table],
         "height_mode": params["heights"],
         "height_units": relief.units,
-        "grid": {"transform": transform[:2].tolist(), "shape": list(shape), "crs": crs},
+        "grid": {"transform": transform[:2].tolist(), "shape": list(shape), "crs": crs_record(crs)},
         "arrays": {
             "heights": np.ascontiguousarray(relief.heights, dtype=np.float32),
             "mask": np.packbits(relief.mask, axis=None),

@@ -1,0 +1,84 @@
+"""Progress bars of the commands (heights, relief, plots, season): tqdm's, on stderr, only on a terminal.
+
+tqdm (the ``progress`` extra; command line only, never imported by the extension) draws the bar
+with its ETA. Without a terminal (a pipe, a log file, a test) or with ``--no-progress`` there is no
+bar, so stderr holds only the one-line error; without tqdm installed there is no bar either. The bar
+is removed when the command ends (``leave=False``): the terminal keeps the summary line only.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from contextlib import contextmanager
+
+
+def add_progress_argument(parser):
+    parser.add_argument(
+        "--no-progress", action="store_true", help="no progress bar (drawn only on a terminal)"
+    )
+
+
+def _tqdm(enabled):
+    if not enabled or not sys.stderr.isatty():
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # the optional extra is not installed: no bar
+        return None
+    return tqdm
+
+
+def _columns():
+    # A terminal that reports no size (a fresh pseudo-terminal) would get an empty bar from tqdm.
+    return shutil.get_terminal_size(fallback=(80, 24)).columns
+
+
+@contextmanager
+def stage_bar(label, *, enabled=True):
+    """A bar over one job's stages: yields ``progress(fraction, stage)`` (as
+    :func:`cliff_terrain.build.build_relief` calls it), or None when there is no bar."""
+    tqdm = _tqdm(enabled)
+    if tqdm is None:
+        yield None
+        return
+    bar = tqdm(
+        total=100,
+        desc=label,
+        file=sys.stderr,
+        leave=False,
+        ncols=_columns(),
+        bar_format="{desc} {percentage:3.0f}%|{bar}| {elapsed}<{remaining}{postfix}",
+    )
+
+    def progress(fraction, stage):
+        bar.n = min(100, round(100 * fraction))
+        bar.set_postfix_str(stage, refresh=False)
+        bar.refresh()
+
+    try:
+        yield progress
+    finally:
+        bar.close()
+
+
+@contextmanager
+def count_bar(label, total, *, enabled=True, unit="images"):
+    """A bar over `total` items: yields ``step(name, ok)``, which does nothing without a bar."""
+    tqdm = _tqdm(enabled and total > 0)
+    if tqdm is None:
+        yield lambda name, ok=True: None
+        return
+    bar = tqdm(total=total, desc=label, unit=f" {unit}", file=sys.stderr, leave=False, ncols=_columns())
+    failed = 0
+
+    def step(name, ok=True):
+        nonlocal failed
+        failed += not ok
+        bar.set_postfix_str(f"{name}{f', {failed} failed' if failed else ''}", refresh=False)
+        bar.update(1)
+
+    try:
+        yield step
+    finally:
+        bar.close()

@@ -1,0 +1,81 @@
+"""How much memory ``cliff-terrain heights`` will take, worked out before the work, so the OS
+never kills it: a run that would pass the cap is refused in one line naming the file and the
+``--max-size`` / ``--resolution`` that would fit.
+
+The estimate is linear in the pixels, with coefficients measured (``bench/bench_heights_memory.py``,
+the shared OpenDroneMap pair tiled 4 x 4 and 7 x 7, peak RSS by ``/usr/bin/time -v``) and rounded up:
+
+=============================  =========  ===========  ==========  ==========
+orthophoto (MP) / grid (MP)    4.7 / 4.7  14.4 / 14.4  14.4 / 3.9  14.4 / 1.0
+measured peak (GiB)            1.80       5.25         1.59        0.76
+estimate (GiB)                 2.26       6.40         2.40        1.29
+=============================  =========  ===========  ==========  ==========
+
+(issue 40 measured 25.7 MP: 9.66 GB; the estimate says 10.8 GiB). Reading costs about 0.03 GiB per
+megapixel of each file (the orthophoto, DSM and DTM are decoded whole); the measuring grid about
+0.38 GiB per megapixel (the relief's stages, the ground, the CHM and the tables). These are the
+current code's figures: re-measure them with the bench when the ground estimator or the readers
+change.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import CliffTerrainError
+
+#: The default cap (GiB): what a 8 GB laptop can give one command. ``--max-memory`` changes it.
+DEFAULT_CAP_GIB = 4.0
+BASE_GIB = 0.25  # the interpreter, NumPy, OpenCV and the readers' libraries
+READ_GIB_PER_MP = 0.03  # decoding a file, per megapixel of the file
+GRID_GIB_PER_MP = 0.38  # measuring, per megapixel of the grid
+
+
+def heights_estimate(files_mp, grid_mp):
+    """Peak memory (GiB) of a heights run reading files of `files_mp` megapixels on a grid of `grid_mp`."""
+    return BASE_GIB + READ_GIB_PER_MP * sum(files_mp) + GRID_GIB_PER_MP * grid_mp
+
+
+def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
+    """Refuse a heights run whose estimate passes `cap_gib`, naming the orthophoto and what fits.
+
+    `longest` is the measuring grid's longest side (pixels), as
+    :func:`cliff_terrain.commands.heights.grid_size` chose it; `others` are the DSM (and DTM).
+    Returns the estimate in GiB.
+    """
+    from .._validate import check_float
+    from ..io.geotiff import raster_size, read_georeference
+    from ..io.photo import MAX_PIXELS
+
+    cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
+    rows, cols = raster_size(ortho)
+    if rows * cols > MAX_PIXELS:  # the photo reader's own guard, whatever the grid
+        raise CliffTerrainError(
+            f"orthophoto {str(ortho)!r} is {cols} x {rows} pixels ({rows * cols / 1e6:.0f} MP), more than the "
+            f"{MAX_PIXELS / 1e6:.0f} MP an orthophoto is read whole up to, even with --max-size or --resolution; "
+            "crop or split it and its DSM into parts"
+        )
+    files_mp = [rows * cols / 1e6] + [math.prod(raster_size(p)) / 1e6 for p in others if p is not None]
+    scale = min(1.0, longest / max(rows, cols))
+    grid_mp = rows * cols * scale**2 / 1e6
+    estimate = heights_estimate(files_mp, grid_mp)
+    if estimate <= cap_gib:
+        return estimate
+    room = cap_gib - heights_estimate(files_mp, 0.0)
+    what = (
+        f"measuring {str(ortho)!r} ({cols} x {rows} pixels) on a {round(cols * scale)} x {round(rows * scale)} grid "
+        f"needs about {estimate:.1f} GiB, more than the {cap_gib:g} GiB cap"
+    )
+    if room <= GRID_GIB_PER_MP * 0.01:
+        raise CliffTerrainError(
+            f"{what}, and reading the files alone needs {heights_estimate(files_mp, 0.0):.1f} GiB; crop or "
+            "split the orthophoto and its DSM, or raise --max-memory"
+        )
+    fit = math.floor(max(rows, cols) * math.sqrt(room / GRID_GIB_PER_MP / (rows * cols / 1e6)))
+    transform, _ = read_georeference(ortho)
+    pixel = math.hypot(*transform[:2, 0])
+    metres = pixel * max(rows, cols) / fit
+    raise CliffTerrainError(
+        f"{what}; use --max-size {fit} or --resolution {math.ceil(metres * 1000) / 1000:g} (metres per pixel), "
+        "or raise --max-memory"
+    )

@@ -1,0 +1,125 @@
+"""Progress and interruption of the measuring commands (issue 40): tqdm's bar with an ETA on a
+terminal and none elsewhere; Ctrl-C or a kill leaves no output that looks complete, and the same
+command then runs again without ``--overwrite``."""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import pty
+import re
+import struct
+import subprocess
+import sys
+import termios
+from pathlib import Path
+
+import pytest
+from conftest import REPO
+
+from cliff_terrain import cli
+
+ODM_PAIR = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
+ORTHO, DSM = ODM_PAIR / "odm_orthophoto.tif", ODM_PAIR / "dsm.tif"
+OUTPUTS = ["chm.tif", "ground_support.tif", "regions.csv", "regions.geojson", "summary.json"]
+
+
+@pytest.fixture
+def pair():
+    if not ORTHO.is_file():
+        pytest.skip(f"the shared OpenDroneMap pair is not at {ODM_PAIR}")
+    return ORTHO, DSM
+
+
+def heights_args(out, *extra):
+    return ["heights", str(ORTHO), "--dsm", str(DSM), "--out", str(out), *extra]
+
+
+def on_a_terminal(args):
+    """Run the CLI with stderr on a pseudo-terminal; returns (status, what the terminal showed)."""
+    pytest.importorskip("tqdm")
+    main, child = pty.openpty()
+    fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a 100 x 24 terminal
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cliff_terrain", *args], stdout=subprocess.DEVNULL, stderr=child, cwd=REPO
+    )
+    os.close(child)
+    shown = b""
+    while True:
+        try:
+            chunk = os.read(main, 4096)
+        except OSError:  # the child closed the terminal
+            break
+        if not chunk:
+            break
+        shown += chunk
+    os.close(main)
+    return proc.wait(timeout=600), shown.decode("utf-8", "replace")
+
+
+def test_a_terminal_gets_tqdms_bar_with_an_eta_and_no_progress_silences_it(pair, tmp_path):
+    status, shown = on_a_terminal(heights_args(tmp_path / "a"))
+    assert status == 0, shown
+    # tqdm's bar: the percentage, elapsed<remaining (the ETA), the stage being run; cleared at the end.
+    assert "heights odm_orthophoto.tif" in shown and re.search(r"\d+%\|", shown), shown
+    assert re.search(r"\d\d:\d\d<\d\d:\d\d", shown), shown
+    assert "segment" in shown, shown  # the stages' names, as build_relief reports them
+    status, shown = on_a_terminal(heights_args(tmp_path / "b", "--no-progress"))
+    assert status == 0 and shown == "", shown
+
+
+def test_ctrl_c_while_writing_leaves_nothing_and_the_command_runs_again(pair, tmp_path, monkeypatch, capsys):
+    import cliff_terrain.io.geotiff as geotiff
+
+    out = tmp_path / "out"
+    real = geotiff.write_geotiff
+    calls = []
+
+    def interrupted(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 2:  # the second raster: the tables and chm.tif already written
+            raise KeyboardInterrupt
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(geotiff, "write_geotiff", interrupted)
+    assert cli.main(heights_args(out, "--no-progress")) == 130
+    assert capsys.readouterr().err == "cliff-terrain heights: interrupted\n"
+    assert sorted(p.name for p in out.iterdir()) == []  # no output, complete-looking or not
+    monkeypatch.setattr(geotiff, "write_geotiff", real)
+    assert cli.main(heights_args(out, "--no-progress")) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
+
+
+def test_a_killed_runs_leftovers_are_replaced_and_a_finished_run_is_kept(pair, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    # What a kill during the renames leaves: some outputs without summary.json (renamed last), and a
+    # dead process's .part file.
+    (out / "chm.tif").write_bytes(b"half of a raster")
+    (out / "regions.csv").write_text("id\n")
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    (out / f"summary.json.part-{dead.stdout.strip()}").write_text("{")
+    (out / "notes.txt").write_text("the user's own file\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", *heights_args(out, "--no-progress")],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUTS, "notes.txt"])
+    assert json.loads((out / "summary.json").read_text())["ground"] == "estimated"
+    assert (out / "notes.txt").read_text() == "the user's own file\n"
+    # A finished run (its summary.json there) is kept: the same command now refuses in one line.
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    again = subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", *heights_args(out, "--no-progress")],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    assert again.returncode == 2 and again.stderr.count("\n") == 1 and "--overwrite" in again.stderr
+    assert {p.name: p.read_bytes() for p in Path(out).iterdir()} == before
