@@ -121,7 +121,7 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
 
 class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
     """Measure every plot of the active grid on its relief: plant cover, and with a surface model the
-    canopy height p50/p90 (shown in the Plots panel)"""
+    canopy height p50/p90 and the p90's standard error (shown in the Plots panel)"""
 
     bl_idname = "cliff_terrain.plot_table"
     bl_label = "Measure Plots"
@@ -140,9 +140,11 @@ class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
             rows = relief_plot_rows(relief, plots, source=frame.source)
         except Exception as exc:
             return report_failure(self, exc)
-        keys = ("column", "row", "cover", "height_p50_m", "height_p90_m")
-        # The table's `plot` is the index in the set; the plot's own number is its attribute.
-        grid[TABLE_KEY] = [{"plot": row["plot_attr"], **{k: row[k] for k in keys}} for row in rows]
+        keys = ("column", "row", "cover", "height_p50_m", "height_p90_m", "height_p90_err_m")
+        # The table's `plot` is the index in the set; the plot's own number is its attribute. The
+        # height's standard error is NaN without a surface model (no heights to be unsure of).
+        nan = float("nan")
+        grid[TABLE_KEY] = [{"plot": row["plot_attr"], **{k: row.get(k, nan) for k in keys}} for row in rows]
         measured = [row for row in rows if row["height_p90_m"] == row["height_p90_m"]]  # not NaN
         heights = f", {len(measured)} with heights" if measured else " (no surface model: cover only)"
         self.report({"INFO"}, f"{len(rows)} plots measured{heights}")

@@ -327,11 +327,16 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
 
 
 def plot_table_lines(rows, limit=12):
-    """The panel's plot table: a header, then plot, cover and canopy height p90 (cm) per plot, by number."""
+    """The panel's plot table: a header, then plot, cover and canopy height p90 (cm) per plot, by number,
+    with its standard error (the ground's, from its held-out check) when it has one: ``42 ± 3 cm``."""
     lines = [("Plot", "Cover", "p90")]
     for row in sorted(rows, key=lambda r: r["plot"])[:limit]:
         p90 = row.get("height_p90_m", float("nan"))
-        lines.append((str(row["plot"]), f"{row['cover']:.0%}", "-" if p90 != p90 else f"{p90 * 100:.0f} cm"))
+        err = row.get("height_p90_err_m", float("nan"))
+        height = "-" if p90 != p90 else f"{p90 * 100:.0f} cm"
+        if p90 == p90 and err == err and err > 0:
+            height = f"{p90 * 100:.0f} ± {err * 100:.0f} cm"
+        lines.append((str(row["plot"]), f"{row['cover']:.0%}", height))
     if len(rows) > limit:
         lines.append((f"+{len(rows) - limit}", "more", ""))
     return lines

@@ -98,7 +98,8 @@ def probe(obj, local):
     ground's elevation with a surface model, else 0: the relief's base), ``unit`` (``"m"`` or
     ``"px"``), ``region`` (the plant's number, 0 on soil), the region's ``region_p50``,
     ``region_p90`` and ``region_area`` (in ``area_unit``), the ``row`` and ``col`` of the pixel, and
-    with a surface model the measured ``canopy_height``.
+    with a surface model the measured ``canopy_height`` (and, with an estimated ground, its standard
+    error ``ground_err``, which is the canopy height's too).
     """
     import numpy as np
 
@@ -124,6 +125,8 @@ def probe(obj, local):
         # NaN where the surface model has no data.
         values["ground"] = float(canopy.ground[row, col])
         values["canopy_height"] = float(canopy.chm[row, col])
+        if canopy.sigma is not None:  # an estimated ground: its standard error there
+            values["ground_err"] = float(canopy.sigma[row, col])
     region = int(relief.labels[row, col])
     values["region"] = region
     if region:
@@ -162,7 +165,9 @@ def probe_lines(values):
         if ground != ground or canopy != canopy:  # NaN: no surface model there
             lines.append("Ground: the surface model has no data here")
         else:
-            lines.append(f"Ground {ground:.2f} m, canopy {length_text(canopy, 'm')}")
+            err = values.get("ground_err")
+            sure = "" if err is None or err != err else f" ± {length_text(err, 'm')}"
+            lines.append(f"Ground {ground:.2f} m, canopy {length_text(canopy, 'm')}{sure}")
     else:
         lines.append(f"Ground {length_text(values['ground'], unit)} (the relief's base)")
     if values.get("region"):

@@ -98,6 +98,12 @@ def test_probe_with_a_surface_model_reports_ground_and_canopy_in_metres(scene):
         if np.isfinite(ground):
             assert values["ground"] == pytest.approx(ground, abs=1e-4)
             assert values["canopy_height"] == pytest.approx(float(reference.canopy.chm[row, col]), abs=1e-4)
+            # The ground's standard error there, as chm_err.tif holds it, and in the probe's line.
+            err = float(reference.canopy.sigma[row, col])
+            assert values["ground_err"] == pytest.approx(err, abs=1e-6) and err > 0
+            from cliff_terrain_addon.scene.probe import length_text, probe_lines
+
+            assert f"± {length_text(err, 'm')}" in probe_lines(values)[1]
         assert abs(values["height"] - float(reference.heights[row, col])) <= 0.01 * float(
             reference.heights.max()
         )

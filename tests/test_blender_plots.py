@@ -123,9 +123,22 @@ def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
         number = row["plot_attr"]  # the plot's own number (`plot` is its index in the set)
         assert by_plot[number]["cover"] == pytest.approx(row["cover"])
         assert by_plot[number]["height_p90_m"] == pytest.approx(row["height_p90_m"], nan_ok=True)
+    # Each plot's p90 carries the ground's standard error (the rms of chm_err over the plot), shown
+    # as "p90 ± err" in the panel.
+    sigma_rows = plot_table(
+        plots, labels, mask=reference.mask, heights=canopy.chm, pixel_area_m2=canopy.pixel_area_m2,
+        sigma=canopy.sigma,
+    )  # fmt: skip
+    for row in sigma_rows:
+        assert by_plot[row["plot_attr"]]["height_p90_err_m"] == pytest.approx(
+            row["height_p90_err_m"], nan_ok=True
+        )
     assert any(row["height_p90_m"] > 0.1 for row in table)  # measured heights, not NaN or zero
     lines = plot_table_lines(table)
     assert lines[0] == ("Plot", "Cover", "p90") and lines[1][0] == "1" and len(lines) == 13
+    first = min(table, key=lambda r: r["plot"])
+    if first["height_p90_m"] == first["height_p90_m"]:
+        assert lines[1][2] == f"{first['height_p90_m'] * 100:.0f} ± {first['height_p90_err_m'] * 100:.0f} cm"
 
     # Colour By Plot Trait: offered now that a plot table exists; each plot's vertices take the viridis
     # colour of its p90 between the lowest and the highest plot's, vertices outside the plots grey.

@@ -22,7 +22,7 @@ from cliff_terrain import cli
 
 ODM_PAIR = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 ORTHO, DSM = ODM_PAIR / "odm_orthophoto.tif", ODM_PAIR / "dsm.tif"
-OUTPUTS = ["chm.tif", "ground_support.tif", "regions.csv", "regions.geojson", "summary.json"]
+OUTPUTS = ["chm.tif", "chm_err.tif", "ground_support.tif", "regions.csv", "regions.geojson", "summary.json"]
 
 
 @pytest.fixture

@@ -27,6 +27,14 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
+    "cliff_terrain._progress": (
+        ("test_interrupted_outputs.py",),
+        "the commands' progress bar on a terminal (`--no-progress`)",
+    ),
+    "cliff_terrain.commands.out_folder": (
+        ("test_interrupted_outputs.py", "test_bad_input_table.py"),
+        "an interrupted run's outputs replaced, a finished run's kept",
+    ),
     "cliff_terrain.measure.ground_detail": (
         ("test_ground_check.py", "test_measured_heights.py"),
         "`fit_ground`'s detailed candidate",
@@ -55,7 +63,6 @@ REACHED_THROUGH = {
     "cliff_terrain.io.geokeys": (("test_measured_heights.py", "test_season.py"), "reading GeoTIFFs"),
     "cliff_terrain.io.photo_metadata": (("test_image_io.py",), "a photo's metadata"),
     "cliff_terrain.io.pillow_pixels": (("test_image_io.py",), "decoding photos"),
-    "cliff_terrain.io.tiff_window": (("test_mosaic.py", "test_measured_heights.py"), "reading TIFF windows"),
     "cliff_terrain.season.align": (("test_season.py",), "`cliff-terrain season`"),
     "cliff_terrain.season.charts": (("test_season.py",), "`cliff-terrain season` (growth.png)"),
     "cliff_terrain.season.security": (("test_season.py",), "`cliff-terrain season --scheduler`"),

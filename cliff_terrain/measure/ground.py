@@ -162,19 +162,31 @@ def fit_ground(
     block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
     detail_m = check_float("detail_m", detail_m, minimum=0.0)
     check_choice("method", method, GROUND_METHODS)
-    finite = np.isfinite(dsm)
+    # No surface on Earth lies 100 km from sea level: such values are a no-data marker the file did
+    # not declare (OpenDroneMap's -3.4e38), and one of them would drag every lower percentile.
+    finite = np.isfinite(dsm) & (np.abs(dsm) < 1e5)
+    if not finite.all():
+        dsm = np.where(finite, dsm, np.float32(np.nan))
     if not finite.any():
         raise GroundError(f"{source} has no surface data to estimate the ground from; give a DTM")
     if soil is not None:
         # A photo that shows no bare soil at all is evidence too: the lowest surfaces of a closed
         # canopy are leaves, not the ground.
         check_enough_soil(soil & finite, finite, source=source)
-    lowest = lowest_surface(dsm, pixel_size=pixel_size, block_m=block_m)
+    # A field too small for three blocks across takes smaller blocks (the check's folds do too); the
+    # baseline stays the naive peer, in blocks of `block_m` whatever the field.
+    small_m = min(block_m, max(2, min(dsm.shape) // 3) * pixel_size)
+    lowest = lowest_surface(dsm, pixel_size=pixel_size, block_m=small_m)
 
     def build(names, train):
-        return ground_candidates(
-            dsm, lowest, train, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m, names=names
+        grounds = ground_candidates(
+            dsm, lowest, train, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m, names=names
         )
+        if "baseline" in names:
+            grounds["baseline"] = naive_block_ground(
+                dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
+            )
+        return grounds
 
     exposed = None if soil is None else exposed_soil(soil, pixel_size=pixel_size)
     evidence, evidence_source, colour = ground_evidence(dsm, lowest, soil=soil, exposed=exposed)
@@ -199,7 +211,7 @@ def fit_ground(
     ground = build((chosen,), evidence)[chosen]
     sigma = ground_sigma(residuals[chosen], evidence, pixel_size=pixel_size)
     check["sigma_model"] = sigma.model
-    support = ground_support(evidence, pixel_size=pixel_size, block_m=block_m)
+    support = ground_support(evidence, pixel_size=pixel_size, block_m=small_m)
     guessed = finite & ~evidence
     check["support_where_guessed"] = float(np.mean(support[guessed])) if guessed.any() else 1.0
     return GroundFit(ground, chosen, evidence, evidence_source, support, sigma.raster, check)
@@ -317,22 +329,21 @@ def _soil_peak(above):
     if above.size == 0:
         return 0.0
     step = 0.005
-    edges = np.arange(float(above.min()), float(above.max()) + 2 * step, step)
-    hist, edges = np.histogram(above, bins=edges)
+    # From the 1st percentile: a few pits (or unmarked no-data) far below must not stretch the bins.
+    low = max(float(np.percentile(above, 1.0)), float(above.max()) - 2.0)
+    edges = np.arange(low, float(above.max()) + 2 * step, step)
+    hist, edges = np.histogram(above[above >= low], bins=edges)
     smooth = np.convolve(hist, np.ones(5) / 5, mode="same")
     mode = edges[int(np.argmax(smooth))] + step / 2
-    lower = above[above <= mode] - mode
+    lower = above[(above <= mode) & (above >= low)] - mode
     spread = float(np.sqrt(np.mean(lower**2))) if lower.size else step
     return float(min(MICRORELIEF_M, mode + _PEAK_SPREAD * max(spread, step)))
 
 
 def ground_candidates(dsm, lowest, evidence, *, pixel_size, block_m, detail_m, names=CANDIDATES):
-    """{name: ground} of the candidates `names` (see the module) from the `evidence` pixels."""
+    """{name: ground} of the candidates ``"smooth"`` and ``"detailed"`` among `names` (see the module)
+    from the `evidence` pixels and the `lowest` surface (the baseline is :func:`naive_block_ground`)."""
     out = {}
-    if "baseline" in names:
-        out["baseline"] = naive_block_ground(
-            dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
-        )
     if "smooth" in names or "detailed" in names:
         above = np.where(evidence, dsm - lowest, 0.0).astype(np.float32)
         offset = float(np.median(above[evidence])) if evidence.any() else 0.0
