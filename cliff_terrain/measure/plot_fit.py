@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import check_float
 from ..errors import CliffTerrainError
 from .plot_grid import Layout, Placement, axes
 
@@ -38,8 +39,20 @@ class GridFit:
         ``angle_deg``, ``column_pitch_m``, ``row_pitch_m``, ``plant_share_in_plots`` (plant
         pixels inside the plots over all plant pixels), ``plant_share_in_alleys`` (plant pixels
         between the plots inside the grid's outline, over those inside the outline),
-        ``confidence`` (0-1: the score lost by shifting the grid one column or row, over one
-        column's or row's share of the chosen score; the smaller of the two), ``moved_m`` (how far the grid's centre moved) and ``rotated_deg``.
+        ``confidence`` (0-1, see below), ``moved_m`` (how far the grid's centre moved) and
+        ``rotated_deg``; with corners as constraints also ``tolerance_m``, ``corner_shift_m`` and
+        ``accepted``.
+
+    Notes
+    -----
+    The confidence scale: the score the fitted grid would lose if it were replaced by the
+    alternative grid, in units of one column's (for the shift across) or one row's (along) plant
+    pixels inside the plots, clipped to 0-1; the smaller of the two axes. The alternative is the
+    same grid shifted by one whole pitch (placement-free fit: a guard row taken for a plot column)
+    or, with corners as constraints (which rule out a whole pitch), by half a pitch (the plots
+    centred on the gaps between the crop rows). 0: the crop does not tell the fitted grid from the
+    alternative; 1: the alternative loses at least one column's (row's) worth of plant pixels.
+    Below :data:`CONFIDENT` (0.5) the fit is not accepted.
     """
 
     layout: Layout
@@ -58,6 +71,7 @@ def fit_grid(
     origin=None,
     search_deg=3.0,
     valid=None,
+    tolerance=None,
 ):
     """Snap a plot grid to the crop in a plant mask.
 
@@ -84,13 +98,42 @@ def fit_grid(
         How far the direction is searched around the starting one.
     valid : (rows, cols) bool array, optional
         Pixels with data (the rest is neither plant nor soil).
+    tolerance : float, optional
+        With a `placement`: its corners are constraints. The fitted grid's outer edges stay within
+        `tolerance` metres of the given corners, along each of the grid's axes, so the pitch is what
+        the corners and the counts imply, refined within that; and the score adds the crop's
+        periodicity across and along the rows (the plant pixels' projection weighted by a cosine of
+        the pitch, peaking on each plot's centre line), which locks touching single-row plots on
+        their rows. The report then also says ``corner_shift_m`` (the largest distance a corner
+        moved, Euclidean) and ``accepted`` (see :data:`CONFIDENT`). Without it the fit is the
+        placement-free one described above.
 
     Returns
     -------
     GridFit
+
+    Examples
+    --------
+    Three touching single-row plots of 0.8 m on a synthetic crop whose rows are 0.8 m apart, with the
+    corners given 0.2 m off: the fit puts each plot back on its row.
+
+    >>> from cliff_terrain.measure.plot_grid import grid_layout, placement_from_corners
+    >>> plants = np.zeros((1100, 340), bool)  # 1 cm pixels; plot rows 5 m long, 10 cm wide, 0.8 m apart
+    >>> for x in (0.9, 1.7, 2.5):
+    ...     plants[300:800, int(100 * x) - 5:int(100 * x) + 5] = True
+    >>> transform = [[0.01, 0.0, 0.0], [0.0, -0.01, 11.0]]
+    >>> layout = grid_layout(3, 1, plot_size=(0.8, 5.0))
+    >>> given = placement_from_corners([(0.7, 3.1), (3.1, 3.1), (3.1, 8.1), (0.7, 8.1)], layout.extent)
+    >>> fit = fit_grid(plants, transform, layout, placement=given, tolerance=0.4, search_deg=0.0)
+    >>> np.round(fit.placement.corners[0], 2).tolist(), fit.report["accepted"]
+    ([0.5, 3.0], True)
     """
     from ..io.transform import as_affine
 
+    if tolerance is not None:
+        tolerance = check_float("tolerance", tolerance, minimum=0.0)
+        if placement is None:
+            raise CliffTerrainError("`tolerance` holds the fit to a placement's corners: give `placement` too")
     plants = np.asarray(plants, dtype=bool)
     t = as_affine(transform)
     rr, cc = np.nonzero(plants)
@@ -114,7 +157,9 @@ def fit_grid(
     # when the grid is placed from the mask alone and the layout gives no spacing on that axis (plots
     # touching: the user did not say how far apart they are); none when pinned or uneven.
     scale_ranges = (None, None)
-    if fit_pitch:
+    if tolerance is not None:
+        scale_ranges = (None, None)  # the corners bound the pitch instead (see _edge_bounds)
+    elif fit_pitch:
         find = placement is None and origin is None
         scale_ranges = tuple(
             FIND_PITCH if find and _touching(offsets, size) else NEAR_PITCH
@@ -136,6 +181,12 @@ def fit_grid(
             start_angle = 0.0 if angle is None else float(angle)
             centre = None
         angles = _around(start_angle, search_deg, 0.1) if angle is None else [float(angle)]
+        if tolerance is not None and angle is None:
+            # Turning the grid by a moves its far corners by about a * half its diagonal: no
+            # further than the corners allow.
+            half = 0.5 * math.hypot(*layout.extent)
+            reach = min(search_deg, math.degrees(2 * tolerance / max(half, 1e-9)))
+            angles = _around(start_angle, reach, 0.1)
     pivot = np.asarray(origin, dtype=np.float64) if origin is not None else centre
     if pivot is None:
         pivot = points.mean(axis=0)
@@ -152,10 +203,16 @@ def fit_grid(
             scale_ranges,
             origin is not None,
             centre,
+            None if tolerance is None else (placement.corners, tolerance),
         )
-        if best is None or result["score"] > best["score"]:
+        if result is not None and (best is None or result["score"] > best["score"]):
             best = result
-    fitted_layout = _with_pitch(layout, (best["pc"], best["pr"])) if fit_pitch else layout
+    if best is None:
+        raise CliffTerrainError(
+            f"no rectangular grid of {layout.columns} x {layout.rows} plots has its corners within the "
+            f"tolerance of {tolerance:g} m of the given ones; check --corners or raise --tolerance"
+        )
+    fitted_layout = _with_pitch(layout, (best["pc"], best["pr"])) if fit_pitch or tolerance is not None else layout
     u_axis, v_axis = axes(best["theta"])
     corner = pivot + best["u0"] * u_axis + best["v0"] * v_axis
     fitted = Placement.rigid(corner, best["theta"], fitted_layout.extent)
@@ -170,12 +227,23 @@ def fit_grid(
         "moved_m": round(moved, 3),
         "rotated_deg": round(best["theta"] - start_angle, 3),
     }
+    if tolerance is not None:
+        shift = float(np.hypot(*(fitted.corners - placement.corners).T).max())
+        report["tolerance_m"] = round(tolerance, 4)
+        report["corner_shift_m"] = round(shift, 3)
+        report["accepted"] = bool(shift <= tolerance + 1e-9 and best["confidence"] >= CONFIDENT)
     return GridFit(fitted_layout, fitted, report)
 
 
 # What a soil pixel inside a plot costs against a plant pixel inside it: plots that grow over bare
 # soil beyond the field's edge lose, while the soil between the crop rows inside a plot is tolerated.
 SOIL_COST = 0.5
+
+
+# The grid confidence below which a fit keeps the unfitted plots and flags them: half of the definition's
+# scale (the alternative grid loses half a column's or row's share of the score). Set from the
+# definition, not from a trial.
+CONFIDENT = 0.5
 
 
 # Pitch scales searched: near the layout's spacing, or from touching plots to twice the plot's size.
@@ -230,9 +298,15 @@ def _map_points(t, rr, cc):
     return np.column_stack([t[0, 0] * cc + t[0, 1] * rr + t[0, 2], t[1, 0] * cc + t[1, 1] * rr + t[1, 2]])
 
 
-def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, centre):
-    """Best shift (and pitch) at direction `theta`, in the frame centred on `pivot`."""
+def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, centre, constraint=None):
+    """Best shift (and pitch) at direction `theta`, in the frame centred on `pivot`; None when
+    `constraint` (given corners, tolerance) leaves no grid at this direction."""
     u_axis, v_axis = axes(theta)
+    bounds = (None, None)
+    if constraint is not None:
+        bounds = _edge_bounds(constraint, pivot, u_axis, v_axis, layout)
+        if bounds is None:
+            return None
     rel = points - pivot
     u, v = rel @ u_axis, rel @ v_axis
     soil_points, soil_weight = soil
@@ -251,6 +325,8 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
     np.add.at(hist_soil, (iu, iv), soil_weight)
     if pinned_origin:
         u_range = v_range = (0.0, 0.0)
+    elif constraint is not None:
+        u_range, v_range = bounds[0][0], bounds[1][0]
     elif centre is not None:
         # A rough placement: its (0, 0) corner lies half the extent before the centre, within a pitch.
         pc0 = np.diff(layout.column_offsets).mean() if layout.columns > 1 else layout.width
@@ -267,24 +343,38 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
         prof_u = _profile(hist, v_lo, b, v0 + rows_off, layout.length, axis=1)
         soil_u = _profile(hist_soil, v_lo, b, v0 + rows_off, layout.length, axis=1)
         hull_u = _profile(hist, v_lo, b, np.array([v0]), rows_off[-1] + layout.length, axis=1)
-        u0, cols_off, su, alt_u = _best_1d(
-            (prof_u, hull_u, soil_u), u_lo, b, u_range, cols_off, layout.width, scale_ranges[0]
+        found = _best_1d(
+            (prof_u, hull_u, soil_u), u_lo, b, u_range, cols_off, layout.width, scale_ranges[0], bounds[0]
         )
+        if found is None:
+            return None
+        u0, cols_off, su, alt_u = found
         prof_v = _profile(hist, u_lo, b, u0 + cols_off, layout.width, axis=0)
         soil_v = _profile(hist_soil, u_lo, b, u0 + cols_off, layout.width, axis=0)
         hull_v = _profile(hist, u_lo, b, np.array([u0]), cols_off[-1] + layout.width, axis=0)
-        v0, rows_off, sv, alt_v = _best_1d(
-            (prof_v, hull_v, soil_v), v_lo, b, v_range, rows_off, layout.length, scale_ranges[1]
+        found = _best_1d(
+            (prof_v, hull_v, soil_v), v_lo, b, v_range, rows_off, layout.length, scale_ranges[1], bounds[1]
         )
+        if found is None:
+            return None
+        v0, rows_off, sv, alt_v = found
         best = (u0, v0, cols_off, rows_off, sv, alt_u, alt_v)
-    u0, v0, cols_off, rows_off, (inside, hull, soil_in), alt_u, alt_v = best
-    score = 2 * inside - hull - SOIL_COST * soil_in
-    # What shifting the grid by one column (row) loses, as a share of one column's (row's) part of
-    # the score: about 1 when the field tells the chosen columns from their neighbours, about 0 when a
+    u0, v0, cols_off, rows_off, (inside, hull, soil_in, wave_v), alt_u, alt_v = best
+    score_u = 2 * su[0] - su[1] - SOIL_COST * su[2] + su[3]
+    score_v = 2 * inside - hull - SOIL_COST * soil_in + wave_v
+    score = score_v + su[3]  # the periodicity across the columns and along the rows
+    # What shifting the grid by one column (row) loses, in units of one column's (row's) plant
+    # pixels: about 1 when the field tells the chosen columns from their neighbours, about 0 when a
     # shifted grid fits as well (a guard row that looks like a plot column). The plain ratio of the
-    # two scores would say 0.1 for a perfect fit of ten rows.
-    margins = [(score - alt) * n / score for alt, n in ((alt_u, layout.columns), (alt_v, layout.rows))]
-    confidence = 0.0 if score <= 0 else float(np.clip(min(margins), 0.0, 1.0))
+    # two scores would say 0.1 for a perfect fit of ten rows; a ratio to the score itself fails on
+    # sparse crops, whose score is negative (more soil than plants inside the plots). With corners as constraints the
+    # alternative is the grid shifted by half a pitch (plots centred on the gaps between the rows):
+    # the corners rule out a whole pitch, the crop must tell the rows from the gaps.
+    margins = [
+        (own - alt) * n / max(own_inside, 1.0)
+        for own, alt, n, own_inside in ((score_u, alt_u, layout.columns, su[0]), (score_v, alt_v, layout.rows, inside))
+    ]
+    confidence = float(np.clip(min(margins), 0.0, 1.0))
     pc = float(np.diff(cols_off).mean()) if layout.columns > 1 else layout.width
     pr = float(np.diff(rows_off).mean()) if layout.rows > 1 else layout.length
     return {
@@ -312,11 +402,35 @@ def _profile(hist, lo, b, starts, size, *, axis):
     return (cum[e, :] - cum[a, :]).sum(axis=0)
 
 
-def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range):
+def _edge_bounds(constraint, pivot, u_axis, v_axis, layout):
+    """Per axis ((first edge low, high), (last edge low, high)) in the frame about `pivot`: where the
+    grid's outer edges may lie for every corner to stay within the tolerance along that axis; None
+    when no grid fits."""
+    corners, tolerance = constraint
+    rel = np.asarray(corners, dtype=np.float64) - pivot
+    gu, gv = rel @ u_axis, rel @ v_axis
+    out = []
+    for g, first, last, offsets, size in (
+        (gu, (0, 3), (1, 2), layout.column_offsets, layout.width),
+        (gv, (0, 1), (3, 2), layout.row_offsets, layout.length),
+    ):
+        lo = (max(g[first[0]], g[first[1]]) - tolerance, min(g[first[0]], g[first[1]]) + tolerance)
+        hi = (max(g[last[0]], g[last[1]]) - tolerance, min(g[last[0]], g[last[1]]) + tolerance)
+        # The grid's extent must lie between (hi - lo) at its narrowest and widest, with plots that
+        # do not overlap (extent >= count * size).
+        if lo[0] > lo[1] or hi[0] > hi[1] or hi[1] - lo[0] < offsets.size * size - 1e-9:
+            return None
+        out.append((lo, hi))
+    return tuple(out)
+
+
+def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=None):
     """Shift (and uniform pitch) of windows `offsets` (+ `size`) along the profiles (plants in the
     other axis's windows, plants in the grid's outline, soil in the windows) maximising
     2 * inside - hull - SOIL_COST * soil inside; returns (shift, offsets, (inside, hull, soil inside),
-    best score one pitch away)."""
+    best score one pitch away). With `bounds` (see :func:`_edge_bounds`) the first edge stays in
+    the first range and the last in the second, the pitch follows, and the score adds the crop's
+    periodicity; returns None when no shift fits the bounds."""
     profile, hull_profile, soil_profile = profiles
     cum = np.concatenate([[0.0], np.cumsum(profile)])
     cum_h = np.concatenate([[0.0], np.cumsum(hull_profile)])
@@ -329,7 +443,17 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range):
     count = offsets.size
     base = float(np.diff(offsets).mean()) if count > 1 else size
     scales = np.array([1.0])
-    if scale_range is not None and count > 1:
+    if bounds is not None and count > 1:
+        # The pitches the corners allow: from the narrowest to the widest extent, every half bin at
+        # the last edge; never below the plot's size.
+        (f_lo, f_hi), (l_lo, l_hi) = bounds
+        low = max((l_lo - f_hi - size) / offsets[-1], size / base)
+        high = (l_hi - f_lo - size) / offsets[-1]
+        if high < low - 1e-12:
+            return None
+        steps = int(math.ceil((high - low) * offsets[-1] / (0.5 * b))) + 1
+        scales = np.linspace(low, high, max(steps, 1)) if high > low else np.array([low])
+    elif scale_range is not None and count > 1:
         # Every 0.25 % of the pitch near the layout's; every 1 % (then 0.1 % around the best) when found.
         low, high = scale_range
         scales = np.linspace(
@@ -340,8 +464,20 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range):
             scales[scales * base >= size - 1e-9] if (scales * base >= size - 1e-9).any() else np.array([1.0])
         )
 
+    centres = lo + (np.arange(n) + 0.5) * b
+
+    def periodic(shift, scale, ha, he):
+        """Plant pixels in the grid's outline weighted by cos(2 pi (x - plot centre) / pitch): high
+        when the plots sit on the crop rows, negative when they sit on the gaps between them."""
+        if bounds is None or count == 1:  # one plot on this axis: no period to lock on
+            return np.zeros(len(shift))
+        pitch = base * scale
+        wave = np.concatenate([[0.0], np.cumsum(profile * np.exp(2j * np.pi * centres / pitch))])
+        phase = np.exp(-2j * np.pi * (shift + 0.5 * size) / pitch)
+        return np.real(phase * (wave[he] - wave[ha]))
+
     def evaluate(shift, scale):
-        """(inside, hull) for every shift in the array `shift` at one pitch scale."""
+        """(inside, hull, soil inside, periodic) for every shift in the array `shift` at one pitch scale."""
         offs = offsets * scale
         a = np.clip(np.round((shift[:, None] + offs[None] - lo) / b).astype(np.int64), 0, n)
         e = np.clip(np.round((shift[:, None] + offs[None] + size - lo) / b).astype(np.int64), 0, n)
@@ -349,28 +485,82 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range):
         soil_in = (cum_s[e] - cum_s[a]).sum(axis=1)
         ha = np.clip(np.round((shift - lo) / b).astype(np.int64), 0, n)
         he = np.clip(np.round((shift + offs[-1] + size - lo) / b).astype(np.int64), 0, n)
-        return inside, cum_h[he] - cum_h[ha], soil_in
+        return inside, cum_h[he] - cum_h[ha], soil_in, periodic(shift, scale, ha, he)
 
     def search(scales):
         best, best_key = -np.inf, None
         for scale in scales:
-            inside, hull, soil_in = evaluate(shifts, scale)
-            score = 2 * inside - hull - SOIL_COST * soil_in
+            inside, hull, soil_in, wave = evaluate(shifts, scale)
+            score = 2 * inside - hull - SOIL_COST * soil_in + wave
+            if bounds is not None:  # the last edge within its bounds too
+                last = shifts + offsets[-1] * scale + size
+                score = np.where((last >= bounds[1][0] - 1e-9) & (last <= bounds[1][1] + 1e-9), score, -np.inf)
             k = int(np.argmax(score))
             if score[k] > best:
                 best, best_key = (
                     score[k],
-                    (float(shifts[k]), float(scale), float(inside[k]), float(hull[k]), float(soil_in[k])),
+                    (float(shifts[k]), float(scale), float(inside[k]), float(hull[k]), float(soil_in[k]), float(wave[k])),
                 )
         return best_key
 
     best_key = search(scales)
-    if scales.size > 1 and scales[1] - scales[0] > 0.005:  # a found pitch: refine around the best
+    if best_key is None:
+        return None
+    if bounds is None and scales.size > 1 and scales[1] - scales[0] > 0.005:  # a found pitch: refine
         fine = best_key[1] + np.arange(-0.01, 0.0101, 0.001)
         best_key = search(fine[fine * base >= size - 1e-9])
-    shift, scale, inside, hull, soil_in = best_key
-    # The same windows one pitch either way: a guard row taken for a plot column.
-    pitch = base * scale
-    i2, h2, s2 = evaluate(np.array([shift - pitch, shift + pitch]), scale)
-    alternative = float(np.max(2 * i2 - h2 - SOIL_COST * s2))
-    return shift, offsets * scale, (inside, hull, soil_in), alternative
+    shift, scale, inside, hull, soil_in, wave = best_key
+    # The same windows one pitch either way: a guard row taken for a plot column. With corners, half
+    # a pitch either way (see _fit_at).
+    pitch = base * scale if count > 1 else size
+    away = 0.5 * pitch if bounds is not None else pitch
+    i2, h2, s2, w2 = evaluate(np.array([shift - away, shift + away]), scale)
+    alternative = float(np.max(2 * i2 - h2 - SOIL_COST * s2 + w2))
+    return shift, offsets * scale, (inside, hull, soil_in, wave), alternative
+
+
+def fitted_plots(layout, placement, fit, **numbering):
+    """The numbered plots of a fit, each with how far the fit moved it and how sure it is.
+
+    Parameters
+    ----------
+    layout, placement : Layout, Placement
+        The unfitted grid (as the user gave it).
+    fit : GridFit
+        :func:`fit_grid`'s result from that grid.
+    **numbering
+        ``numbering``, ``start``, ``buffer``, ``field_book``, ``crs``: see
+        :func:`cliff_terrain.measure.plot_grid.plots_from`.
+
+    Returns
+    -------
+    PlotSet
+        With three more attributes per plot: ``fit_shift_m`` (how far the fit moves the plot's
+        centre, metres), ``fit_confidence`` (the grid's confidence: the fit moves the grid as one
+        rigid body, so every plot rests on the whole grid's evidence) and ``fit_flag`` (1 when the
+        fit was not accepted: a corner would move beyond the tolerance, or the confidence is below
+        :data:`CONFIDENT`; the plot then keeps its unfitted place and ``fit_shift_m`` says how far
+        the refused fit would have moved it).
+    """
+    from .plot_grid import plots_from
+
+    given = plots_from(layout, placement, **numbering)
+    moved = plots_from(fit.layout, fit.placement, **numbering)
+    accepted = bool(fit.report.get("accepted", True))
+    confidence = float(fit.report["confidence"])
+    by_number = {a["plot"]: rings[0][:4].mean(axis=0) for a, rings in zip(moved.attributes, moved.polygons, strict=True)}
+    chosen = moved if accepted else given
+    attributes = []
+    for a, rings in zip(given.attributes, given.polygons, strict=True):
+        shift = float(np.hypot(*(by_number[a["plot"]] - rings[0][:4].mean(axis=0))))
+        attributes.append({"fit_shift_m": round(shift, 3), "fit_confidence": round(confidence, 3), "fit_flag": int(not accepted)})
+    extra = {a["plot"]: e for a, e in zip(given.attributes, attributes, strict=True)}
+    from ..io.plot_polygons import PlotSet
+
+    return PlotSet(
+        chosen.polygons,
+        [{**a, **extra[a["plot"]]} for a in chosen.attributes],
+        tuple(chosen.fields) + ("fit_shift_m", "fit_confidence", "fit_flag"),
+        chosen.crs,
+        chosen.path,
+    )
