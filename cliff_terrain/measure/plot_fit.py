@@ -58,6 +58,7 @@ class GridFit:
     layout: Layout
     placement: Placement
     report: dict
+    plot_cover: np.ndarray | None = None  # plant cover (0-1) of each fitted plot, (row, column) order
 
 
 def fit_grid(
@@ -104,8 +105,9 @@ def fit_grid(
         the corners and the counts imply, refined within that; and the score adds the crop's
         periodicity across and along the rows (the plant pixels' projection weighted by a cosine of
         the pitch, peaking on each plot's centre line), which locks touching single-row plots on
-        their rows. The report then also says ``corner_shift_m`` (the largest distance a corner
-        moved, Euclidean) and ``accepted`` (see :data:`CONFIDENT`). Without it the fit is the
+        their rows. The report then also says ``corner_shift_m`` (how far the farthest corner
+        moved along either axis of the grid: the quantity `tolerance` bounds),
+        ``corner_distance_m`` (the same, Euclidean) and ``accepted`` (see :data:`CONFIDENT`). Without it the fit is the
         placement-free one described above.
 
     Returns
@@ -217,6 +219,11 @@ def fit_grid(
     corner = pivot + best["u0"] * u_axis + best["v0"] * v_axis
     fitted = Placement.rigid(corner, best["theta"], fitted_layout.extent)
     moved = 0.0 if centre is None else float(np.hypot(*(fitted.to_map(0.5, 0.5) - centre)))
+    cover = _plot_cover(points - corner, step * pixel**2, u_axis, v_axis, fitted_layout)
+    with_crop = float((cover >= MIN_COVER).mean())
+    # A margin that one patch of crop earns tells nothing of the plots without any: the grid's
+    # confidence is the share of its plots that hold crop times the margin.
+    best["confidence"] *= with_crop
     report = {
         "angle_deg": round(best["theta"], 3),
         "column_pitch_m": round(float(best["pc"]), 4),
@@ -226,13 +233,21 @@ def fit_grid(
         "confidence": round(best["confidence"], 3),
         "moved_m": round(moved, 3),
         "rotated_deg": round(best["theta"] - start_angle, 3),
+        "plots_with_crop": round(with_crop, 4),
     }
     if tolerance is not None:
-        shift = float(np.hypot(*(fitted.corners - placement.corners).T).max())
+        # Along the grid's axes, as the search bounds them (Euclidean: up to sqrt(2) times that).
+        moved_by = fitted.corners - placement.corners
+        shift = float(np.abs(moved_by @ np.column_stack([u_axis, v_axis])).max())
         report["tolerance_m"] = round(tolerance, 4)
         report["corner_shift_m"] = round(shift, 3)
-        report["accepted"] = bool(shift <= tolerance + 1e-9 and best["confidence"] >= CONFIDENT)
-    return GridFit(fitted_layout, fitted, report)
+        report["corner_distance_m"] = round(float(np.hypot(*moved_by.T).max()), 3)
+        # A best grid against the tolerance's bound would move a corner beyond it, were it free to.
+        report["at_tolerance"] = bool(best["at_tolerance"])
+        report["accepted"] = bool(
+            shift <= tolerance + 1e-9 and not best["at_tolerance"] and best["confidence"] >= CONFIDENT
+        )
+    return GridFit(fitted_layout, fitted, report, cover)
 
 
 # What a soil pixel inside a plot costs against a plant pixel inside it: plots that grow over bare
@@ -244,6 +259,26 @@ SOIL_COST = 0.5
 # scale (the alternative grid loses half a column's or row's share of the score). Set from the
 # definition, not from a trial.
 CONFIDENT = 0.5
+
+
+PERIODIC_WEIGHT = 1.0
+
+# A plot holds crop when plants cover at least this share of it (1 %: a few plants; a bare or
+# senesced plot has none to lock on).
+MIN_COVER = 0.01
+
+
+def _plot_cover(rel, point_area, u_axis, v_axis, layout):
+    """Plant cover of every plot, (row, column) order, from plant points relative to the grid's
+    (0, 0) corner, each standing for `point_area` square metres."""
+    u, v = rel @ u_axis, rel @ v_axis
+    c = np.searchsorted(layout.column_offsets, u, side="right") - 1
+    r = np.searchsorted(layout.row_offsets, v, side="right") - 1
+    inside = (c >= 0) & (r >= 0)
+    inside &= u < layout.column_offsets[np.clip(c, 0, None)] + layout.width
+    inside &= v < layout.row_offsets[np.clip(r, 0, None)] + layout.length
+    counts = np.bincount(r[inside] * layout.columns + c[inside], minlength=layout.rows * layout.columns)
+    return counts * point_area / (layout.width * layout.length)
 
 
 # Pitch scales searched: near the layout's spacing, or from touching plots to twice the plot's size.
@@ -348,7 +383,7 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
         )
         if found is None:
             return None
-        u0, cols_off, su, alt_u = found
+        u0, cols_off, su, alt_u, edge_u = found
         prof_v = _profile(hist, u_lo, b, u0 + cols_off, layout.width, axis=0)
         soil_v = _profile(hist_soil, u_lo, b, u0 + cols_off, layout.width, axis=0)
         hull_v = _profile(hist, u_lo, b, np.array([u0]), cols_off[-1] + layout.width, axis=0)
@@ -357,7 +392,7 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
         )
         if found is None:
             return None
-        v0, rows_off, sv, alt_v = found
+        v0, rows_off, sv, alt_v, edge_v = found
         best = (u0, v0, cols_off, rows_off, sv, alt_u, alt_v)
     u0, v0, cols_off, rows_off, (inside, hull, soil_in, wave_v), alt_u, alt_v = best
     score_u = 2 * su[0] - su[1] - SOIL_COST * su[2] + su[3]
@@ -387,6 +422,7 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
         "inside": float(inside),
         "gaps": float(hull - inside),
         "confidence": confidence,
+        "at_tolerance": edge_u or edge_v,
     }
 
 
@@ -438,6 +474,8 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=No
     n = profile.size
     if shift_range[1] > shift_range[0]:
         shifts = np.arange(shift_range[0], shift_range[1] + 0.25 * b, 0.5 * b)
+        if bounds is not None:  # the corners' bounds are hard: the last step lands on the bound
+            shifts = np.minimum(shifts, shift_range[1])
     else:
         shifts = np.array([float(shift_range[0])])
     count = offsets.size
@@ -474,7 +512,7 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=No
         pitch = base * scale
         wave = np.concatenate([[0.0], np.cumsum(profile * np.exp(2j * np.pi * centres / pitch))])
         phase = np.exp(-2j * np.pi * (shift + 0.5 * size) / pitch)
-        return np.real(phase * (wave[he] - wave[ha]))
+        return PERIODIC_WEIGHT * np.real(phase * (wave[he] - wave[ha]))
 
     def evaluate(shift, scale):
         """(inside, hull, soil inside, periodic) for every shift in the array `shift` at one pitch scale."""
@@ -516,7 +554,15 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=No
     away = 0.5 * pitch if bounds is not None else pitch
     i2, h2, s2, w2 = evaluate(np.array([shift - away, shift + away]), scale)
     alternative = float(np.max(2 * i2 - h2 - SOIL_COST * s2 + w2))
-    return shift, offsets * scale, (inside, hull, soil_in, wave), alternative
+    # The best grid against a bound: the crop pulls it further than the corners allow.
+    edge = bounds is not None and (
+        min(shift - bounds[0][0], bounds[0][1] - shift) < 0.5 * b
+        and bounds[0][1] - bounds[0][0] > b
+        or min(shift + offsets[-1] * scale + size - bounds[1][0], bounds[1][1] - shift - offsets[-1] * scale - size)
+        < 0.5 * b
+        and bounds[1][1] - bounds[1][0] > b
+    )
+    return shift, offsets * scale, (inside, hull, soil_in, wave), alternative, bool(edge)
 
 
 def fitted_plots(layout, placement, fit, **numbering):
@@ -537,23 +583,32 @@ def fitted_plots(layout, placement, fit, **numbering):
     PlotSet
         With three more attributes per plot: ``fit_shift_m`` (how far the fit moves the plot's
         centre, metres), ``fit_confidence`` (the grid's confidence: the fit moves the grid as one
-        rigid body, so every plot rests on the whole grid's evidence) and ``fit_flag`` (1 when the
+        rigid body, so every plot rests on the whole grid's evidence; 0 for a plot with less than
+        :data:`MIN_COVER` plant cover, whose place comes from its neighbours alone) and ``fit_flag`` (1 when the
         fit was not accepted: a corner would move beyond the tolerance, or the confidence is below
         :data:`CONFIDENT`; the plot then keeps its unfitted place and ``fit_shift_m`` says how far
         the refused fit would have moved it).
     """
-    from .plot_grid import plots_from
+    from .plot_grid import numbered, plots_from
 
     given = plots_from(layout, placement, **numbering)
     moved = plots_from(fit.layout, fit.placement, **numbering)
     accepted = bool(fit.report.get("accepted", True))
     confidence = float(fit.report["confidence"])
+    cover = fit.plot_cover
+    # Plot number -> its index in the grid's own (row, column) order, in which the cover is.
+    ids = numbered(fit.layout, fit.placement, numbering=numbering.get("numbering", "serpentine"),
+                   start=numbering.get("start", "top-left"))  # fmt: skip
+    frame_index = {number: i for i, (number, _, _) in enumerate(ids)}
     by_number = {a["plot"]: rings[0][:4].mean(axis=0) for a, rings in zip(moved.attributes, moved.polygons, strict=True)}
     chosen = moved if accepted else given
     attributes = []
     for a, rings in zip(given.attributes, given.polygons, strict=True):
         shift = float(np.hypot(*(by_number[a["plot"]] - rings[0][:4].mean(axis=0))))
-        attributes.append({"fit_shift_m": round(shift, 3), "fit_confidence": round(confidence, 3), "fit_flag": int(not accepted)})
+        own = confidence
+        if cover is not None:
+            own = confidence if cover[frame_index[a["plot"]]] >= MIN_COVER else 0.0
+        attributes.append({"fit_shift_m": round(shift, 3), "fit_confidence": round(own, 3), "fit_flag": int(not accepted)})
     extra = {a["plot"]: e for a, e in zip(given.attributes, attributes, strict=True)}
     from ..io.plot_polygons import PlotSet
 
