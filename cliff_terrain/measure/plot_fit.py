@@ -40,7 +40,9 @@ class GridFit:
         pixels inside the plots over all plant pixels), ``plant_share_in_alleys`` (plant pixels
         between the plots inside the grid's outline, over those inside the outline),
         ``confidence`` (0-1, see below), ``moved_m`` (how far the grid's centre moved) and
-        ``rotated_deg``; with corners as constraints also ``tolerance_m``, ``corner_shift_m`` and
+        ``rotated_deg``, ``plots_with_crop`` (the share of the plots with at least
+        :data:`MIN_COVER` plant cover), ``score`` (the objective maximised, in plant pixels as
+        sampled: with ``tolerance=0`` the score of the given grid itself); with corners as constraints also ``tolerance_m``, ``corner_shift_m`` and
         ``accepted``.
 
     Notes
@@ -234,6 +236,7 @@ def fit_grid(
         "moved_m": round(moved, 3),
         "rotated_deg": round(best["theta"] - start_angle, 3),
         "plots_with_crop": round(with_crop, 4),
+        "score": round(float(best["score"]), 1),
     }
     if tolerance is not None:
         # Along the grid's axes, as the search bounds them (Euclidean: up to sqrt(2) times that).
