@@ -557,8 +557,10 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=No
     away = 0.5 * pitch if bounds is not None else pitch
     i2, h2, s2, w2 = evaluate(np.array([shift - away, shift + away]), scale)
     alternative = float(np.max(2 * i2 - h2 - SOIL_COST * s2 + w2))
-    # The best grid against a bound: the crop pulls it further than the corners allow.
-    edge = bounds is not None and (
+    # The best grid against a bound: the crop pulls it further than the corners allow. That counts
+    # where the grid half a pitch away (the plots on the gaps between the rows) could lie within the
+    # bounds: elsewhere (rows metres long) a bound only stops a slide along a flat score.
+    edge = bounds is not None and 0.5 * pitch <= bounds[0][1] - bounds[0][0] and (
         min(shift - bounds[0][0], bounds[0][1] - shift) < 0.5 * b
         and bounds[0][1] - bounds[0][0] > b
         or min(shift + offsets[-1] * scale + size - bounds[1][0], bounds[1][1] - shift - offsets[-1] * scale - size)
