@@ -51,13 +51,27 @@ def trials(data_dir):
         yield "lamberton soybean", tif.name[:8], tif, lamberton / "plots.geojson", (5, 8), (1.592, 5.2725)
     odm = SHARED / "dsm" / "fieldimager_ex2" / "odm_orthophoto.tif"
     if odm.is_file():
-        yield "ODM blocks (hand-drawn)", "-", odm, REPO / "tests" / "data" / "odm_plots_by_hand.geojson", (4, 9), (14.2, 4.8)
+        yield (
+            "ODM blocks (hand-drawn)",
+            "-",
+            odm,
+            REPO / "tests" / "data" / "odm_plots_by_hand.geojson",
+            (4, 9),
+            (14.2, 4.8),
+        )
     potato = Path(data_dir) / "potato_fieldimager" if data_dir else None
     if potato is not None and (potato / "Data_Total.shp").is_file():
         for day in ("1_30", "2_40", "4_100"):  # never 3_70: held out
             tif = potato / "MOSAIC" / f"{day}_RGB.tif"
             if tif.is_file():
-                yield "potato single rows", "day " + day.split("_")[1], tif, potato / "Data_Total.shp", (14, 10), (0.83, 6.0)
+                yield (
+                    "potato single rows",
+                    "day " + day.split("_")[1],
+                    tif,
+                    potato / "Data_Total.shp",
+                    (14, 10),
+                    (0.83, 6.0),
+                )
 
 
 def centres(plots):
@@ -72,7 +86,17 @@ def outer_corners(plots, width):
     u = u / np.hypot(*u)
     v = np.array([-u[1], u[0]])
     pu, pv = quads.reshape(-1, 2) @ u, quads.reshape(-1, 2) @ v
-    return np.array([p * u + q * v for p, q in ((pu.min(), pv.min()), (pu.max(), pv.min()), (pu.max(), pv.max()), (pu.min(), pv.max()))])
+    return np.array(
+        [
+            p * u + q * v
+            for p, q in (
+                (pu.min(), pv.min()),
+                (pu.max(), pv.min()),
+                (pu.max(), pv.max()),
+                (pu.min(), pv.max()),
+            )
+        ]
+    )
 
 
 def small_pitch(plots):
@@ -89,7 +113,9 @@ def compare(plots, reference, ref_labels, ortho, plants, pitch):
     good = d[rows, cols] < 0.5 * pitch
     labels = rasterize_plots(plots, transform=ortho.transform, shape=ortho.shape)
     n_ref, n_our = len(reference) + 1, len(plots) + 1
-    joint = np.bincount((ref_labels.astype(np.int64) * n_our + labels).ravel(), minlength=n_ref * n_our).reshape(n_ref, n_our)
+    joint = np.bincount(
+        (ref_labels.astype(np.int64) * n_our + labels).ravel(), minlength=n_ref * n_our
+    ).reshape(n_ref, n_our)
     area_ref, area_our = joint.sum(axis=1), joint.sum(axis=0)
     ious = np.zeros(len(reference))
     for r, c, ok in zip(rows, cols, good, strict=True):
@@ -102,8 +128,8 @@ def compare(plots, reference, ref_labels, ortho, plants, pitch):
 
 def run(data_dir, only=None):
     header = (
-        f"| trial | date | plots | grid | matched (worst seed) | mean IoU (mean / worst) | plants in: ours / breeder | confidence | accepted |\n"
-        f"|---|---|---|---|---|---|---|---|---|"
+        "| trial | date | plots | grid | matched (worst seed) | mean IoU (mean / worst) | plants in: ours / breeder | confidence | accepted |\n"
+        "|---|---|---|---|---|---|---|---|---|"
     )
     print(header)
     for name, date, tif, ref_path, (columns, rows), size in trials(data_dir):
@@ -112,7 +138,9 @@ def run(data_dir, only=None):
         ortho = read_orthophoto(tif)
         plants = plant_mask(ortho.data, valid=ortho.valid)
         if plants.sum() < 100:
-            print(f"| {name} | {date} | - | the plant mask finds {plants.sum()} plant pixels: no fit | | | | | |")
+            print(
+                f"| {name} | {date} | - | the plant mask finds {plants.sum()} plant pixels: no fit | | | | | |"
+            )
             continue
         reference = read_plots(ref_path)
         ref_labels = rasterize_plots(reference, transform=ortho.transform, shape=ortho.shape)
@@ -125,14 +153,39 @@ def run(data_dir, only=None):
             angle, radius = rng.uniform(0, 2 * np.pi, 4), OFF * np.sqrt(rng.uniform(0, 1, 4))
             corners = truth + radius[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
             layout, placement = place_grid(columns, rows, plot_size=size, corners=corners)
-            results["corners only"].append((*compare(plots_from(layout, placement), reference, ref_labels, ortho, plants, pitch), None, None))
+            results["corners only"].append(
+                (
+                    *compare(plots_from(layout, placement), reference, ref_labels, ortho, plants, pitch),
+                    None,
+                    None,
+                )
+            )
             old = fit_grid(plants, ortho.transform, layout, placement=placement, valid=ortho.valid)
             results["fit (rough placement)"].append(
-                (*compare(plots_from(old.layout, old.placement), reference, ref_labels, ortho, plants, pitch), old.report["confidence"], None)
+                (
+                    *compare(
+                        plots_from(old.layout, old.placement), reference, ref_labels, ortho, plants, pitch
+                    ),
+                    old.report["confidence"],
+                    None,
+                )
             )
-            new = fit_grid(plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * min(size))
+            new = fit_grid(
+                plants,
+                ortho.transform,
+                layout,
+                placement=placement,
+                valid=ortho.valid,
+                tolerance=0.5 * min(size),
+            )
             results["fit (corners as constraints)"].append(
-                (*compare(fitted_plots(layout, placement, new), reference, ref_labels, ortho, plants, pitch), new.report["confidence"], new.report["accepted"])
+                (
+                    *compare(
+                        fitted_plots(layout, placement, new), reference, ref_labels, ortho, plants, pitch
+                    ),
+                    new.report["confidence"],
+                    new.report["accepted"],
+                )
             )
         for grid, rows_ in results.items():
             matched = min(r[0] for r in rows_)

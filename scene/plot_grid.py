@@ -215,12 +215,17 @@ def mark_fit(grid, confidence, flagged):
     n = len(mesh.polygons)
     confidence = np.asarray(confidence, dtype=np.float32).reshape(n)
     flagged = np.asarray(flagged, dtype=bool).reshape(n)
-    for name, kind, values in (("fit_confidence", "FLOAT", confidence), ("fit_flag", "INT", flagged.astype(np.int32))):
+    for name, kind, values in (
+        ("fit_confidence", "FLOAT", confidence),
+        ("fit_flag", "INT", flagged.astype(np.int32)),
+    ):
         attribute = mesh.attributes.get(name) or mesh.attributes.new(name, kind, "FACE")
         attribute.data.foreach_set("value", values)
     # Colour attributes live on points or face corners: each plot's four corners (the mesh's loops
     # are face after face, four each).
-    colour = mesh.color_attributes.get("fit_colour") or mesh.color_attributes.new("fit_colour", "FLOAT_COLOR", "CORNER")
+    colour = mesh.color_attributes.get("fit_colour") or mesh.color_attributes.new(
+        "fit_colour", "FLOAT_COLOR", "CORNER"
+    )
     rgba = np.where(flagged[:, None], FLAGGED_RGBA, GRID_RGBA).astype(np.float32)
     colour.data.foreach_set("color", np.repeat(rgba, 4, axis=0).ravel())
     mesh.color_attributes.active_color = colour

@@ -75,7 +75,9 @@ def test_add_edit_fit_and_export_a_plot_grid(relief, tmp_path):
     grid.data.color_attributes["fit_colour"].data.foreach_get("color", colour)
     np.testing.assert_allclose(flag, confidence < 0.5)
     green = colour.reshape(36, 4, 4)[:, :, 1]
-    np.testing.assert_allclose(green, np.repeat(np.where(flag == 1, 0.1, 0.85)[:, None], 4, axis=1), atol=1e-6)
+    np.testing.assert_allclose(
+        green, np.repeat(np.where(flag == 1, 0.1, 0.85)[:, None], 4, axis=1), atol=1e-6
+    )
     assert grid.data.color_attributes.active_color.name == "fit_colour"
     assert confidence.max() == pytest.approx(report["confidence"], abs=1e-3)
 

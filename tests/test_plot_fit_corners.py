@@ -54,7 +54,12 @@ def synthetic(*, guard_rows=False, closed=False, seed=0):
     band = np.abs(across) < (0.6 if closed else 0.15)
     plants = in_grid & band & (rng.random(shape) < 0.6)
     extent = ((COLUMNS - 1) * PITCH[0] + SIZE[0], (ROWS - 1) * PITCH[1] + SIZE[1])
-    truth = np.array([ORIGIN + a * extent[0] * u_axis + b * extent[1] * v_axis for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))])
+    truth = np.array(
+        [
+            ORIGIN + a * extent[0] * u_axis + b * extent[1] * v_axis
+            for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))
+        ]
+    )
     return plants, transform, truth
 
 
@@ -101,7 +106,9 @@ def test_touching_single_rows_lock_on_their_rows_from_corners_off_by_a_quarter_m
 def score_of(plants, transform, corners, *, columns=COLUMNS, rows=ROWS, size=SIZE, valid=None):
     """The fit's objective for the grid at exactly these corners (a tolerance of a micrometre)."""
     layout, placement = place_grid(columns, rows, plot_size=size, corners=corners)
-    return fit_grid(plants, transform, layout, placement=placement, valid=valid, tolerance=1e-6).report["score"]
+    return fit_grid(plants, transform, layout, placement=placement, valid=valid, tolerance=1e-6).report[
+        "score"
+    ]
 
 
 @pytest.mark.parametrize("seed", [4, 7])
@@ -166,7 +173,17 @@ def outer_corners(plots, width):
     u = u / np.hypot(*u)
     v = np.array([-u[1], u[0]])
     pu, pv = quads.reshape(-1, 2) @ u, quads.reshape(-1, 2) @ v
-    return np.array([p * u + q * v for p, q in ((pu.min(), pv.min()), (pu.max(), pv.min()), (pu.max(), pv.max()), (pu.min(), pv.max()))])
+    return np.array(
+        [
+            p * u + q * v
+            for p, q in (
+                (pu.min(), pv.min()),
+                (pu.max(), pv.min()),
+                (pu.max(), pv.max()),
+                (pu.min(), pv.max()),
+            )
+        ]
+    )
 
 
 def iou_and_share(plots, reference, ortho, plants):
@@ -174,16 +191,27 @@ def iou_and_share(plots, reference, ortho, plants):
     r, c = linear_sum_assignment(d)
     ours = rasterize_plots(plots, transform=ortho.transform, shape=ortho.shape)
     theirs = rasterize_plots(reference, transform=ortho.transform, shape=ortho.shape)
-    ious = [((theirs == i + 1) & (ours == j + 1)).sum() / ((theirs == i + 1) | (ours == j + 1)).sum() for i, j in zip(r, c, strict=True)]
-    return float(np.mean(ious)), (plants & (ours > 0)).sum() / plants.sum(), (plants & (theirs > 0)).sum() / plants.sum()
+    ious = [
+        ((theirs == i + 1) & (ours == j + 1)).sum() / ((theirs == i + 1) | (ours == j + 1)).sum()
+        for i, j in zip(r, c, strict=True)
+    ]
+    return (
+        float(np.mean(ious)),
+        (plants & (ours > 0)).sum() / plants.sum(),
+        (plants & (theirs > 0)).sum() / plants.sum(),
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_soybean_plots_from_corners_off_by_a_quarter_metre_with_the_breeders_polygons(seed):
     ortho, plants, reference = soybean("20180822")
     size = (1.592, 5.2725)
-    layout, placement = place_grid(5, 8, plot_size=size, corners=moved(outer_corners(reference, size[0]), seed))
-    fit = fit_grid(plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * size[0])
+    layout, placement = place_grid(
+        5, 8, plot_size=size, corners=moved(outer_corners(reference, size[0]), seed)
+    )
+    fit = fit_grid(
+        plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * size[0]
+    )
     assert fit.report["accepted"], fit.report
     plots = fitted_plots(layout, placement, fit)
     assert matches(plots, reference, 0.5 * size[0]) == len(reference)
@@ -196,7 +224,9 @@ def test_senesced_soybean_is_unsure_and_keeps_the_unfitted_plots():
     ortho, plants, reference = soybean("20180917")
     size = (1.592, 5.2725)
     layout, placement = place_grid(5, 8, plot_size=size, corners=moved(outer_corners(reference, size[0]), 0))
-    fit = fit_grid(plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * size[0])
+    fit = fit_grid(
+        plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * size[0]
+    )
     # Only one plot still shows green: the fit it makes is not to be trusted.
     assert fit.report["plots_with_crop"] < 0.2 and not fit.report["accepted"], fit.report
     plots = fitted_plots(layout, placement, fit)
@@ -208,7 +238,9 @@ def test_senesced_soybean_is_unsure_and_keeps_the_unfitted_plots():
 def test_potato_single_rows_from_corners_off_by_a_quarter_metre(day):
     tif = POTATO / "MOSAIC" / f"{day}_RGB.tif"
     if not tif.is_file():
-        pytest.skip(f"the FIELDimageR potato trial is not in {POTATO} (fetched data, never in the repository)")
+        pytest.skip(
+            f"the FIELDimageR potato trial is not in {POTATO} (fetched data, never in the repository)"
+        )
     from cliff_terrain.io.geotiff import read_orthophoto
     from cliff_terrain.measure.canopy import plant_mask
 
@@ -217,8 +249,12 @@ def test_potato_single_rows_from_corners_off_by_a_quarter_metre(day):
     reference = read_plots(POTATO / "Data_Total.shp")
     size = (0.83, 6.0)
     for seed in range(3):
-        layout, placement = place_grid(14, 10, plot_size=size, corners=moved(outer_corners(reference, size[0]), seed))
-        fit = fit_grid(plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * size[0])
+        layout, placement = place_grid(
+            14, 10, plot_size=size, corners=moved(outer_corners(reference, size[0]), seed)
+        )
+        fit = fit_grid(
+            plants, ortho.transform, layout, placement=placement, valid=ortho.valid, tolerance=0.5 * size[0]
+        )
         plots = fitted_plots(layout, placement, fit)
         assert matches(plots, reference, 0.5 * 0.926) == 140, fit.report
         iou, share, breeder = iou_and_share(plots, reference, ortho, plants)
@@ -231,13 +267,26 @@ def test_potato_single_rows_from_corners_off_by_a_quarter_metre(day):
             v = v / np.hypot(*v) * 6.12
             best = score_of(plants, ortho.transform, truth, columns=14, rows=10, size=size, valid=ortho.valid)
             for step in (u, -u, v, -v):
-                assert score_of(plants, ortho.transform, truth + step, columns=14, rows=10, size=size, valid=ortho.valid) < best
+                assert (
+                    score_of(
+                        plants,
+                        ortho.transform,
+                        truth + step,
+                        columns=14,
+                        rows=10,
+                        size=size,
+                        valid=ortho.valid,
+                    )
+                    < best
+                )
         if day == "4_100":  # a closed canopy, densest between the rows: the fit is refused
             assert not fit.report["accepted"] and {a["fit_flag"] for a in plots.attributes} == {1}
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "cliff_terrain", *map(str, args)], capture_output=True, text=True, cwd=REPO)
+    return subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", *map(str, args)], capture_output=True, text=True, cwd=REPO
+    )
 
 
 def test_plots_command_writes_the_fit_attributes_and_its_report(tmp_path):
@@ -258,9 +307,27 @@ def test_plots_command_writes_the_fit_attributes_and_its_report(tmp_path):
 @pytest.mark.parametrize(
     ("extra", "words"),
     [
-        (["--corners", "315760,4900890", "315800,4900890", "315770,4900895", "315760,4900910", "--fit"], "convex quadrilateral"),
-        (["--corners", "315760,4900890", "315762,4900890", "315762,4900910", "315760,4900910", "--fit"], "do not fit"),
-        (["--corners", "315760,4900890", "315800,4900890", "315800,4900910", "315760,4900910", "--fit", "--tolerance", "-0.1"], "`--tolerance` must be >= 0"),
+        (
+            ["--corners", "315760,4900890", "315800,4900890", "315770,4900895", "315760,4900910", "--fit"],
+            "convex quadrilateral",
+        ),
+        (
+            ["--corners", "315760,4900890", "315762,4900890", "315762,4900910", "315760,4900910", "--fit"],
+            "do not fit",
+        ),
+        (
+            [
+                "--corners",
+                "315760,4900890",
+                "315800,4900890",
+                "315800,4900910",
+                "315760,4900910",
+                "--fit",
+                "--tolerance",
+                "-0.1",
+            ],
+            "`--tolerance` must be >= 0",
+        ),
         (["--origin", "315760,4900890", "--fit", "--tolerance", "0.2"], "give both"),
     ],
     ids=["concave", "too-narrow", "negative-tolerance", "tolerance-without-corners"],

@@ -176,7 +176,9 @@ def run(args):
             tolerance=tolerance,
         )
         report = fit.report
-    numbering = dict(numbering=args.numbering, start=args.start, buffer=buffer, field_book=book, crs=ortho.crs)
+    numbering = dict(
+        numbering=args.numbering, start=args.start, buffer=buffer, field_book=book, crs=ortho.crs
+    )
     if report is not None and tolerance is not None:
         from ..measure.plot_fit import fitted_plots
 

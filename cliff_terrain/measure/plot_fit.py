@@ -137,7 +137,9 @@ def fit_grid(
     if tolerance is not None:
         tolerance = check_float("tolerance", tolerance, minimum=0.0)
         if placement is None:
-            raise CliffTerrainError("`tolerance` holds the fit to a placement's corners: give `placement` too")
+            raise CliffTerrainError(
+                "`tolerance` holds the fit to a placement's corners: give `placement` too"
+            )
     plants = np.asarray(plants, dtype=bool)
     t = as_affine(transform)
     rr, cc = np.nonzero(plants)
@@ -216,7 +218,9 @@ def fit_grid(
             f"no rectangular grid of {layout.columns} x {layout.rows} plots has its corners within the "
             f"tolerance of {tolerance:g} m of the given ones; check --corners or raise --tolerance"
         )
-    fitted_layout = _with_pitch(layout, (best["pc"], best["pr"])) if fit_pitch or tolerance is not None else layout
+    fitted_layout = (
+        _with_pitch(layout, (best["pc"], best["pr"])) if fit_pitch or tolerance is not None else layout
+    )
     u_axis, v_axis = axes(best["theta"])
     corner = pivot + best["u0"] * u_axis + best["v0"] * v_axis
     fitted = Placement.rigid(corner, best["theta"], fitted_layout.extent)
@@ -410,7 +414,10 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
     # the corners rule out a whole pitch, the crop must tell the rows from the gaps.
     margins = [
         (own - alt) * n / max(own_inside, 1.0)
-        for own, alt, n, own_inside in ((score_u, alt_u, layout.columns, su[0]), (score_v, alt_v, layout.rows, inside))
+        for own, alt, n, own_inside in (
+            (score_u, alt_u, layout.columns, su[0]),
+            (score_v, alt_v, layout.rows, inside),
+        )
     ]
     confidence = float(np.clip(min(margins), 0.0, 1.0))
     pc = float(np.diff(cols_off).mean()) if layout.columns > 1 else layout.width
@@ -535,12 +542,21 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=No
             score = 2 * inside - hull - SOIL_COST * soil_in + wave
             if bounds is not None:  # the last edge within its bounds too
                 last = shifts + offsets[-1] * scale + size
-                score = np.where((last >= bounds[1][0] - 1e-9) & (last <= bounds[1][1] + 1e-9), score, -np.inf)
+                score = np.where(
+                    (last >= bounds[1][0] - 1e-9) & (last <= bounds[1][1] + 1e-9), score, -np.inf
+                )
             k = int(np.argmax(score))
             if score[k] > best:
                 best, best_key = (
                     score[k],
-                    (float(shifts[k]), float(scale), float(inside[k]), float(hull[k]), float(soil_in[k]), float(wave[k])),
+                    (
+                        float(shifts[k]),
+                        float(scale),
+                        float(inside[k]),
+                        float(hull[k]),
+                        float(soil_in[k]),
+                        float(wave[k]),
+                    ),
                 )
         return best_key
 
@@ -560,12 +576,19 @@ def _best_1d(profiles, lo, b, shift_range, offsets, size, scale_range, bounds=No
     # The best grid against a bound: the crop pulls it further than the corners allow. That counts
     # where the grid half a pitch away (the plots on the gaps between the rows) could lie within the
     # bounds: elsewhere (rows metres long) a bound only stops a slide along a flat score.
-    edge = bounds is not None and 0.5 * pitch <= bounds[0][1] - bounds[0][0] and (
-        min(shift - bounds[0][0], bounds[0][1] - shift) < 0.5 * b
-        and bounds[0][1] - bounds[0][0] > b
-        or min(shift + offsets[-1] * scale + size - bounds[1][0], bounds[1][1] - shift - offsets[-1] * scale - size)
-        < 0.5 * b
-        and bounds[1][1] - bounds[1][0] > b
+    edge = (
+        bounds is not None
+        and 0.5 * pitch <= bounds[0][1] - bounds[0][0]
+        and (
+            min(shift - bounds[0][0], bounds[0][1] - shift) < 0.5 * b
+            and bounds[0][1] - bounds[0][0] > b
+            or min(
+                shift + offsets[-1] * scale + size - bounds[1][0],
+                bounds[1][1] - shift - offsets[-1] * scale - size,
+            )
+            < 0.5 * b
+            and bounds[1][1] - bounds[1][0] > b
+        )
     )
     return shift, offsets * scale, (inside, hull, soil_in, wave), alternative, bool(edge)
 
@@ -605,7 +628,10 @@ def fitted_plots(layout, placement, fit, **numbering):
     ids = numbered(fit.layout, fit.placement, numbering=numbering.get("numbering", "serpentine"),
                    start=numbering.get("start", "top-left"))  # fmt: skip
     frame_index = {number: i for i, (number, _, _) in enumerate(ids)}
-    by_number = {a["plot"]: rings[0][:4].mean(axis=0) for a, rings in zip(moved.attributes, moved.polygons, strict=True)}
+    by_number = {
+        a["plot"]: rings[0][:4].mean(axis=0)
+        for a, rings in zip(moved.attributes, moved.polygons, strict=True)
+    }
     chosen = moved if accepted else given
     attributes = []
     for a, rings in zip(given.attributes, given.polygons, strict=True):
@@ -613,7 +639,9 @@ def fitted_plots(layout, placement, fit, **numbering):
         own = confidence
         if cover is not None:
             own = confidence if cover[frame_index[a["plot"]]] >= MIN_COVER else 0.0
-        attributes.append({"fit_shift_m": round(shift, 3), "fit_confidence": round(own, 3), "fit_flag": int(not accepted)})
+        attributes.append(
+            {"fit_shift_m": round(shift, 3), "fit_confidence": round(own, 3), "fit_flag": int(not accepted)}
+        )
     extra = {a["plot"]: e for a, e in zip(given.attributes, attributes, strict=True)}
     from ..io.plot_polygons import PlotSet
 
