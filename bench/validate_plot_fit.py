@@ -36,7 +36,8 @@ from cliff_terrain.io.geotiff import read_orthophoto  # noqa: E402
 from cliff_terrain.io.plot_polygons import read_plots  # noqa: E402
 from cliff_terrain.measure.canopy import plant_mask  # noqa: E402
 from cliff_terrain.measure.field_plots import rasterize_plots  # noqa: E402
-from cliff_terrain.measure.plot_fit import fit_grid, fitted_plots  # noqa: E402
+from cliff_terrain.measure.fit_flags import fitted_plots  # noqa: E402
+from cliff_terrain.measure.plot_fit import fit_grid  # noqa: E402
 from cliff_terrain.measure.plot_grid import place_grid, plots_from  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"

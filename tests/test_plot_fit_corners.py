@@ -22,7 +22,8 @@ from scipy.optimize import linear_sum_assignment
 from cliff_terrain.errors import CliffTerrainError
 from cliff_terrain.io.plot_polygons import read_plots
 from cliff_terrain.measure.field_plots import rasterize_plots
-from cliff_terrain.measure.plot_fit import fit_grid, fitted_plots
+from cliff_terrain.measure.fit_flags import fitted_plots
+from cliff_terrain.measure.plot_fit import fit_grid
 from cliff_terrain.measure.plot_grid import axes, place_grid, plots_from
 
 SOYBEAN = SHARED_UAV / "lamberton_soybean"

@@ -180,7 +180,7 @@ def run(args):
         numbering=args.numbering, start=args.start, buffer=buffer, field_book=book, crs=ortho.crs
     )
     if report is not None and tolerance is not None:
-        from ..measure.plot_fit import fitted_plots
+        from ..measure.fit_flags import fitted_plots
 
         plots = fitted_plots(*given, fit, **numbering)
     elif report is not None:
@@ -204,8 +204,7 @@ def run(args):
         )
         if not report.get("accepted", True):
             line += (
-                f"; NOT accepted (a corner would move {report['corner_shift_m']:.2f} m, tolerance "
-                f"{report['tolerance_m']:.2f} m; confidence below 0.5?): kept the unfitted plots, flagged fit_flag=1"
+                f"; NOT accepted ({report['refused_because']}): kept the unfitted plots, flagged fit_flag=1"
             )
     print(f"{line}; wrote {out}")
     return 0

@@ -17,7 +17,7 @@ With the corners as constraints (``tolerance``) the shifts and pitches searched 
 every corner within the tolerance, the score adds the crop's periodicity (plant pixels weighted by a
 cosine of the pitch, highest on each plot's centre line: touching single-row plots lock on their
 rows), the alternative for the confidence is half a pitch away, and a fit that is unsure or pulled
-against the tolerance is not accepted (:func:`fitted_plots` then keeps the unfitted plots, flagged).
+against the tolerance is not accepted (:func:`cliff_terrain.measure.fit_flags.fitted_plots` then keeps the unfitted plots, flagged).
 """
 
 from __future__ import annotations
@@ -258,9 +258,20 @@ def fit_grid(
         report["corner_distance_m"] = round(float(np.hypot(*moved_by.T).max()), 3)
         # A best grid against the tolerance's bound would move a corner beyond it, were it free to.
         report["at_tolerance"] = bool(best["at_tolerance"])
-        report["accepted"] = bool(
-            shift <= tolerance + 1e-9 and not best["at_tolerance"] and best["confidence"] >= CONFIDENT
-        )
+        reasons = [
+            why
+            for why, bad in (
+                (
+                    f"a corner would move {shift:.2f} m (tolerance {tolerance:.2f} m)",
+                    shift > tolerance + 1e-9,
+                ),
+                ("the crop pulls the grid against the tolerance", best["at_tolerance"]),
+                (f"confidence {best['confidence']:.2f} < {CONFIDENT}", best["confidence"] < CONFIDENT),
+            )
+            if bad
+        ]
+        report["accepted"] = not reasons
+        report["refused_because"] = "; ".join(reasons)
     return GridFit(fitted_layout, fitted, report, cover)
 
 
@@ -434,64 +445,3 @@ def _fit_at(points, soil, theta, pivot, layout, b, scale_ranges, pinned_origin, 
         "confidence": confidence,
         "at_tolerance": edge_u or edge_v,
     }
-
-
-def fitted_plots(layout, placement, fit, **numbering):
-    """The numbered plots of a fit, each with how far the fit moved it and how sure it is.
-
-    Parameters
-    ----------
-    layout, placement : Layout, Placement
-        The unfitted grid (as the user gave it).
-    fit : GridFit
-        :func:`fit_grid`'s result from that grid.
-    **numbering
-        ``numbering``, ``start``, ``buffer``, ``field_book``, ``crs``: see
-        :func:`cliff_terrain.measure.plot_grid.plots_from`.
-
-    Returns
-    -------
-    PlotSet
-        With three more attributes per plot: ``fit_shift_m`` (how far the fit moves the plot's
-        centre, metres), ``fit_confidence`` (the grid's confidence: the fit moves the grid as one
-        rigid body, so every plot rests on the whole grid's evidence; 0 for a plot with less than
-        :data:`MIN_COVER` plant cover, whose place comes from its neighbours alone) and ``fit_flag`` (1 when the
-        fit was not accepted: a corner would move beyond the tolerance, or the confidence is below
-        :data:`CONFIDENT`; the plot then keeps its unfitted place and ``fit_shift_m`` says how far
-        the refused fit would have moved it).
-    """
-    from .plot_grid import numbered, plots_from
-
-    given = plots_from(layout, placement, **numbering)
-    moved = plots_from(fit.layout, fit.placement, **numbering)
-    accepted = bool(fit.report.get("accepted", True))
-    confidence = float(fit.report["confidence"])
-    cover = fit.plot_cover
-    # Plot number -> its index in the grid's own (row, column) order, in which the cover is.
-    ids = numbered(fit.layout, fit.placement, numbering=numbering.get("numbering", "serpentine"),
-                   start=numbering.get("start", "top-left"))  # fmt: skip
-    frame_index = {number: i for i, (number, _, _) in enumerate(ids)}
-    by_number = {
-        a["plot"]: rings[0][:4].mean(axis=0)
-        for a, rings in zip(moved.attributes, moved.polygons, strict=True)
-    }
-    chosen = moved if accepted else given
-    attributes = []
-    for a, rings in zip(given.attributes, given.polygons, strict=True):
-        shift = float(np.hypot(*(by_number[a["plot"]] - rings[0][:4].mean(axis=0))))
-        own = confidence
-        if cover is not None:
-            own = confidence if cover[frame_index[a["plot"]]] >= MIN_COVER else 0.0
-        attributes.append(
-            {"fit_shift_m": round(shift, 3), "fit_confidence": round(own, 3), "fit_flag": int(not accepted)}
-        )
-    extra = {a["plot"]: e for a, e in zip(given.attributes, attributes, strict=True)}
-    from ..io.plot_polygons import PlotSet
-
-    return PlotSet(
-        chosen.polygons,
-        [{**a, **extra[a["plot"]]} for a in chosen.attributes],
-        tuple(chosen.fields) + ("fit_shift_m", "fit_confidence", "fit_flag"),
-        chosen.crs,
-        chosen.path,
-    )
