@@ -72,10 +72,11 @@ def configure(parser):
         help="with --corners and --fit: how far the fit may move each given corner, along each of the "
         "grid's axes (default: half the plot's smaller side, at most half a pitch); the pitch is "
         "what the corners and counts imply, refined within it. A fit that would move a corner "
-        "further, or whose confidence is below 0.5, keeps the unfitted plots and flags them "
-        "(fit_flag 1). Confidence (0-1, in the .fit.json and on every plot): the score the fit "
-        "would lose to the same grid shifted by half a pitch (one pitch without corners), in "
-        "units of one column's or row's plant pixels; the smaller of the two axes",
+        "further (or is pulled against that bound across touching rows), or whose confidence is "
+        "below 0.5, keeps the unfitted plots and flags them (fit_flag 1). Confidence (0-1, in the "
+        ".fit.json and on every plot): the score the fit would lose to the same grid shifted by "
+        "half a pitch (one pitch without corners), in units of one column's or row's plant "
+        "pixels, the smaller of the two axes, times the share of the plots holding crop",
     )
     parser.add_argument("--out", type=Path, required=True, help="plots.geojson or plots.shp")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
