@@ -86,9 +86,9 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
     def execute(self, context):
         from ..cliff_terrain.io.geotiff import read_orthophoto
         from ..cliff_terrain.measure.canopy import plant_mask
-        from ..cliff_terrain.measure.plot_fit import fit_grid
+        from ..cliff_terrain.measure.plot_fit import CONFIDENT, MIN_COVER, fit_grid
         from ..cliff_terrain.measure.plot_grid import Placement
-        from ..scene.plot_grid import FIT_KEY, grid_map_corners, layout_of, move_grid
+        from ..scene.plot_grid import FIT_KEY, grid_map_corners, layout_of, mark_fit, move_grid
 
         grid = context.active_object
         settings = context.scene.cliff_terrain
@@ -111,10 +111,16 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
         settings.plot_alley_across = max(0.0, fit.report["column_pitch_m"] - settings.plot_width)
         settings.plot_alley_along = max(0.0, fit.report["row_pitch_m"] - settings.plot_length)
         grid[FIT_KEY] = {k: v for k, v in fit.report.items() if isinstance(v, int | float)}
+        import numpy as np
+
+        # Per plot (the faces' order): the grid's confidence, none for a plot without crop of its own.
+        confidence = np.where(fit.plot_cover >= MIN_COVER, fit.report["confidence"], 0.0)
+        mark_fit(grid, confidence, confidence < CONFIDENT)
         self.report(
             {"INFO"},
             f"Fitted: angle {fit.report['angle_deg']:.2f} deg, {fit.report['plant_share_in_plots']:.0%} of the "
-            f"plants in plots, moved {fit.report['moved_m']:.2f} m, confidence {fit.report['confidence']:.2f}",
+            f"plants in plots, moved {fit.report['moved_m']:.2f} m, confidence {fit.report['confidence']:.2f}; "
+            f"{int((confidence < CONFIDENT).sum())} plots flagged (red)",
         )
         return {"FINISHED"}
 

@@ -3,7 +3,10 @@ tools, and its map frame (Blender world <-> the relief's map coordinates).
 
 The mesh holds the grid in its own frame: u (across the columns) along local x, v (along them) along
 local y, from the grid's (0, 0) corner, in Blender units. The object's matrix is the placement. Each
-face carries its plot's ``column`` and ``row`` (0-based in the grid's frame) as integer attributes.
+face carries its plot's ``column`` and ``row`` (0-based in the grid's frame) as integer attributes;
+after Fit to Field also ``fit_confidence`` (float), ``fit_flag`` (1: the fit is unsure of this plot)
+and the colour attribute ``fit_colour`` (the grid's yellow, red where flagged), until the layout is
+edited.
 """
 
 import bpy
@@ -16,6 +19,7 @@ GRID_KEY = "cliff_terrain_plot_grid"  # custom property: the name of the relief 
 FIT_KEY = "cliff_terrain_fit"  # custom property: the last fit's report
 TABLE_KEY = "cliff_terrain_plot_table"  # custom property: the last Measure Plots' rows
 GRID_RGBA = (1.0, 0.85, 0.1, 1.0)
+FLAGGED_RGBA = (0.9, 0.1, 0.1, 1.0)  # plots the last fit is unsure of
 
 
 def active_grid(context):
@@ -206,3 +210,29 @@ def label_positions(grid, settings):
     return [
         (str(a["plot"]), (float(x), float(y), z)) for a, (x, y) in zip(plots.attributes, world, strict=True)
     ]
+
+
+def mark_fit(grid, confidence, flagged):
+    """Write the last fit's per-plot `confidence` and `flagged` (grid (row, column) order, as the
+    faces) onto the grid's faces, with a colour attribute that shows the flagged plots in red."""
+    mesh = grid.data
+    n = len(mesh.polygons)
+    confidence = np.asarray(confidence, dtype=np.float32).reshape(n)
+    flagged = np.asarray(flagged, dtype=bool).reshape(n)
+    for name, kind, values in (
+        ("fit_confidence", "FLOAT", confidence),
+        ("fit_flag", "INT", flagged.astype(np.int32)),
+    ):
+        attribute = mesh.attributes.get(name) or mesh.attributes.new(name, kind, "FACE")
+        attribute.data.foreach_set("value", values)
+    # Colour attributes live on points or face corners: each plot's four corners (the mesh's loops
+    # are face after face, four each).
+    colour = mesh.color_attributes.get("fit_colour") or mesh.color_attributes.new(
+        "fit_colour", "FLOAT_COLOR", "CORNER"
+    )
+    rgba = np.where(flagged[:, None], FLAGGED_RGBA, GRID_RGBA).astype(np.float32)
+    colour.data.foreach_set("color", np.repeat(rgba, 4, axis=0).ravel())
+    mesh.color_attributes.active_color = colour
+    # The wire shows the object's colour: red when the fit is unsure of any plot.
+    grid.color = FLAGGED_RGBA if flagged.any() else GRID_RGBA
+    mesh.update()

@@ -67,6 +67,19 @@ def test_add_edit_fit_and_export_a_plot_grid(relief, tmp_path):
     assert bpy.ops.cliff_terrain.fit_plot_grid() == {"FINISHED"}
     report = grid["cliff_terrain_fit"]
     assert 0.0 <= report["confidence"] <= 1.0 and abs(report["angle_deg"] + 2.0) < 1.5
+    # Every face carries the fit's confidence and flag; the flagged ones are red in `fit_colour`.
+    confidence, flag = np.zeros(36, np.float32), np.zeros(36, np.int32)
+    grid.data.attributes["fit_confidence"].data.foreach_get("value", confidence)
+    grid.data.attributes["fit_flag"].data.foreach_get("value", flag)
+    colour = np.zeros(36 * 4 * 4, np.float32)  # four corners a plot
+    grid.data.color_attributes["fit_colour"].data.foreach_get("color", colour)
+    np.testing.assert_allclose(flag, confidence < 0.5)
+    green = colour.reshape(36, 4, 4)[:, :, 1]
+    np.testing.assert_allclose(
+        green, np.repeat(np.where(flag == 1, 0.1, 0.85)[:, None], 4, axis=1), atol=1e-6
+    )
+    assert grid.data.color_attributes.active_color.name == "fit_colour"
+    assert confidence.max() == pytest.approx(report["confidence"], abs=1e-3)
 
     out = tmp_path / "plots.geojson"
     assert bpy.ops.cliff_terrain.export_plots(filepath=str(out)) == {"FINISHED"}

@@ -27,6 +27,10 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
+    "cliff_terrain.measure.grid_search": (
+        ("test_plot_fit_corners.py", "test_plot_grid.py"),
+        "`fit_grid`'s search along each axis",
+    ),
     "cliff_terrain._progress": (
         ("test_interrupted_outputs.py",),
         "the commands' progress bar on a terminal (`--no-progress`)",

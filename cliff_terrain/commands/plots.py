@@ -4,7 +4,9 @@ Builds a trial's plot polygons from its layout (:mod:`cliff_terrain.measure.plot
 the crop (``--fit``, :mod:`cliff_terrain.measure.plot_fit`; with no placement the fit places the grid itself),
 checks them against the orthophoto (inside it, not overlapping) and writes GeoJSON, or an ESRI
 Shapefile when FILE ends in ``.shp``, in the orthophoto's CRS. With ``--fit`` the fit's report is also
-written beside FILE as ``FILE.fit.json``. The output feeds ``heights --plots`` and ``season --plots``.
+written beside FILE as ``FILE.fit.json``. With ``--corners`` and ``--fit`` the corners are constraints
+(``--tolerance``): every plot carries ``fit_shift_m``, ``fit_confidence`` and ``fit_flag``, and a fit
+that is not accepted keeps the unfitted plots, flagged. The output feeds ``heights --plots`` and ``season --plots``.
 """
 
 from __future__ import annotations
@@ -64,6 +66,20 @@ def configure(parser):
     )
     parser.add_argument(
         "--fit", action="store_true", help="snap the grid to the crop (or place it, with no placement)"
+    )
+    parser.add_argument(
+        "--tolerance",
+        type=float,
+        default=None,
+        metavar="METRES",
+        help="with --corners and --fit: how far the fit may move each given corner, along each of the "
+        "grid's axes (default: half the plot's smaller side, at most half a pitch); the pitch is "
+        "what the corners and counts imply, refined within it. A fit that would move a corner "
+        "further (or is pulled against that bound across touching rows), or whose confidence is "
+        "below 0.5, keeps the unfitted plots and flags them (fit_flag 1). Confidence (0-1, in the "
+        ".fit.json and on every plot): the score the fit would lose to the same grid shifted by "
+        "half a pitch (one pitch without corners), in units of one column's or row's plant "
+        "pixels, the smaller of the two axes, times the share of the plots holding crop",
     )
     parser.add_argument("--out", type=Path, required=True, help="plots.geojson or plots.shp")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -139,6 +155,16 @@ def _run(args, progress):
     buffer = parse_pair(args.buffer, "--buffer") if "x" in args.buffer.lower() else (float(args.buffer),) * 2
     corners = [parse_pair(c, "--corners") for c in args.corners] if args.corners else None
     origin = parse_pair(args.origin, "--origin") if args.origin else None
+    tolerance = None
+    if args.tolerance is not None:
+        if args.tolerance < 0 or args.tolerance != args.tolerance:
+            raise CliffTerrainError(f"`--tolerance` must be >= 0 metres, got {args.tolerance:g}")
+        if corners is None or not args.fit:
+            raise CliffTerrainError("`--tolerance` bounds how far --fit moves --corners: give both")
+        tolerance = args.tolerance
+    elif corners is not None and args.fit:
+        # Half the plot's smaller side: never half a pitch, so the fit cannot move a whole column.
+        tolerance = 0.5 * min(size)
     if corners is None and origin is None and not args.fit:
         raise CliffTerrainError("place the grid: give `--corners`, `--origin` (and `--angle`), or `--fit`")
     outputs = [out] + (
@@ -165,6 +191,7 @@ def _run(args, progress):
             angle=0.0 if args.angle is None else args.angle, pitch=pitch, alleys=alleys,
         )  # fmt: skip
     report = None
+    given = (layout, placement)
     if args.fit:
         from ..measure.canopy import plant_mask
         from ..measure.plot_fit import fit_grid
@@ -180,17 +207,20 @@ def _run(args, progress):
             pitch=pitch,
             origin=origin,
             valid=ortho.valid,  # the no-data border is neither crop nor soil
+            tolerance=tolerance,
         )
-        layout, placement, report = fit.layout, fit.placement, fit.report
-    plots = plots_from(
-        layout,
-        placement,
-        numbering=args.numbering,
-        start=args.start,
-        buffer=buffer,
-        field_book=book,
-        crs=ortho.crs,
+        report = fit.report
+    numbering = dict(
+        numbering=args.numbering, start=args.start, buffer=buffer, field_book=book, crs=ortho.crs
     )
+    if report is not None and tolerance is not None:
+        from ..measure.fit_flags import fitted_plots
+
+        plots = fitted_plots(*given, fit, **numbering)
+    elif report is not None:
+        plots = plots_from(fit.layout, fit.placement, **numbering)
+    else:
+        plots = plots_from(layout, placement, **numbering)
     progress(0.9, "writing")
     check_plots_fit(plots, transform=ortho.transform, shape=ortho.shape, source=str(args.ortho))
     try:
@@ -205,5 +235,9 @@ def _run(args, progress):
             f"{report['row_pitch_m']:.3f} m, {report['plant_share_in_plots']:.1%} of the plant pixels in plots, "
             f"confidence {report['confidence']:.2f}"
         )
+        if not report.get("accepted", True):
+            line += (
+                f"; NOT accepted ({report['refused_because']}): kept the unfitted plots, flagged fit_flag=1"
+            )
     print(f"{line}; wrote {out}")
     return 0

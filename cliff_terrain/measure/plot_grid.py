@@ -183,7 +183,7 @@ def placement_from_corners(corners, extent=None):
     sides = np.hypot(*np.diff(np.vstack([quad, quad[:1]]), axis=0).T)
     if min(cross) <= 1e-9 * max(sides.max() ** 2, 1e-300) or sides.min() <= 1e-9 * sides.max():
         raise CliffTerrainError(
-            f"`corners` {points.round(3).tolist()} do not form a quadrilateral (collinear, repeated or crossed)"
+            f"`corners` {points.round(3).tolist()} do not form a convex quadrilateral (collinear, repeated, crossed or concave)"
         )
     if extent is not None:
         across, along = extent
