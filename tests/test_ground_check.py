@@ -246,6 +246,14 @@ def test_heights_reports_its_check_uncertainty_and_the_ruler(trial):
     assert np.all(err > 0) and np.all(err < 0.1)
     sigma = read_surface(out / "chm_err.tif")
     assert sigma.shape == read_surface(out / "chm.tif").shape and np.nanmin(sigma.data) > 0
+    # The chart: the plots' points in the DSM's blue and the calibrated red, the figures above.
+    from PIL import Image
+
+    chart = np.asarray(Image.open(out / "ruler.png").convert("RGB"))
+    assert chart.shape == (720, 720, 3)
+    blue = np.all(chart == (31, 119, 180), axis=-1)
+    red = np.all(chart == (214, 39, 40), axis=-1)
+    assert blue[150:].sum() > 8 * 9 and red[150:].sum() > 8 * 9  # 8 plots each, below the title
 
 
 def test_heights_with_the_baseline_is_the_naive_peer(trial):

@@ -27,6 +27,10 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
+    "cliff_terrain.figures.ruler_chart": (
+        ("test_ground_check.py",),
+        "`cliff-terrain heights --ruler`'s ruler.png",
+    ),
     "cliff_terrain.measure.grid_search": (
         ("test_plot_fit_corners.py", "test_plot_grid.py"),
         "`fit_grid`'s search along each axis",

@@ -9,7 +9,8 @@ bare soil that carried the ground around each pixel, 0 where it is interpolated 
 ``regions.csv`` and ``regions.geojson`` (one row per plant), with ``--plots`` ``plots.csv`` and
 ``plots.geojson`` (one row per polygon, with ``height_p90_err_m``), with ``--indices NDVI,NDRE`` their
 index columns (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...), with
-``--ruler`` the measured heights (``ruler_height_m``; ``height_calibrated_m`` with ``--calibrate``),
+``--ruler`` the measured heights (``ruler_height_m``; ``height_calibrated_m`` with ``--calibrate``) and
+``ruler.png`` (the plots' heights against the ruler's, with r, RMSE, bias and CCC),
 and ``summary.json`` (the key figures, the ground's source, method and held-out check, the ruler's
 agreement and the plant/soil threshold). All files appear together or none does.
 The rasters and plots may be in an EPSG CRS or in a user-defined projected CRS in metres (no EPSG
@@ -151,6 +152,8 @@ def run(args):
     if args.dtm is not None:
         outputs.remove("ground_support.tif")
         outputs.remove("chm_err.tif")
+    if args.ruler is not None:
+        outputs.insert(-1, "ruler.png")
     if args.ruler is not None and args.plots is None:
         raise CliffTerrainError(f"--ruler {str(args.ruler)!r} needs --plots: its heights belong to plots")
     if args.calibrate and args.ruler is None:
@@ -188,13 +191,14 @@ def run(args):
         relief = build_relief(args.ortho, params, progress=progress)
     canopy = relief.canopy
     maps = relief_index_maps(args, bands, relief.mask.shape)
-    ruler_record = {}
+    ruler_record, ruler_rows = {}, []
 
     def with_ruler(rows):
         from ..measure.ruler import ruler_columns
 
         columns, record = ruler_columns(rows, ruler, calibrate_heights=args.calibrate)
         ruler_record.update(record)
+        ruler_rows.extend(rows)
         return columns
 
     extra = with_ruler if ruler is not None else None
@@ -210,6 +214,8 @@ def run(args):
         files[out / "chm_err.tif"] = lambda tmp: write_geotiff(
             tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs, overviews=True
         )
+    if ruler_rows:
+        files[out / "ruler.png"] = lambda tmp: _ruler_chart(ruler_rows, ruler_record).save(tmp, format="PNG")
     figures = key_figures(relief)
     check = canopy.check or {}
     summary = {
@@ -253,3 +259,23 @@ def run(args):
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
+
+
+def _ruler_chart(rows, record):
+    """ruler.png: the plots' DSM heights against the ruler's (:func:`~cliff_terrain.figures.ruler_chart.ruler_figure`)."""
+    import numpy as np
+
+    from ..figures.ruler_chart import ruler_figure
+
+    def column(name):
+        return np.array([float(r.get(name, "nan")) for r in rows])
+
+    calibrated = column("height_calibrated_m") if "calibration" in record else None
+    return ruler_figure(
+        column("height_p90_m"),
+        column("ruler_height_m"),
+        err=column("height_p90_err_m"),
+        agreement=record["height_p90_m"],
+        calibrated=calibrated,
+        calibration=record.get("calibration"),
+    )
