@@ -370,6 +370,13 @@ SOURCES = (
         "the repository's binary masks (possibly a model's output, not verified as hand-drawn)",
     ),
     (
+        "`peanut` (20 of 400)",
+        "field photos of peanut with weeds on brown, dry to moist soil with residue; sun and shadows",
+        "`ptdkhoa/Peanut-dataset`, `images/`, `labels/`",
+        "CC BY-SA 4.0 (README); cite Tran and Phan, IEEE Access 11 (2023)",
+        "the dataset's hand-labelled colour maps (crop and weeds are plant)",
+    ),
+    (
         "`uavbroccoli` (4)",
         "UAV orthomosaic tiles: pale, bluish broccoli on very dark soil",
         "`UTokyo-FieldPhenomics-Lab/UAVbroccoli`, `data/broccoli_data/images/train/` (older commit)",
