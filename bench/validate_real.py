@@ -155,16 +155,12 @@ def stable_alignment(difference, outside):
 
 
 def agreement(estimate, truth):
-    ok = np.isfinite(estimate) & np.isfinite(truth)
-    a, b = estimate[ok], truth[ok]
-    if a.size < 3:
-        return {"n": int(a.size), "r": None, "rmse_cm": None, "bias_cm": None}
-    return {
-        "n": int(a.size),
-        "r": float(np.corrcoef(a, b)[0, 1]),
-        "rmse_cm": float(np.sqrt(np.mean((a - b) ** 2)) * 100),
-        "bias_cm": float(np.mean(a - b) * 100),
-    }
+    """:func:`cliff_terrain.measure.ruler.agreement` (n, r, RMSE, bias) with the lengths in cm."""
+    from cliff_terrain.measure.ruler import agreement as in_metres
+
+    a = in_metres(estimate, truth)
+    cm = {key: None if a[f"{key}_m"] is None else 100 * a[f"{key}_m"] for key in ("rmse", "bias")}
+    return {"n": a["n"], "r": a["r"], "rmse_cm": cm["rmse"], "bias_cm": cm["bias"]}
 
 
 def field_rows(data_dir, *, ground="auto"):

@@ -203,17 +203,11 @@ def plant_mask(rgb, *, valid=None):
     Cheaper than :func:`cliff_terrain.relief.segmentation.segment` on large orthophotos, where only
     plant/soil matters (the ground, plot cover).
     """
-    from ..relief.separation import chroma_map
-    from ..relief.vegetation import blurred_index, index_threshold
+    from ..relief.vegetation import blurred_index, photo_threshold
 
     vi, name = blurred_index(rgb)
     # The same rule as the segmentation's, colour test included.
-    chroma = chroma_map(rgb) if name == "green" else None
-    if valid is None:
-        rule = index_threshold(vi, index=name, chroma=chroma)
-    else:
-        rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
-    mask = vi > rule.threshold
+    mask = vi > photo_threshold(vi, rgb, index=name, valid=valid).threshold
     if valid is not None:
         mask &= valid
     return mask

@@ -38,8 +38,8 @@ from .._validate import check_choice, check_float, check_int, check_rgb
 from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
 from .labels import distance_map, inner_boundaries
-from .separation import chroma_map, surface_separation
-from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, index_threshold, otsu_threshold
+from .separation import surface_separation
+from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, otsu_threshold, photo_threshold
 from .watershed import colour_edges, split_regions
 
 METHODS = ids(SEGMENTATIONS)
@@ -334,12 +334,7 @@ def _vegetation_mask(image, index, valid, threshold=None, index_map=None):
         valid = finite if valid is None else valid & finite
         vi, name = cv2.GaussianBlur(np.where(finite, index_map, np.float32(-1.0)), (0, 0), 1.0), "ndvi"
     if threshold is None:
-        # The colour test reads the photo's chroma (not for false-colour NIR or NDVI frames).
-        chroma = chroma_map(image) if name == "green" else None
-        if valid is None:
-            rule = index_threshold(vi, index=name, chroma=chroma)
-        else:
-            rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
+        rule = photo_threshold(vi, image, index=name, valid=valid)
     else:
         rule = ThresholdRule(threshold, name, "given", float("nan"))
     return vi > rule.threshold, rule, vi

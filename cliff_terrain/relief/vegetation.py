@@ -333,6 +333,16 @@ def _valley(values, split, thresholds):
     return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
 
 
+def photo_threshold(vi, image, *, index, valid=None):
+    """:func:`index_threshold` of a photo's index map `vi` over its `valid` pixels, with the colour
+    test on the photo's chroma (not for false-colour NIR or NDVI maps, whose colours are not the
+    plants'); the one place the segmentation, the bare soil and the orthophoto's plant mask take it."""
+    chroma = chroma_map(image) if index == "green" else None
+    if valid is None:
+        return index_threshold(vi, index=index, chroma=chroma)
+    return index_threshold(vi[valid], index=index, chroma=None if chroma is None else chroma[valid])
+
+
 def bare_soil(image, *, valid=None, index="auto", threshold=None):
     """Pixels that are surely soil, by colour: the ground's support, stricter than "not a plant".
 
@@ -374,12 +384,7 @@ def bare_soil(image, *, valid=None, index="auto", threshold=None):
         if valid.shape != vi.shape:
             raise CliffTerrainError(f"`valid` must have shape {vi.shape}, got {valid.shape}")
     if threshold is None:
-        chroma = chroma_map(image) if name == "green" else None
-        if valid is None:
-            rule = index_threshold(vi, index=name, chroma=chroma)
-        else:
-            rule = index_threshold(vi[valid], index=name, chroma=None if chroma is None else chroma[valid])
-        threshold = rule.threshold
+        threshold = photo_threshold(vi, image, index=name, valid=valid).threshold
     candidates = vi <= threshold
     if valid is not None:
         candidates &= valid
