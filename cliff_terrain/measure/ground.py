@@ -177,15 +177,20 @@ def fit_ground(
     # baseline stays the naive peer, in blocks of `block_m` whatever the field.
     small_m = min(block_m, max(2, min(dsm.shape) // 3) * pixel_size)
     lowest = lowest_surface(dsm, pixel_size=pixel_size, block_m=small_m)
+    baseline = []  # made once, when first asked for: it does not depend on the evidence
 
     def build(names, train):
         grounds = ground_candidates(
             dsm, lowest, train, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m, names=names
         )
         if "baseline" in names:
-            grounds["baseline"] = naive_block_ground(
-                dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
-            )
+            if not baseline:
+                baseline.append(
+                    naive_block_ground(
+                        dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
+                    )
+                )
+            grounds["baseline"] = baseline[0]
         return grounds
 
     exposed = None if soil is None else exposed_soil(soil, pixel_size=pixel_size)
