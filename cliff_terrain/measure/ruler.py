@@ -245,7 +245,7 @@ def agreement(estimate, truth):
     va, vb = float(np.var(a)), float(np.var(b))
     cov = float(np.mean((a - a.mean()) * (b - b.mean())))
     if va > 0 and vb > 0:
-        out["r"] = cov / np.sqrt(va * vb)
+        out["r"] = float(cov / np.sqrt(va * vb))
     denominator = va + vb + (a.mean() - b.mean()) ** 2
     out["ccc"] = float(2 * cov / denominator) if denominator > 0 else None
     return out
