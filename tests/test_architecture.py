@@ -89,22 +89,7 @@ def test_no_import_cycle():
         for m, e in GRAPH.items()
         if m != "cliff_terrain"
     }
-    state, stack, cycles = {}, [], []
-
-    def visit(m):
-        state[m] = "open"
-        stack.append(m)
-        for t in sorted(edges.get(m, ())):
-            if state.get(t) == "open":
-                cycles.append(stack[stack.index(t) :] + [t])
-            elif t not in state:
-                visit(t)
-        stack.pop()
-        state[m] = "done"
-
-    for m in sorted(edges):
-        if m not in state:
-            visit(m)
+    cycles = _cycles(edges)
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
 
 

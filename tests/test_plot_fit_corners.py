@@ -9,6 +9,7 @@ touching single-row plots is used when /work/data holds it (never copied into th
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -25,6 +26,12 @@ from cliff_terrain.measure.field_plots import rasterize_plots
 from cliff_terrain.measure.fit_flags import fitted_plots
 from cliff_terrain.measure.plot_fit import fit_grid
 from cliff_terrain.measure.plot_grid import axes, place_grid, plots_from
+
+# The plots' centres and the outer corners of a breeder's grid, as the validation bench takes them.
+_spec = importlib.util.spec_from_file_location("validate_plot_fit", REPO / "bench" / "validate_plot_fit.py")
+_bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_bench)
+centres, outer_corners = _bench.centres, _bench.outer_corners
 
 SOYBEAN = SHARED_UAV / "lamberton_soybean"
 POTATO = Path("/work/data/fields/potato_fieldimager")
@@ -69,10 +76,6 @@ def moved(corners, seed, radius=0.25):
     rng = np.random.default_rng(seed)
     angle, r = rng.uniform(0, 2 * np.pi, 4), radius * np.sqrt(rng.uniform(0, 1, 4))
     return corners + r[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
-
-
-def centres(plots):
-    return np.array([rings[0][:4].mean(axis=0) for rings in plots.polygons])
 
 
 def matches(plots, reference, half_pitch):
@@ -165,26 +168,6 @@ def soybean(date):
 
     ortho = read_orthophoto(tif)
     return ortho, plant_mask(ortho.data, valid=ortho.valid), read_plots(SOYBEAN / "plots.geojson")
-
-
-def outer_corners(plots, width):
-    quads = np.array([rings[0][:4] for rings in plots.polygons])
-    a, b = quads[0][1] - quads[0][0], quads[0][2] - quads[0][1]
-    u = a if abs(np.hypot(*a) - width) < abs(np.hypot(*b) - width) else b
-    u = u / np.hypot(*u)
-    v = np.array([-u[1], u[0]])
-    pu, pv = quads.reshape(-1, 2) @ u, quads.reshape(-1, 2) @ v
-    return np.array(
-        [
-            p * u + q * v
-            for p, q in (
-                (pu.min(), pv.min()),
-                (pu.max(), pv.min()),
-                (pu.max(), pv.max()),
-                (pu.min(), pv.max()),
-            )
-        ]
-    )
 
 
 def iou_and_share(plots, reference, ortho, plants):
