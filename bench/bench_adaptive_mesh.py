@@ -176,8 +176,6 @@ def measure(path, tmp, *, peer, max_size=None, dsm=None, height_source="inflated
     if dsm is not None:
         sizes.update(dsm=str(dsm), height_source=height_source)
     relief = core.build_relief(str(path), mesh="adaptive", **sizes)
-    if dsm is not None:  # the operator's name of the height source
-        sizes["heights"] = sizes.pop("height_source")
     heights = relief.heights
     rows, cols = heights.shape
     grid_triangles = 2 * rows * cols

@@ -269,7 +269,7 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
             stages,
             dsm=params.dsm,
             dtm=params.dtm,
-            mode=params.height_source,
+            height_source=params.height_source,
             exaggeration=params.exaggeration,
             block_m=DEFAULT_GROUND_BLOCK_M if params.ground_block is None else params.ground_block,
             ground_method=params.ground_method or "auto",

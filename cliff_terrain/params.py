@@ -1,47 +1,38 @@
-"""`ReliefParams`: every setting of :func:`cliff_terrain.build.build_relief`, declared and checked once.
+"""`ReliefParams`: every setting of :func:`cliff_terrain.build.build_relief`, checked once.
 
-The one mapping between the settings and their other spellings lives here: the command-line
-options (:meth:`ReliefParams.add_arguments`, :meth:`ReliefParams.from_args`), and the Blender
-sidebar's properties and a relief's recorded settings (:meth:`ReliefParams.to_properties`,
-:meth:`ReliefParams.from_properties`), which hold no None: 0 (or an empty path) stands for it.
-Outside Python (options, properties, records) the height source is called ``heights``.
+Each setting is declared once, in :data:`cliff_terrain.settings.PARAMETERS` (label, help, unit,
+default, limits, choices); this module checks the settings against those declarations and speaks
+their other languages: the command-line options (:meth:`ReliefParams.add_arguments`,
+:func:`add_option`, :meth:`ReliefParams.from_args`), and the Blender sidebar's properties and a
+relief's recorded settings (:meth:`ReliefParams.to_properties`, :meth:`ReliefParams.from_properties`),
+which hold no None: 0 (or an empty path) stands for it. A setting has one name in all of them.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from . import settings
 from ._validate import check_choice, check_float, check_int
 from .errors import CliffTerrainError
+from .settings import PARAMETERS
 
-# Optional settings whose "not given" is None in Python and 0 (or "") in ID properties.
-_OPTIONAL_NUMBERS = ("max_height", "gsd", "max_error")
-_PATHS = ("dsm", "dtm")
-# The sidebar's properties, named as the settings except the height source.
-PROPERTY_NAMES = {
-    "segmentation": "segmentation",
-    "profile": "profile",
-    "max_size": "max_size",
-    "exaggeration": "exaggeration",
-    "max_height": "max_height",
-    "gsd": "gsd",
-    "two_sided": "two_sided",
-    "mesh": "mesh",
-    "max_error": "max_error",
-    "dsm": "dsm",
-    "dtm": "dtm",
-    "height_source": "heights",
-}
+# The sidebar's properties: the settings it shows (operators/properties.py makes them).
+SIDEBAR = tuple(name for name, p in PARAMETERS.items() if p.sidebar)
+# Old names in relief records written before the height source had one name everywhere.
+_RECORDED_AS = {"heights": "height_source"}
 
 
 @dataclass(frozen=True)
 class ReliefParams:
     """The settings of one relief build; checked when made (a :class:`CliffTerrainError` names the
-    setting and the value). See :func:`cliff_terrain.build.build_relief` for their meaning.
+    setting and the value). See :func:`cliff_terrain.build.build_relief` for their meaning, and
+    :data:`cliff_terrain.settings.PARAMETERS` for their declarations (help, unit, limits).
 
     Parameters
     ----------
@@ -69,6 +60,8 @@ class ReliefParams:
         Where the heights come from; the last two need `dsm`.
     ground_block : float, optional
         Block size in metres of the estimated ground's trend (with a `dsm` and no `dtm`).
+    ground_method : {"auto", "baseline", "smooth", "detailed"}, optional
+        The estimated ground (with a `dsm` and no `dtm`); None: ``"auto"``.
     bands : str or sequence of str, optional
         A multispectral photo's band names, when its file gives none (e.g. ``"B,G,R,RE,NIR"``).
 
@@ -100,54 +93,19 @@ class ReliefParams:
     max_error: float | None = None
     dsm: str | None = None
     dtm: str | None = None
-    height_source: str = settings.DEFAULT_HEIGHT_MODE
+    height_source: str = settings.DEFAULT_HEIGHT_SOURCE
     ground_block: float | None = None
-    ground_method: str | None = None  # the ground estimate (measure.ground.GROUND_METHODS); None: "auto"
-    bands: tuple | None = None  # a multispectral photo's band names, when its file gives none
+    ground_method: str | None = None
+    bands: tuple | None = None
 
     def __post_init__(self):
-        checked = {
-            "max_size": check_int(
-                "max_size", self.max_size, minimum=settings.MIN_SIZE, maximum=settings.MAX_SIZE
-            ),
-            "segmentation": check_choice(
-                "segmentation", self.segmentation, settings.ids(settings.SEGMENTATIONS)
-            ),
-            "profile": check_choice("profile", self.profile, settings.ids(settings.PROFILES)),
-            "exaggeration": check_float(
-                "exaggeration", self.exaggeration, minimum=settings.MIN_EXAGGERATION, strict_minimum=True
-            ),
-            "height_source": check_choice(
-                "height_source", self.height_source, settings.ids(settings.HEIGHT_MODES)
-            ),
-        }
-        for name in (*_OPTIONAL_NUMBERS, "ground_block"):
-            value = getattr(self, name)
-            checked[name] = check_float(name, value, minimum=0.0, strict_minimum=True, allow_none=True)
-        if not isinstance(self.two_sided, bool) and type(self.two_sided).__name__ != "bool_":
-            raise CliffTerrainError(f"`two_sided` must be True or False, got {self.two_sided!r}")
-        checked["two_sided"] = bool(self.two_sided)
-        if self.ground_method is not None:
-            from .measure.ground import GROUND_METHODS
-
-            checked["ground_method"] = check_choice("ground_method", self.ground_method, GROUND_METHODS)
-        if self.mesh is not None:
-            check_choice("mesh", self.mesh, settings.ids(settings.MESHES))
-        for name in _PATHS:
-            value = getattr(self, name)
-            if value is not None and not isinstance(value, str | os.PathLike):
-                raise CliffTerrainError(f"`{name}` must be a file path or None, got {value!r}")
-            checked[name] = None if value is None else os.fspath(value)
+        checked = {name: _check(PARAMETERS[name], getattr(self, name)) for name in PARAMETERS}
         if self.dsm is None and self.dtm is not None:
             raise CliffTerrainError(f"`dtm` needs a `dsm`, got dtm={checked['dtm']!r} and dsm=None")
         if self.dsm is None and checked["height_source"] != "inflated":
             raise CliffTerrainError(
                 f"`height_source` {checked['height_source']!r} needs a `dsm` (a surface model GeoTIFF), got None"
             )
-        if self.bands is not None:
-            from .io.bands import parse_band_names
-
-            checked["bands"] = parse_band_names(self.bands)
         for name, value in checked.items():
             object.__setattr__(self, name, value)
 
@@ -161,7 +119,7 @@ class ReliefParams:
 
     def as_record(self):
         """The settings as recorded in files (``relief.json``, ``metrics.json``): plain values, None kept."""
-        record = {PROPERTY_NAMES.get(name, name): value for name, value in self.as_kwargs().items()}
+        record = self.as_kwargs()
         if self.ground_block is None:
             del record["ground_block"]  # only with a surface model and no terrain model
         if self.ground_method is None:
@@ -172,128 +130,157 @@ class ReliefParams:
 
     def to_properties(self):
         """The sidebar's properties (ID properties hold no None: 0 stands for "not given")."""
-        values = self.as_kwargs()
-        return {prop: 0.0 if values[name] is None else values[name] for name, prop in PROPERTY_NAMES.items()}
+        return {name: 0.0 if getattr(self, name) is None else getattr(self, name) for name in SIDEBAR}
 
     @classmethod
     def from_properties(cls, props, *, path=os.fspath):
         """The settings of the sidebar's properties, an operator's, or a relief's recorded ``params``.
 
         `props` is an object with the properties as attributes, or a mapping (missing keys take the
-        defaults). 0 (or an empty path) means "not given"; `path` turns a given path into a file
-        path (the operators pass ``bpy.path.abspath`` for Blender's relative ``//`` paths).
+        defaults; a record's old ``heights`` is read as ``height_source``). 0 (or an empty path)
+        means "not given"; `path` turns a given path into a file path (the operators pass
+        ``bpy.path.abspath`` for Blender's relative ``//`` paths).
         """
         if isinstance(props, Mapping):
-            values = {name: props[prop] for name, prop in PROPERTY_NAMES.items() if prop in props}
+            props = {_RECORDED_AS.get(key, key): value for key, value in props.items()}
+            values = {name: props[name] for name in SIDEBAR if name in props}
         else:
-            values = {name: getattr(props, prop) for name, prop in PROPERTY_NAMES.items()}
-        for name in _OPTIONAL_NUMBERS:
-            if name in values and not values[name]:
+            values = {name: getattr(props, name) for name in SIDEBAR}
+        for name, value in values.items():
+            kind = PARAMETERS[name].kind
+            if kind == "float" and PARAMETERS[name].default is None and not value:
                 values[name] = None
-        for name in _PATHS:
-            value = values.get(name)
-            values[name] = path(value) if isinstance(value, str) and value else None
+            elif kind == "path":
+                values[name] = path(value) if isinstance(value, str) and value else None
         return cls(**values)
 
     # ---- The command line ----
 
     @staticmethod
     def add_arguments(parser, *, number=None):
-        """Add the settings' options to an argparse `parser` (or group); :meth:`from_args` reads them.
+        """Add the relief's options to an argparse `parser` (or group); :meth:`from_args` reads them.
 
-        `number(kind, option, **limits)` makes the argparse type of a numeric option, which may
-        check it at once (``render_views.py`` does); by default `kind` itself, and the settings
-        are checked when :meth:`from_args` makes them.
+        One option per setting declared with ``relief_option`` (:func:`add_option`). `number(kind,
+        option, **limits)` makes the argparse type of a numeric option, which may check it at once
+        (``render_views.py`` does); by default `kind` itself, and the settings are checked when
+        :meth:`from_args` makes them.
         """
-
-        def typed(kind, option, **limits):
-            return kind if number is None else number(kind, option, **limits)
-
-        positive = {"minimum": 0.0, "strict_minimum": True}
-        parser.add_argument(
-            "--max-size",
-            type=typed(int, "--max-size", minimum=settings.MIN_SIZE, maximum=settings.MAX_SIZE),
-            default=settings.DEFAULT_MAX_SIZE,
-            help=f"longest side of the processing grid in pixels, {settings.MIN_SIZE} to "
-            f"{settings.MAX_SIZE} (default {settings.DEFAULT_MAX_SIZE})",
-        )
-        parser.add_argument(
-            "--segmentation",
-            choices=settings.ids(settings.SEGMENTATIONS),
-            default=settings.DEFAULT_SEGMENTATION,
-        )
-        parser.add_argument(
-            "--profile", choices=settings.ids(settings.PROFILES), default=settings.DEFAULT_PROFILE
-        )
-        parser.add_argument(
-            "--exaggeration",
-            type=typed(float, "--exaggeration", minimum=settings.MIN_EXAGGERATION, strict_minimum=True),
-            default=settings.DEFAULT_EXAGGERATION,
-            help="height factor",
-        )
-        parser.add_argument(
-            "--max-height",
-            type=typed(float, "--max-height", **positive),
-            default=settings.DEFAULT_MAX_HEIGHT,
-            help="canopy height: where the plateau profile levels off (a cap for the others); metres with "
-            "a GSD, else processing pixels (default: the radius of a typical isolated plant)",
-        )
-        parser.add_argument(
-            "--gsd",
-            type=typed(float, "--gsd", **positive),
-            help="ground sampling distance of the photo in m/px (default: from its metadata, if any)",
-        )
-        parser.add_argument(
-            "--one-sided", action="store_true", help="the relief surface only (no walls and base)"
-        )
-        parser.add_argument(
-            "--mesh",
-            choices=settings.ids(settings.MESHES),
-            default=settings.DEFAULT_MESH,
-            help="grid: a vertex per pixel corner; adaptive: a TIN within --max-error; auto: adaptive "
-            "wherever it builds at least as fast (processing grids of 1.5 MP and more), else the grid, and "
-            f"says which (default {settings.DEFAULT_MESH})",
-        )
-        parser.add_argument(
-            "--max-error",
-            type=typed(float, "--max-error", **positive),
-            help="adaptive mesh: largest vertical error, in metres with a GSD, else in processing pixels "
-            "(default: half a pixel for heights from the photo; the DSM's noise, at least 1 cm, for "
-            "measured heights)",
-        )
-        parser.add_argument(
-            "--dsm", metavar="DSM", help="surface model GeoTIFF of the orthophoto: measured heights"
-        )
-        parser.add_argument(
-            "--dtm", metavar="DTM", help="terrain model GeoTIFF (default: ground estimated from the DSM)"
-        )
-        parser.add_argument(
-            "--heights",
-            choices=settings.ids(settings.HEIGHT_MODES),
-            help="where heights come from (default: measured with --dsm, else inflated)",
-        )
-        parser.add_argument(
-            "--bands",
-            metavar="NAMES",
-            help="a multispectral image's band names when its file does not name them, e.g. B,G,R,RE,NIR",
-        )
+        for name, parameter in PARAMETERS.items():
+            if parameter.relief_option:
+                add_option(parser, name, number=number)
 
     @classmethod
     def from_args(cls, args, **changes):
-        """The settings of options parsed from :meth:`add_arguments` (then `changes`)."""
-        values = {
-            "max_size": args.max_size,
-            "segmentation": args.segmentation,
-            "profile": args.profile,
-            "exaggeration": args.exaggeration,
-            "max_height": args.max_height,
-            "gsd": args.gsd,
-            "two_sided": not args.one_sided,
-            "mesh": args.mesh,
-            "max_error": args.max_error,
-            "dsm": args.dsm,
-            "dtm": args.dtm,
-            "height_source": args.heights or ("measured" if args.dsm else settings.DEFAULT_HEIGHT_MODE),
-            "bands": args.bands,
-        }
+        """The settings of options parsed from :meth:`add_arguments` (then `changes`).
+
+        Without ``--height-source`` the heights are measured with ``--dsm``, else inflated.
+        """
+        values = {name: getattr(args, name) for name in PARAMETERS if hasattr(args, name)}
+        if values.get("height_source") is None:
+            values["height_source"] = "measured" if values.get("dsm") else settings.DEFAULT_HEIGHT_SOURCE
         return cls(**{**values, **changes})
+
+
+def _check(parameter, value):
+    """`value` of `parameter` as checked (and converted); a :class:`CliffTerrainError` names both."""
+    name, kind = parameter.name, parameter.kind
+    if value is None and (parameter.default is None or parameter.allow_none):
+        return None
+    if kind == "int":
+        return check_int(name, value, minimum=parameter.minimum, maximum=parameter.maximum)
+    if kind == "float":
+        limits = {"minimum": parameter.minimum, "maximum": parameter.maximum}
+        return check_float(name, value, strict_minimum=parameter.exclusive_minimum, **limits)
+    if kind == "choice":
+        return check_choice(name, value, settings.ids(parameter.choices))
+    if kind == "bool":
+        if not isinstance(value, bool) and type(value).__name__ != "bool_":  # numpy's too
+            raise CliffTerrainError(f"`{name}` must be True or False, got {value!r}")
+        return bool(value)
+    if kind == "path":
+        if not isinstance(value, str | os.PathLike):
+            raise CliffTerrainError(f"`{name}` must be a file path or None, got {value!r}")
+        return os.fspath(value)
+    from .io.bands import parse_band_names  # kind "names": only the bands
+
+    return parse_band_names(value)
+
+
+def add_option(parser, name, *, number=None, **overrides):
+    """Add the command-line option of setting `name` (:data:`cliff_terrain.settings.PARAMETERS`).
+
+    The option, its type, choices, default and help come from the declaration; `overrides` are
+    argparse keywords that differ for one command (e.g. ``required=True``). `number` is as in
+    :meth:`ReliefParams.add_arguments`. The value lands in ``args.<name>``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> parser = argparse.ArgumentParser()
+    >>> add_option(parser, "max_size")
+    >>> parser.parse_args(["--max-size", "500"]).max_size
+    500
+    """
+    parameter = PARAMETERS[name]
+    kind = parameter.kind
+    option = {"dest": name, "help": option_help(parameter, default=not overrides.get("required"))}
+    if kind in ("int", "float"):
+        convert = int if kind == "int" else float
+        limits = {
+            key: value
+            for key, value in (("minimum", parameter.minimum), ("maximum", parameter.maximum))
+            if value is not None
+        }
+        if parameter.exclusive_minimum:  # floats only
+            limits["strict_minimum"] = True
+        option.update(type=convert if number is None else number(convert, parameter.flag, **limits))
+        option["default"] = parameter.default
+    elif kind == "choice":
+        option.update(choices=settings.ids(parameter.choices), default=parameter.default)
+    elif kind == "bool":  # the option turns a default True off (--one-sided)
+        option.update(action="store_false" if parameter.default else "store_true")
+    if parameter.metavar:
+        option["metavar"] = parameter.metavar
+    if name == "height_source":  # without it: measured with --dsm, else inflated (from_args)
+        option["default"] = None
+    option.update(overrides)
+    parser.add_argument(parameter.flag, **option)
+    if name == "height_source":
+        parser.add_argument(
+            "--heights",
+            dest=name,
+            choices=option["choices"],
+            action=_Deprecated,
+            help=argparse.SUPPRESS,
+        )
+
+
+def option_help(parameter, *, default=True):
+    """The ``--help`` text of `parameter`'s option: its help, choices, unit, limits and `default`."""
+    if parameter.kind == "bool":
+        return parameter.option_help or parameter.help
+    text = parameter.help
+    if parameter.choices:
+        text += f"; {parameter.choice_help()}"
+    details = []
+    unit = {"relief": "m with a GSD, else processing px"}.get(parameter.unit, parameter.unit)
+    if parameter.limits or unit:
+        details.append(" ".join(filter(None, [parameter.limits, unit])))
+    if not default:
+        pass
+    elif parameter.name == "height_source":
+        details.append("default: measured with --dsm, else inflated")
+    elif parameter.default is not None:
+        details.append(f"default {parameter.default}")
+    elif parameter.unset:
+        details.append(f"default: {parameter.unset}")
+    return f"{text}; {', '.join(details)}" if details else text
+
+
+class _Deprecated(argparse.Action):
+    """An old option that still works, with a warning naming the new one (``--heights``)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        new = PARAMETERS[self.dest].flag
+        print(f"{parser.prog}: warning: {option_string} is deprecated: use {new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)

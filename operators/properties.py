@@ -1,7 +1,8 @@
 """Settings of a relief build, stored once per scene as ``bpy.types.Scene.cliff_terrain``.
 
-The build parameters are declared once (:class:`ReliefParameters`) and shared by the scene settings
-and the build operator, so the panel, scripts and the Adjust Last Operation panel agree.
+The build parameters are made from the core's declarations (``cliff_terrain.settings.PARAMETERS``:
+label, help, unit, limits, choices) into one mixin (:class:`ReliefParameters`) shared by the scene
+settings and the build operator, so the panel, scripts and the Adjust Last Operation panel agree.
 """
 
 import bpy
@@ -11,21 +12,42 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 from ..cliff_terrain import settings
 from ..cliff_terrain.relief import indices
 
-# Names of the parameters passed to the core's build_relief (besides the image path).
-PARAMETER_NAMES = (
-    "segmentation",
-    "profile",
-    "max_size",
-    "exaggeration",
-    "max_height",
-    "gsd",
-    "two_sided",
-    "mesh",
-    "max_error",
-    "dsm",
-    "dtm",
-    "heights",
-)
+# Names of the parameters passed to the core's build_relief (besides the image path): the
+# declarations shown in the sidebar.
+PARAMETER_NAMES = tuple(name for name, p in settings.PARAMETERS.items() if p.sidebar)
+# Blender's unit of a declared unit (the others, e.g. metres with a GSD else pixels, have none).
+_UNITS = {"m": "LENGTH"}
+
+
+def relief_property(parameter):
+    """The bpy property of a declared build parameter (ID properties hold no None: 0 or an empty
+    path stands for "not given", and the description says what it means)."""
+    description = parameter.help[0].upper() + parameter.help[1:]
+    if parameter.unset:
+        description += f". {'Empty' if parameter.kind == 'path' else '0'} = {parameter.unset}"
+    common = {"name": parameter.label, "description": description}
+    if parameter.kind == "choice":
+        return EnumProperty(items=parameter.choices, default=parameter.default, **common)
+    if parameter.kind == "bool":
+        return BoolProperty(default=parameter.default, **common)
+    if parameter.kind == "path":
+        return StringProperty(subtype="FILE_PATH", **common)
+    limits = {}
+    minimum = parameter.minimum if parameter.sidebar_minimum is None else parameter.sidebar_minimum
+    if minimum is not None:
+        limits["min"] = minimum
+    if parameter.maximum is not None:
+        limits["max"] = parameter.maximum
+    if parameter.soft_maximum is not None:
+        limits["soft_max"] = parameter.soft_maximum
+    if parameter.kind == "int":
+        return IntProperty(default=parameter.default, **limits, **common)
+    for key in ("precision", "step"):
+        if getattr(parameter, key) is not None:
+            limits[key] = getattr(parameter, key)
+    if parameter.unit in _UNITS:
+        limits["unit"] = _UNITS[parameter.unit]
+    return FloatProperty(default=parameter.default or 0.0, **limits, **common)
 
 
 class ReliefParameters:
@@ -36,104 +58,17 @@ class ReliefParameters:
         description="UAV photo to turn into a relief (JPEG, PNG or TIFF)",
         subtype="FILE_PATH",
     )
-    segmentation: EnumProperty(
-        name="Segmentation",
-        description="How the regions that rise are found",
-        items=settings.SEGMENTATIONS,
-        default=settings.DEFAULT_SEGMENTATION,
-    )
-    profile: EnumProperty(
-        name="Profile",
-        description="Shape of each raised region",
-        items=settings.PROFILES,
-        default=settings.DEFAULT_PROFILE,
-    )
-    max_size: IntProperty(
-        name="Max Size",
-        description="Longest side of the processing grid in pixels (the mesh has about max size squared "
-        "vertices; the texture always uses the full-resolution photo)",
-        min=settings.MIN_SIZE,
-        max=settings.MAX_SIZE,
-        default=settings.DEFAULT_MAX_SIZE,
-    )
-    exaggeration: FloatProperty(
-        name="Exaggeration",
-        description="Multiplies every height",
-        min=0.01,  # the core takes any value > 0; the panel offers from 0.01
-        soft_max=10.0,
-        default=settings.DEFAULT_EXAGGERATION,
-    )
-    max_height: FloatProperty(
-        name="Canopy Height",
-        description="Where the Plateau profile levels closed canopy off (a cap for the other profiles), "
-        "in metres when the GSD is known, else in processing pixels. 0 = estimated from the photo "
-        "(the radius of a typical isolated plant)",
-        min=0.0,
-        soft_max=100.0,
-        default=0.0,
-        precision=3,
-    )
-    gsd: FloatProperty(
-        name="GSD (m/px)",
-        description="Ground sampling distance of the original photo in metres per pixel. 0 = unknown: "
-        "taken from the GeoTIFF or DJI metadata when present, otherwise the relief is built in "
-        "normalised units (longest side 10 Blender units)",
-        min=0.0,
-        soft_max=1.0,
-        default=0.0,
-        precision=4,
-        step=0.1,
-    )
-    two_sided: BoolProperty(
-        name="Closed Solid",
-        description="Close the relief with side walls and a flat base (textured darker), so it "
-        "can be viewed from any side or printed",
-        default=True,
-    )
-
-    mesh: EnumProperty(
-        name="Mesh",
-        description="How the relief's surface is meshed",
-        items=settings.MESHES,
-        default=settings.DEFAULT_MESH,
-    )
-    max_error: FloatProperty(
-        name="Max Error",
-        description="Adaptive mesh: largest vertical distance between the mesh and any pixel's height, "
-        "in metres with a GSD, else in processing pixels. 0 = automatic: half a pixel for heights "
-        "from the photo, the DSM's noise (at least 1 cm) for measured ones",
-        min=0.0,
-        soft_max=1.0,
-        default=0.0,
-        precision=4,
-        step=0.1,
-    )
-
-    # Measured heights (a surface model of the same orthophoto); empty paths mean none.
-    dsm: StringProperty(
-        name="Surface Model",
-        description="Digital surface model GeoTIFF (DSM, metres) of the orthophoto: heights are then "
-        "measured. Empty = heights from the photo alone",
-        subtype="FILE_PATH",
-    )
-    dtm: StringProperty(
-        name="Ground Model",
-        description="Digital terrain model GeoTIFF (DTM, metres). Empty = the ground is estimated from "
-        "the surface model at the soil pixels",
-        subtype="FILE_PATH",
-    )
-    heights: EnumProperty(
-        name="Heights",
-        description="Where the relief's heights come from (Calibrated and Measured need a surface model)",
-        items=settings.HEIGHT_MODES,
-        default=settings.DEFAULT_HEIGHT_MODE,
-    )
 
     def relief_params(self):
         """The core's :class:`ReliefParams` of these properties (0 and empty paths mean "not given")."""
         from ..cliff_terrain.params import ReliefParams
 
         return ReliefParams.from_properties(self, path=bpy.path.abspath)
+
+
+ReliefParameters.__annotations__.update(
+    {name: relief_property(settings.PARAMETERS[name]) for name in PARAMETER_NAMES}
+)
 
 
 def _grid_changed(settings, context):

@@ -196,7 +196,7 @@ class CLIFF_TERRAIN_PT_heights(_SubPanel, bpy.types.Panel):
         col = layout.column()
         sub = col.row()
         sub.active = bool(settings.dsm)  # Calibrated and Measured need a surface model
-        sub.prop(settings, "heights")
+        sub.prop(settings, "height_source")
         if not settings.dsm:
             col.label(text="Calibrated and Measured need a surface model", icon="INFO")
         col.prop(settings, "profile")

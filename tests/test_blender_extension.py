@@ -265,7 +265,7 @@ def test_build_records_its_settings_on_the_object(addon, core, scene):
         "max_error": 0.0,  # 0: the adaptive mesh's automatic error
         "dsm": 0.0,  # no surface model (ID properties hold no None)
         "dtm": 0.0,
-        "heights": "inflated",
+        "height_source": "inflated",
     }
 
 

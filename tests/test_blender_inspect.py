@@ -82,7 +82,8 @@ def test_probe_with_a_surface_model_reports_ground_and_canopy_in_metres(scene):
     if not ODM.is_file():
         pytest.skip(f"shared OpenDroneMap pair {ODM} not found (../shared is absent)")
     settings = scene.cliff_terrain
-    settings.filepath, settings.dsm, settings.heights = str(ODM), str(ODM.with_name("dsm.tif")), "measured"
+    settings.filepath, settings.dsm = str(ODM), str(ODM.with_name("dsm.tif"))
+    settings.height_source = "measured"
     settings.max_size = 250
     assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
     obj = bpy.context.active_object

@@ -27,7 +27,7 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
     settings = scene.cliff_terrain
     settings.filepath = ex2("odm_orthophoto.tif")
     settings.dsm = ex2("dsm.tif")
-    settings.heights = "measured"
+    settings.height_source = "measured"
     settings.max_size = 300
     settings.two_sided = False
     assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
@@ -64,7 +64,7 @@ def test_measured_heights_without_a_dsm_is_reported(scene):
 
     settings = scene.cliff_terrain
     settings.filepath = ex2("odm_orthophoto.tif")
-    settings.heights = "measured"
+    settings.height_source = "measured"
     settings.max_size = 100
     with pytest.raises(RuntimeError, match="needs a `dsm`"):
         bpy.ops.cliff_terrain.build_relief()
@@ -113,7 +113,7 @@ def test_render_views_with_dsm_and_plots(tmp_path):
     done = run_render_views(ex2("odm_orthophoto.tif"), *args, "--out", out)
     assert done.returncode == 0, done.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["units"] == "m" and metrics["params"]["heights"] == "measured"
+    assert metrics["units"] == "m" and metrics["params"]["height_source"] == "measured"
     # The texture is the photo (Blender reads float TIFFs unscaled; the core's pixels are used).
     assert metrics["psnr_xy_flat"] > 30
     header, row = (out / "plots.csv").read_text().splitlines()

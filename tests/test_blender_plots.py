@@ -23,7 +23,7 @@ def relief(scene):
     settings = scene.cliff_terrain
     settings.filepath = str(ODM)
     settings.dsm = str(ODM.with_name("dsm.tif"))
-    settings.heights = "measured"
+    settings.height_source = "measured"
     settings.max_size = 250
     settings.two_sided = False
     assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}

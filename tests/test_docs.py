@@ -182,6 +182,25 @@ def test_the_parameter_table_names_every_setting_with_its_default():
         assert shown == expected, f"{name}: the table says {table[name]}, ReliefParams {default!r}"
 
 
+def test_the_parameter_table_is_made_from_the_declarations():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_parameter_table", REPO / "tools" / "parameter_table.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    text = (DOCS / "api.md").read_text()
+    assert tool.page_table(text) == tool.parameter_table(), (
+        "docs/api.md's parameters are not their declarations': run `python tools/parameter_table.py --write`"
+    )
+    # The table says what the command line and the sidebar show: each option, label and limit.
+    from cliff_terrain.settings import PARAMETERS
+
+    table = tool.page_table(text)
+    for parameter in PARAMETERS.values():
+        assert f"`{parameter.flag}`" in table and parameter.limits in table
+        assert not parameter.sidebar or f"*{parameter.label}*" in table
+
+
 def test_the_architecture_lists_the_stages_the_architecture_test_enforces():
     import test_architecture
 

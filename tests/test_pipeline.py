@@ -148,7 +148,7 @@ def test_relief_params_round_trip_through_build_relief_properties_and_arguments(
     # ID properties hold no None: 0 stands for it, once each way.
     props = ReliefParams().to_properties()
     assert props["gsd"] == props["max_height"] == props["max_error"] == props["dsm"] == 0.0
-    assert props["heights"] == "inflated"
+    assert props["height_source"] == "inflated"
     assert ReliefParams.from_properties(props) == ReliefParams()
     assert ReliefParams.from_properties(params.to_properties()) == params
     assert ReliefParams.from_properties({"dsm": "", "gsd": 0.0}) == ReliefParams()
@@ -171,7 +171,7 @@ def test_the_old_heights_keyword_still_works_with_a_deprecation_warning(field):
     image, _ = field
     with pytest.warns(DeprecationWarning, match="pass `height_source` instead"):
         relief = build_relief(image, max_size=200, heights="inflated")
-    assert relief.params["heights"] == "inflated"
+    assert relief.params["height_source"] == "inflated"
     with pytest.warns(DeprecationWarning), pytest.raises(CliffTerrainError, match="needs a `dsm`"):
         build_relief(image, max_size=200, heights="measured")
 

@@ -508,7 +508,7 @@ def test_dsm_gives_measured_heights(tmp_path):
         "odm_orthophoto.tif=2019-07-01",
     ]
     bad = season(*args, "--heights", "measured")
-    assert bad.returncode == 2 and "`heights` 'measured' needs `dsm`" in bad.stderr
+    assert bad.returncode == 2 and "`height_source` 'measured' needs `dsm`" in bad.stderr
     done = season(*args, "--dsm", folder / "dsm.tif")
     assert done.returncode == 0, done.stderr
     (row,) = read_table(tmp_path / "out" / "season.csv")

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from .. import settings
 from .._progress import add_progress_argument
-from ..measure.ground import GROUND_METHODS
+from ..params import add_option
 from .index_options import add_index_arguments
 
 HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write the CHM and tables"
@@ -36,10 +36,8 @@ HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write th
 
 def configure(parser):
     parser.add_argument("ortho", type=Path, help="the orthophoto GeoTIFF")
-    parser.add_argument("--dsm", type=Path, required=True, help="digital surface model GeoTIFF (metres)")
-    parser.add_argument(
-        "--dtm", type=Path, default=None, help="digital terrain model GeoTIFF (else estimated)"
-    )
+    add_option(parser, "dsm", type=Path, required=True)
+    add_option(parser, "dtm", type=Path)
     parser.add_argument("--plots", type=Path, default=None, help="plot polygons: GeoJSON or ESRI Shapefile")
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     parser.add_argument(
@@ -55,20 +53,8 @@ def configure(parser):
         default=None,
         help="longest side of the grid in pixels, as render_views.py --max-size (default: the orthophoto's)",
     )
-    parser.add_argument(
-        "--block",
-        type=float,
-        default=settings.DEFAULT_GROUND_BLOCK_M,
-        help=f"block size of the ground estimate in metres (default {settings.DEFAULT_GROUND_BLOCK_M})",
-    )
-    parser.add_argument(
-        "--ground",
-        choices=GROUND_METHODS,
-        default="auto",
-        help="the single-flight ground: 'auto' (default) takes the candidate that predicts held-out bare "
-        "soil best and refuses when none does; 'baseline' is the DSM's 2nd percentile in blocks; "
-        "'smooth' lifts it onto the bare soil; 'detailed' adds the soil's ridges and furrows",
-    )
+    add_option(parser, "ground_block", default=settings.DEFAULT_GROUND_BLOCK_M)
+    add_option(parser, "ground_method", default="auto")
     parser.add_argument(
         "--ruler",
         type=Path,
@@ -184,8 +170,8 @@ def run(args):
         height_source="measured",
         bands=None if args.band_files else args.bands,  # --bands names the orthophoto's own bands
         mesh=None,
-        ground_block=args.block,
-        ground_method=args.ground,
+        ground_block=args.ground_block,
+        ground_method=args.ground_method,
     )
     with stage_bar(f"heights {args.ortho.name}", enabled=not args.no_progress) as progress:
         relief = build_relief(args.ortho, params, progress=progress)

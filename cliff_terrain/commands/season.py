@@ -13,8 +13,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .. import settings
 from .._progress import add_progress_argument
+from ..params import add_option
 from .index_options import add_index_arguments
 
 HELP = "per-plot growth over a season of dated orthophotos (cover, heights, volume), on Dask"
@@ -73,21 +73,8 @@ def configure(parser):
     parser.add_argument(
         "--color-by", default=None, metavar="FIELD", help="plot attribute colouring the chart"
     )
-    parser.add_argument("--max-size", type=int, default=settings.DEFAULT_MAX_SIZE)
-    parser.add_argument(
-        "--segmentation", choices=settings.ids(settings.SEGMENTATIONS), default=settings.DEFAULT_SEGMENTATION
-    )
-    parser.add_argument(
-        "--profile", choices=settings.ids(settings.PROFILES), default=settings.DEFAULT_PROFILE
-    )
-    parser.add_argument("--exaggeration", type=float, default=settings.DEFAULT_EXAGGERATION)
-    parser.add_argument(
-        "--heights",
-        choices=settings.ids(settings.HEIGHT_MODES),
-        default=None,
-        help="inflated (from the photo; the default without --dsm), measured (the DSM's canopy height; "
-        "the default with --dsm) or calibrated (the photo's domes scaled to the measured heights)",
-    )
+    for name in ("max_size", "segmentation", "profile", "exaggeration", "height_source"):
+        add_option(parser, name)
     parser.add_argument(
         "--no-align",
         action="store_true",
@@ -128,7 +115,7 @@ def run(args):
         segmentation=args.segmentation,
         profile=args.profile,
         exaggeration=args.exaggeration,
-        heights=args.heights,
+        height_source=args.height_source,
         indices=args.indices,
         bands=args.bands,
     )

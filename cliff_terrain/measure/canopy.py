@@ -266,14 +266,14 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
 
 
 def relief_heights(
-    path, stages, *, dsm, dtm, mode, exaggeration, block_m=DEFAULT_BLOCK_M, ground_method="auto"
+    path, stages, *, dsm, dtm, height_source, exaggeration, block_m=DEFAULT_BLOCK_M, ground_method="auto"
 ):
     """The relief's heights (metres) on the processing grid of orthophoto `path` (used by build_relief).
 
-    Returns ``(canopy, heights, pixel_size, georeference)``: ``"measured"`` heights are the CHM,
-    ``"calibrated"`` ones the photo's domes scaled so each region's top is its measured p99 height,
-    ``"inflated"`` ones the domes as they are (the canopy is then only measured, for the figures);
-    all times `exaggeration`.
+    Returns ``(canopy, heights, pixel_size, georeference)``. By `height_source`: ``"measured"``
+    heights are the CHM, ``"calibrated"`` ones the photo's domes scaled so each region's top is its
+    measured p99 height, ``"inflated"`` ones the domes as they are (the canopy is then only
+    measured, for the figures); all times `exaggeration`.
     """
     from ..relief.labels import label_max
 
@@ -301,9 +301,9 @@ def relief_heights(
     )
     chm = np.nan_to_num(canopy.chm, nan=0.0)
     pixel_size = canopy.pixel_size
-    if mode == "measured":
+    if height_source == "measured":
         heights = chm * np.float32(exaggeration)
-    elif mode == "calibrated":
+    elif height_source == "calibrated":
         labels = stages.segmentation.labels
         n = int(labels.max(initial=0))
         dome = stages.heights_px.astype(np.float32)

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import settings
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
 from .ground_check import check_ground, ground_sigma
@@ -55,9 +56,9 @@ DEFAULT_EXPOSURE_M = 0.06
 BASELINE_PERCENTILE = 2.0
 # Highest microrelief (ridges, beds, furrows) the ground follows; crops stand taller than that.
 MICRORELIEF_M = 0.25
-# The candidates, simplest first (ties go to the simpler one), and what `method` accepts.
-CANDIDATES = ("baseline", "smooth", "detailed")
-GROUND_METHODS = ("auto", *CANDIDATES)
+# What `method` accepts, and the candidates, simplest first (ties go to the simpler one).
+GROUND_METHODS = settings.ids(settings.GROUND_METHODS)
+CANDIDATES = GROUND_METHODS[1:]
 # The smooth offset's Gaussian sigma, in blocks (0.5 and 0.25 measured worse on a real potato
 # trial's day 100: RMSE 2.2 -> 2.5 and 2.6 cm).
 OFFSET_SCALE = 1.0

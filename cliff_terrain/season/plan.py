@@ -15,7 +15,7 @@ from ..errors import CliffTerrainError
 from ..params import ReliefParams
 from .dates import photo_date
 
-SEASON_SETTINGS = ("max_size", "segmentation", "profile", "exaggeration", "heights")
+SEASON_SETTINGS = ("max_size", "segmentation", "profile", "exaggeration", "height_source")
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".webp")
 
 
@@ -114,7 +114,7 @@ def plan_season(
     segmentation=settings.DEFAULT_SEGMENTATION,
     profile=settings.DEFAULT_PROFILE,
     exaggeration=settings.DEFAULT_EXAGGERATION,
-    heights=None,
+    height_source=None,
     indices=None,
     bands=None,
 ):
@@ -132,7 +132,7 @@ def plan_season(
         Surface models: see :func:`pair_dsm`.
     max_size, segmentation, profile, exaggeration
         As for :func:`cliff_terrain.build_relief`.
-    heights : {"inflated", "calibrated", "measured"}, optional
+    height_source : {"inflated", "calibrated", "measured"}, optional
         As for :func:`cliff_terrain.build_relief`: "measured" (the default with `dsm`) and
         "calibrated" need `dsm`; "inflated" is the only mode without one.
     indices : str or sequence of str, optional
@@ -158,9 +158,9 @@ def plan_season(
     from ..measure.field_plots import check_plot_crs
     from ..relief.indices import check_indices, parse_indices
 
-    source = heights or ("inflated" if dsm is None else "measured")
-    if dsm is None and source in settings.ids(settings.HEIGHT_MODES) and source != "inflated":
-        raise CliffTerrainError(f"`heights` {source!r} needs `dsm` (surface models), got None")
+    source = height_source or ("inflated" if dsm is None else "measured")
+    if dsm is None and source in settings.ids(settings.HEIGHT_SOURCES) and source != "inflated":
+        raise CliffTerrainError(f"`height_source` {source!r} needs `dsm` (surface models), got None")
     checked = ReliefParams(
         max_size=max_size,
         segmentation=segmentation,

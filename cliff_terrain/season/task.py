@@ -108,7 +108,7 @@ def _process(job):
     table = _table(_plots(job["plots"]), transform, relief.mask, relief.heights, relief.units, maps)
     return {
         "table": [_plain(row) for row in table],
-        "height_mode": params["heights"],
+        "height_mode": params["height_source"],
         "height_units": relief.units,
         "grid": {"transform": transform[:2].tolist(), "shape": list(shape), "crs": crs_record(crs)},
         "arrays": {

@@ -484,7 +484,7 @@ class Test:
         settings = bpy.context.scene.cliff_terrain
         settings.filepath = ARGS.ortho
         settings.dsm = os.path.join(os.path.dirname(ARGS.ortho), "dsm.tif")
-        settings.heights = "measured"
+        settings.height_source = "measured"
         settings.max_size = 250
         settings.two_sided = False
         before = set(bpy.data.objects.keys())
