@@ -337,7 +337,7 @@ def mesh_relief(relief, *, mesh="auto", max_error=None, two_sided=True):
         raise CliffTerrainError("`mesh` must be 'auto', 'grid' or 'adaptive', got None")
     params = ReliefParams(mesh=mesh, max_error=max_error, two_sided=two_sided)  # checked as build_relief's
     heights, pixel_size = relief.heights, relief.pixel_size
-    height_source = relief.params.get("heights", "inflated")
+    height_source = relief.params.get("height_source", "inflated")
     max_error, max_error_rule = params.max_error, "given"
     mesh_kind, mesh_rule = choose_mesh(params.mesh, heights.shape)
     if mesh_kind == "grid":

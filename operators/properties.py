@@ -23,6 +23,8 @@ def relief_property(parameter):
     """The bpy property of a declared build parameter (ID properties hold no None: 0 or an empty
     path stands for "not given", and the description says what it means)."""
     description = parameter.help[0].upper() + parameter.help[1:]
+    if parameter.unit:
+        description += f", in {settings.UNITS[parameter.unit]}"
     if parameter.unset:
         description += f". {'Empty' if parameter.kind == 'path' else '0'} = {parameter.unset}"
     common = {"name": parameter.label, "description": description}

@@ -666,6 +666,38 @@ def test_settings_match_the_brief_and_the_core(addon, core, scene):
         assert name in rna
 
 
+def test_the_sidebar_properties_are_the_cores_declarations(addon, scene):
+    settings = importlib.import_module(f"{ADDON}.cliff_terrain.settings")
+    rna = scene.cliff_terrain.bl_rna.properties
+    operator = bpy.ops.cliff_terrain.build_relief.get_rna_type().properties
+    shown = [name for name, parameter in settings.PARAMETERS.items() if parameter.sidebar]
+    assert "height_source" in shown and "heights" not in rna  # one name for the height source
+    for name in shown:
+        parameter, prop = settings.PARAMETERS[name], rna[name]
+        assert name in operator and operator[name].description == prop.description
+        assert prop.name == parameter.label
+        assert prop.description.lower().startswith(parameter.help.lower())
+        if parameter.unset:  # what 0 or an empty path stands for
+            assert prop.description.endswith(f" = {parameter.unset}")
+        if parameter.kind == "choice":
+            assert tuple(item.identifier for item in prop.enum_items) == settings.ids(parameter.choices)
+            assert [item.description for item in prop.enum_items] == [c[2] for c in parameter.choices]
+            assert prop.default == parameter.default
+        elif parameter.kind == "path":
+            assert prop.subtype == "FILE_PATH" and prop.default == ""
+        elif parameter.kind == "bool":
+            assert prop.default is parameter.default
+        else:
+            assert prop.default == (parameter.default or 0)
+            low = parameter.minimum if parameter.sidebar_minimum is None else parameter.sidebar_minimum
+            assert prop.hard_min == pytest.approx(low)
+            if parameter.maximum is not None:
+                assert prop.hard_max == parameter.maximum
+            if parameter.soft_maximum is not None:
+                assert prop.soft_max == pytest.approx(parameter.soft_maximum)
+            assert prop.unit == ("LENGTH" if parameter.unit == "m" else "NONE")
+
+
 def test_manifest_follows_the_core_and_bundles_no_numpy(core):
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
     assert manifest["id"] == "cliff_terrain" and manifest["version"] == core.__version__

@@ -176,6 +176,48 @@ def test_the_old_heights_keyword_still_works_with_a_deprecation_warning(field):
         build_relief(image, max_size=200, heights="measured")
 
 
+def test_the_options_are_the_declarations_and_the_old_heights_option_still_works(tmp_path, capsys):
+    import argparse
+
+    from cliff_terrain import ReliefParams
+    from cliff_terrain.settings import PARAMETERS, ids
+
+    parser = argparse.ArgumentParser(prog="relief")
+    ReliefParams.add_arguments(parser)
+    actions = {}
+    for action in parser._actions:  # the first of a dest: --heights follows --height-source
+        actions.setdefault(action.dest, action)
+    for name, parameter in PARAMETERS.items():
+        if not parameter.relief_option:
+            assert name not in actions
+            continue
+        action = actions[name]
+        assert action.option_strings[0] == parameter.flag
+        assert parameter.help in action.help or parameter.option_help == action.help
+        assert parameter.limits in action.help
+        if parameter.choices:
+            assert tuple(action.choices) == ids(parameter.choices)
+    # A value outside the declared limits is refused with the core's message.
+    with pytest.raises(CliffTerrainError, match=r"`max_size` must be <= 16384, got 20000"):
+        ReliefParams.from_args(parser.parse_args(["--max-size", "20000"]))
+    with pytest.raises(CliffTerrainError, match=r"`exaggeration` must be > 0.0, got 0.0"):
+        ReliefParams.from_args(parser.parse_args(["--exaggeration", "0"]))
+    # --height-source is the option; --heights, its old name, still works and says so.
+    dsm = str(tmp_path / "dsm.tif")
+    new = ReliefParams.from_args(parser.parse_args(["--dsm", dsm, "--height-source", "calibrated"]))
+    assert new.height_source == "calibrated" and "deprecated" not in capsys.readouterr().err
+    old = ReliefParams.from_args(parser.parse_args(["--dsm", dsm, "--heights", "calibrated"]))
+    assert old == new
+    assert capsys.readouterr().err == "relief: warning: --heights is deprecated: use --height-source\n"
+    assert "--heights" not in parser.format_help()  # the help names only the new option
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--heights", "domes"])  # the old name checks the choices too
+    # A relief recorded before the rename (its `heights`) reads as it was built.
+    recorded = {**ReliefParams(dsm=dsm, height_source="measured").to_properties(), "dsm": dsm}
+    recorded["heights"] = recorded.pop("height_source")
+    assert ReliefParams.from_properties(recorded).height_source == "measured"
+
+
 def test_gsd_gives_metres(field):
     image, _ = field
     px = build_relief(image, max_size=450)
