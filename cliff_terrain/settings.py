@@ -262,8 +262,7 @@ PARAMETERS = {
         Parameter(
             "max_size",
             "Max Size",
-            "longest side of the processing grid: the mesh has about max size squared vertices, and the "
-            "texture always uses the full-resolution photo",
+            "longest side of the processing grid (the mesh's; the texture is the full photo)",
             "int",
             DEFAULT_MAX_SIZE,
             unit="px",
