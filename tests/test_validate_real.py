@@ -240,5 +240,7 @@ def test_mask_sources_reports_each_source_left_out(sources, tmp_path, capsys):
     assert result["no_mask"]["reference"].endswith("(no hand mask)")
     assert result["synthetic_open"]["ours"]["iou_median"] > 0.8
     assert result["synthetic_open"]["ours"]["volume_on_plants_worst"] > 0.9
+    # the reference's own plant cover, read from the annotation (not from our mask)
+    assert result["synthetic_open"]["ours"]["reference_cover_median"] == pytest.approx(truth.mask.mean())
     assert "| synthetic_open | 1 |" in capsys.readouterr().out
     assert json.loads(out.read_text())["sources"]["synthetic_open"]["images"][0]["image"] == "a.png"
