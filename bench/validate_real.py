@@ -163,6 +163,51 @@ def agreement(estimate, truth):
     return {"n": a["n"], "r": a["r"], "rmse_cm": cm["rmse"], "bias_cm": cm["bias"]}
 
 
+# Plot resamples of the paired bootstrap that tells a loss from a tie (fixed seed: the same verdicts
+# on every run of one record).
+BOOTSTRAP_RESAMPLES = 2000
+
+
+def paired_bootstrap(ours, theirs, truth, *, resamples=BOOTSTRAP_RESAMPLES, seed=0):
+    """95 % intervals of ours minus theirs in r and in RMSE (cm), resampling the plots (paired).
+
+    Both estimates are scored on the same resampled plots, so what the plots share (the
+    reference's own errors, the field) cancels and the interval is the difference's alone (Efron
+    and Tibshirani 1993, ch. 16). An interval that holds 0 is a tie: the plots cannot tell the two
+    apart. Returns ``{"r": [lo, hi], "rmse_cm": [lo, hi]}``, or None with fewer than 10 plots.
+
+    Examples
+    --------
+    >>> truth = np.linspace(0.1, 0.6, 50)
+    >>> noise = np.random.default_rng(1).normal(0, 0.02, 50)
+    >>> better, worse = truth + noise, truth + 3 * noise
+    >>> ci = paired_bootstrap(better, worse, truth)
+    >>> ci["rmse_cm"][1] < 0 < ci["r"][0]
+    True
+    """
+    ours, theirs, truth = (np.asarray(a, dtype=np.float64) for a in (ours, theirs, truth))
+    ok = np.isfinite(ours) & np.isfinite(theirs) & np.isfinite(truth)
+    ours, theirs, truth = ours[ok], theirs[ok], truth[ok]
+    n = truth.size
+    if n < 10:
+        return None
+    pick = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    t, a, b = truth[pick], ours[pick], theirs[pick]
+
+    def r(x):
+        xc, tc = x - x.mean(axis=1, keepdims=True), t - t.mean(axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (xc * tc).sum(axis=1) / np.sqrt((xc * xc).sum(axis=1) * (tc * tc).sum(axis=1))
+
+    def rmse(x):
+        return 100 * np.sqrt(np.mean((x - t) ** 2, axis=1))
+
+    return {
+        key: [float(v) for v in np.nanpercentile(f(a) - f(b), [2.5, 97.5])]
+        for key, f in (("r", r), ("rmse_cm", rmse))
+    }
+
+
 def field_rows(data_dir, *, ground="auto"):
     """Per field and date: ours, the naive baseline and plantcv-geospatial's p90 - p25 against every
     reference the field has (the aligned and raw two-flight difference, a ruler), with the coverage
@@ -250,6 +295,9 @@ def field_rows(data_dir, *, ground="auto"):
                     "ours": agreement(ours, truth),
                     "coverage": _coverage(ours, err, truth),
                     **{name: agreement(values, truth) for name, values in peers.items()},
+                    "difference": {
+                        name: paired_bootstrap(ours, values, truth) for name, values in peers.items()
+                    },
                 }
             rows.append(row)
             print(_field_line(row), flush=True)
@@ -441,6 +489,27 @@ def _fit(a):
     return f"{a['r']:.3f} / {a['rmse_cm']:.1f} cm / {a['bias_cm']:+.1f} cm".replace("-", "−")
 
 
+def _difference(ci):
+    if not ci:
+        return "-"
+    (r_lo, r_hi), (m_lo, m_hi) = ci["r"], ci["rmse_cm"]
+    return f"[{r_lo:+.3f}, {r_hi:+.3f}], [{m_lo:+.1f}, {m_hi:+.1f}] cm".replace("-", "−")
+
+
+def _verdict(ci, key):
+    """', a loss: ours minus theirs in [lo, hi]' or ', a tie ...' from :func:`paired_bootstrap`."""
+    if not ci:
+        return ""
+    lo, hi = ci[key]
+    unit = " cm" if key == "rmse_cm" else ""
+    digits = 1 if key == "rmse_cm" else 3
+    tie = lo <= 0 <= hi
+    what = "a tie" if tie else "a loss"
+    return f", {what}: ours minus theirs in [{lo:+.{digits}f}, {hi:+.{digits}f}]{unit} (95 % paired bootstrap)".replace(
+        "-", "−"
+    )
+
+
 def _losses(fields, images, summary):
     """Where we lose, found in the record: a peer's better r or RMSE, weak images and sets."""
     lines = []
@@ -455,13 +524,15 @@ def _losses(fields, images, summary):
                 theirs = figures.get(peer) or {}
                 if theirs.get("r") is None:
                     continue
+                ci = (figures.get("difference") or {}).get(peer)
                 if theirs["r"] > ours["r"]:
                     lines.append(
-                        f"{where}: {name}'s r is higher ({theirs['r']:.3f} against {ours['r']:.3f})."
+                        f"{where}: {name}'s r is higher ({theirs['r']:.3f} against {ours['r']:.3f}){_verdict(ci, 'r')}."
                     )
                 if theirs["rmse_cm"] < ours["rmse_cm"]:
                     lines.append(
-                        f"{where}: {name}'s RMSE is lower ({theirs['rmse_cm']:.1f} cm against {ours['rmse_cm']:.1f} cm)."
+                        f"{where}: {name}'s RMSE is lower ({theirs['rmse_cm']:.1f} cm against "
+                        f"{ours['rmse_cm']:.1f} cm){_verdict(ci, 'rmse_cm')}."
                     )
             cover = figures.get("coverage")
             if cover is not None and not COVERAGE_GOAL[0] <= cover <= COVERAGE_GOAL[1]:
@@ -560,7 +631,9 @@ def docs_page(record):
         "outliers, is removed) and raw, and a breeder's ruler. The naive baseline (the DSM's 2nd "
         "percentile in 5 m blocks, bilinear) and plantcv-geospatial's `height_percentile` (each plot's "
         "DSM p90 minus its p25) run on the same grid in the same run. Each cell is r / RMSE / bias; "
-        "coverage is the share of plots with |error| <= 1.645 x `height_p90_err_m`.",
+        "coverage is the share of plots with |error| <= 1.645 x `height_p90_err_m`; the last column is "
+        "ours minus the baseline in r and in RMSE with their 95 % intervals from a paired bootstrap over "
+        "the plots (both scored on the same resampled plots): an interval that holds 0 is a tie.",
     ]
     header = (
         "field",
@@ -573,6 +646,7 @@ def docs_page(record):
         "naive baseline",
         "plantcv p90 - p25",
         "coverage",
+        "ours − baseline: r, RMSE (95 %)",
     )
     rows = [
         (
@@ -586,6 +660,7 @@ def docs_page(record):
             _fit(figures.get("baseline")),
             _fit(figures.get("plantcv")),
             _pct(figures.get("coverage")),
+            _difference((figures.get("difference") or {}).get("baseline")),
         )
         for r in fields
         for kind, figures in r.get("against", {}).items()

@@ -8,10 +8,10 @@ imported only when it is used.
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 from .._dask import as_completed_results
+from .._threads import usable_cores
 from ..errors import CliffTerrainError
 from .cache import Cache, cache_key, file_hash
 from .task import OPENCV_THREADS, process_image
@@ -215,11 +215,3 @@ def local_cluster(workers, *, memory_limit="auto"):
             host="127.0.0.1",
             env={OPENCV_THREADS: "2"},
         )
-
-
-def usable_cores():
-    """The cores this process may run on (a container's or a batch job's share, not the machine's)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # macOS, Windows
-        return os.cpu_count() or 1
