@@ -94,9 +94,9 @@ def run(args):
     out = Path(args.out) if args.out else season_dir / "animation"
     bpy, _, _ = start_blender(usage="blender -b -P render_season.py -- SEASON_DIR")
     from cliff_terrain_addon.cliff_terrain import errors
-    from cliff_terrain_addon.cliff_terrain.io import plot_polygons as plots_module
-    from cliff_terrain_addon.cliff_terrain.season import outputs
-    from cliff_terrain_addon.scene import season as scene_season
+    from cliff_terrain_addon.cliff_terrain.io.vector import plot_polygons as plots_module
+    from cliff_terrain_addon.cliff_terrain.season import reader as outputs
+    from cliff_terrain_addon.scene import season_animation as scene_season
 
     try:
         season = outputs.read_season(season_dir)

@@ -194,14 +194,14 @@ def check_inputs(args):
         raise InputError(f"--out exists and is not a folder: {out}")
     args.color_index = None
     if args.color_by:
-        from cliff_terrain_addon.cliff_terrain.relief import indices
+        from cliff_terrain_addon.cliff_terrain.photo_heights import indices
 
         try:
             (args.color_index,) = indices.parse_indices(args.color_by)
         except ValueError:  # a CliffTerrainError (an unknown index), or more than one index
             raise InputError(f"--color-by takes one vegetation index, got {args.color_by!r}") from None
     if not args.overwrite:
-        from cliff_terrain_addon.cliff_terrain.figures.outputs import OUTPUTS
+        from cliff_terrain_addon.cliff_terrain.figures.writer import OUTPUTS
 
         names = OUTPUTS  # everything the script writes
         if args.color_index:
@@ -220,7 +220,7 @@ def check_inputs(args):
     if args.plots:
         if not args.dsm:
             raise InputError("--plots needs --dsm (plot heights are measured on the surface model)")
-        from cliff_terrain_addon.cliff_terrain.io import plot_polygons
+        from cliff_terrain_addon.cliff_terrain.io.vector import plot_polygons
 
         try:
             args.plot_set = plot_polygons.read_plots(args.plots)
@@ -228,8 +228,8 @@ def check_inputs(args):
             raise InputError(str(exc)) from None
     args.bands_read = None
     if args.indices or args.color_index:  # an index whose band the file lacks: one line, before any work
-        from cliff_terrain_addon.cliff_terrain.io import bands
-        from cliff_terrain_addon.cliff_terrain.relief import indices
+        from cliff_terrain_addon.cliff_terrain.io.raster import bands
+        from cliff_terrain_addon.cliff_terrain.photo_heights import indices
 
         try:
             names = indices.parse_indices(args.indices)
@@ -241,7 +241,8 @@ def check_inputs(args):
     args.transect_strip = None
     if args.transect is not None:
         # Checked against the photo's header now, not after the pipeline's seconds of work.
-        from cliff_terrain_addon.cliff_terrain.io import photo, transect
+        from cliff_terrain_addon.cliff_terrain.io import photo
+        from cliff_terrain_addon.cliff_terrain.io.vector import transect
 
         try:
             meta = photo.read_metadata(str(image))
@@ -263,7 +264,7 @@ def run(args):
     log("starting Blender")
     bpy, _, core = _loader.start_blender(usage="blender -b -P render_views.py -- IMAGE")
     from cliff_terrain_addon.cliff_terrain.evaluate import views as evaluation
-    from cliff_terrain_addon.cliff_terrain.figures import outputs
+    from cliff_terrain_addon.cliff_terrain.figures import writer as outputs
     from cliff_terrain_addon.scene import colour_by, render_settings, rig, views
     from cliff_terrain_addon.scene.relief_object import build_relief_object
 
@@ -353,7 +354,7 @@ def run(args):
 
     index_maps = None
     if args.bands_read is not None:
-        from cliff_terrain_addon.cliff_terrain.relief import indices
+        from cliff_terrain_addon.cliff_terrain.photo_heights import indices
 
         index_maps = indices.index_maps(
             args.bands_read, indices.parse_indices(args.indices), shape=relief.mask.shape

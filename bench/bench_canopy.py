@@ -35,9 +35,9 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from cliff_terrain.data.synthetic_surface import synthetic_surface  # noqa: E402
-from cliff_terrain.io.geotiff import GeoRaster, write_geotiff  # noqa: E402
-from cliff_terrain.io.plot_polygons import PlotSet  # noqa: E402
-from cliff_terrain.io.transform import as_affine  # noqa: E402
+from cliff_terrain.io.raster.geotiff import GeoRaster, write_geotiff  # noqa: E402
+from cliff_terrain.io.raster.transform import as_affine  # noqa: E402
+from cliff_terrain.io.vector.plot_polygons import PlotSet  # noqa: E402
 from cliff_terrain.measure.canopy import measure_canopy, measure_orthophoto, plant_mask  # noqa: E402
 from cliff_terrain.measure.field_plots import plot_table, rasterize_plots  # noqa: E402
 from cliff_terrain.measure.ground import canopy_height, naive_block_ground  # noqa: E402
@@ -86,7 +86,7 @@ def ours(image, transform, dsm, plots):
 
 
 def peer(image, transform, dsm, plots):
-    from cliff_terrain.io.geotiff import resample
+    from cliff_terrain.io.raster.geotiff import resample
 
     surface = resample(dsm, transform=transform, shape=image.shape[:2])
     chm = canopy_height(surface, naive_block_ground(surface, pixel_size=GSD))
@@ -113,7 +113,7 @@ def main(argv=None):
     image, transform, dsm, truth, plots, early = field(rows, cols)
     labels = rasterize_plots(plots, transform=transform, shape=(rows, cols))
     # Judged as the issue will be: against the difference of the two flights (same DSM grid).
-    from cliff_terrain.io.geotiff import resample
+    from cliff_terrain.io.raster.geotiff import resample
 
     shape = (rows, cols)
     two_flights = canopy_height(

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from cliff_terrain.relief.quaternion import DEFAULT_SCALE, quaternion_filter  # noqa: E402
+from cliff_terrain.photo_heights.quaternion import DEFAULT_SCALE, quaternion_filter  # noqa: E402
 
 UAV = ROOT.parent / "shared" / "data" / "uav"
 REAL_IMAGE = UAV / "caliterra" / "IMG_9370.jpg"  # a real 4000x3000 UAV frame

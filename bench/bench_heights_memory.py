@@ -28,7 +28,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from cliff_terrain.commands.memory_estimate import heights_estimate  # noqa: E402
-from cliff_terrain.io.geotiff import read_surface, write_geotiff  # noqa: E402
+from cliff_terrain.io.raster.geotiff import read_surface, write_geotiff  # noqa: E402
 
 PAIR = ROOT.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 RUN = (

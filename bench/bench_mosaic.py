@@ -63,7 +63,7 @@ RUN = textwrap.dedent(
     from cliff_terrain._memory import peak_rss
     from cliff_terrain.mesh.adaptive import adaptive_mesh
     from cliff_terrain.mosaic.meshes import mosaic_max_error
-    from cliff_terrain.io.mosaic import MosaicReader
+    from cliff_terrain.io.raster.mosaic import MosaicReader
     from cliff_terrain.mosaic.tiles import mosaic_settings, relief_tiles, tile_windows
     path, limit, workers = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     start = time.perf_counter()

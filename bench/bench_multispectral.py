@@ -33,8 +33,8 @@ sys.path.insert(0, str(REPO))
 
 from machine_info import describe  # noqa: E402
 
-from cliff_terrain.io.bands import read_bands  # noqa: E402
-from cliff_terrain.relief.indices import index_map  # noqa: E402
+from cliff_terrain.io.raster.bands import read_bands  # noqa: E402
+from cliff_terrain.photo_heights.indices import index_map  # noqa: E402
 
 INDEX_NAMES = ("NDVI", "NDRE", "GNDVI", "OSAVI")
 FORMULAS = {

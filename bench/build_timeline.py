@@ -38,7 +38,7 @@ STEPS = {
     ],
     "cliff_terrain.mesh.adaptive": ["tin_mesh", "triangulate"],
     "cliff_terrain.io.photo": ["OpenImage.decode"],
-    "cliff_terrain.relief.segmentation": [
+    "cliff_terrain.photo_heights.segmentation": [
         "_vegetation_mask",
         "_clean",
         "distance_map",
@@ -46,7 +46,7 @@ STEPS = {
         "inner_boundaries",
     ],
     # split_regions looks these up in its own module
-    "cliff_terrain.relief.watershed": [
+    "cliff_terrain.photo_heights.watershed": [
         "label4",
         "label_max",
         "_watershed_raveled",

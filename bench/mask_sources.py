@@ -37,7 +37,7 @@ if str(ROOT) not in sys.path:
 from bench.validate_real import PHOTO_SUFFIXES, read_mask  # noqa: E402
 from cliff_terrain import build_relief  # noqa: E402
 from cliff_terrain.evaluate.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
-from cliff_terrain.relief import vegetation  # noqa: E402
+from cliff_terrain.photo_heights import vegetation  # noqa: E402
 
 # Bounds tried for the colour test; inf switches it off (last round's valley-only rule).
 CANDIDATES = (1.0, 1.5, 2.0, 2.5, 3.0, 4.0, float("inf"))

@@ -32,8 +32,8 @@ from scipy.optimize import linear_sum_assignment
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from cliff_terrain.io.geotiff import read_orthophoto  # noqa: E402
-from cliff_terrain.io.plot_polygons import read_plots  # noqa: E402
+from cliff_terrain.io.raster.geotiff import read_orthophoto  # noqa: E402
+from cliff_terrain.io.vector.plot_polygons import read_plots  # noqa: E402
 from cliff_terrain.measure.canopy import plant_mask  # noqa: E402
 from cliff_terrain.measure.field_plots import rasterize_plots  # noqa: E402
 from cliff_terrain.measure.fit_flags import fitted_plots  # noqa: E402

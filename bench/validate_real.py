@@ -214,8 +214,8 @@ def field_rows(data_dir, *, ground="auto"):
     of ours' uncertainty (|error| <= 1.645 x height_p90_err_m)."""
     import cv2
 
-    from cliff_terrain.io.geotiff import read_surface, resample
-    from cliff_terrain.io.plot_polygons import read_plots
+    from cliff_terrain.io.raster.geotiff import read_surface, resample
+    from cliff_terrain.io.vector.plot_polygons import read_plots
     from cliff_terrain.measure.field_plots import rasterize_plots
     from cliff_terrain.measure.ground import canopy_height, fit_ground, naive_block_ground
     from cliff_terrain.measure.ruler import read_ruler
@@ -307,7 +307,7 @@ def field_rows(data_dir, *, ground="auto"):
 def _run_heights(folder, files, spec, ground):
     """`cliff-terrain heights` on one date: (p90, p90 err, ground check, grid transform, grid shape)."""
     from cliff_terrain.cli import main as cli
-    from cliff_terrain.io.geotiff import read_surface
+    from cliff_terrain.io.raster.geotiff import read_surface
 
     with tempfile.TemporaryDirectory() as out:
         args = ["heights", str(folder / files["ortho"]), "--dsm", str(folder / files["dsm"])]

@@ -14,18 +14,17 @@ import numpy as np
 
 from ._validate import check_rgb
 from .errors import CliffTerrainError
-from .io.photo import open_image
-from .io.photo_metadata import ImageMetadata
+from .io.photo import ImageMetadata, open_image
 from .mesh.adaptive import adaptive_mesh, choose_mesh
 from .mesh.grid import MeshArrays, grid_topology, place_vertices
 from .mesh.tin import default_max_error
 from .params import ReliefParams
-from .relief.indices import nir_index_map
-from .relief.inflate import inflate, resolve_profile
-from .relief.quaternion import quaternion_filter
-from .relief.resize import resize_longest, resized_shape
-from .relief.segmentation import Segmentation, decide_by_surface, segment
-from .relief.vegetation import COLOUR_SEPARATION
+from .photo_heights.indices import nir_index_map
+from .photo_heights.inflate import inflate, resolve_profile
+from .photo_heights.quaternion import quaternion_filter
+from .photo_heights.resize import resize_longest, resized_shape
+from .photo_heights.segmentation import Segmentation, decide_by_surface, segment
+from .photo_heights.vegetation import COLOUR_SEPARATION
 from .settings import DEFAULT_GROUND_BLOCK_M
 
 
@@ -133,9 +132,9 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
     segmentation : {"vegetation", "paper"}, optional
         ``"vegetation"``: plants rise and soil stays flat. ``"paper"``: the paper's Algorithm 2 as
         printed (Otsu on the filtered image's brightness; it may raise bright soil). See
-        :mod:`cliff_terrain.relief.segmentation`.
+        :mod:`cliff_terrain.photo_heights.segmentation`.
     profile : {"auto", "circular", "poisson", "plateau"}, optional
-        Cross-section of each region (see :func:`cliff_terrain.relief.inflate.inflate`); ``"plateau"``
+        Cross-section of each region (see :func:`cliff_terrain.photo_heights.inflate.inflate`); ``"plateau"``
         levels closed canopy off at `max_height`. ``"auto"``: ``"plateau"`` with the vegetation
         segmentation, the paper's ``"circular"`` with the paper's.
     exaggeration : float, optional
@@ -144,7 +143,7 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         Canopy height (> 0, finite), in metres when the ground sampling distance is known, else in
         processing pixels; before `exaggeration`. With ``profile="plateau"`` the height at which
         closed canopy levels off (default: the radius of a typical isolated plant, see
-        :func:`cliff_terrain.relief.inflate.typical_plant_radius`); with the other profiles a cap.
+        :func:`cliff_terrain.photo_heights.inflate.typical_plant_radius`); with the other profiles a cap.
     gsd : float, optional
         Ground sampling distance of the *original* photo in metres per pixel; wins over what
         the camera metadata gives. With a GSD the heights and the mesh are in metres.
@@ -408,7 +407,7 @@ def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
     """Resize, filter, segment (by NDVI when `bands` hold NIR and red) and inflate (`clock` is at "load").
 
     `surface(shape)`, when given, returns the DSM on the processing grid: it is read only when the
-    photo's threshold rule was undecided (see :func:`~cliff_terrain.relief.segmentation.decide_by_surface`).
+    photo's threshold rule was undecided (see :func:`~cliff_terrain.photo_heights.segmentation.decide_by_surface`).
     """
     clock.start("resize", 0.1)
     working = resize_longest(image, params.max_size)

@@ -201,7 +201,7 @@ def _check(parameter, value):
         if not isinstance(value, str | os.PathLike):
             raise CliffTerrainError(f"`{name}` must be a file path or None, got {value!r}")
         return os.fspath(value)
-    from .io.bands import parse_band_names  # kind "names": only the bands
+    from .io.raster.bands import parse_band_names  # kind "names": only the bands
 
     return parse_band_names(value)
 

@@ -4,7 +4,8 @@ plot grid and inspecting (Probe Height, the colour bar).
 What they put into the scene (mesh, materials, cameras, light, render settings) is in ``scene/``.
 """
 
-from . import build, inspect, mosaic, plots, properties, render, render_job, season
+from . import build, inspect, mosaic, plots, properties, render, render_job
+from . import season_animation as season
 
 # The settings first: the build operator and the panel read them.
 _MODULES = (properties, build, render, render_job, season, mosaic, plots, inspect)

@@ -16,7 +16,7 @@ import bpy
 import numpy as np
 from bpy.props import FloatProperty, IntProperty, StringProperty
 
-from ..cliff_terrain.io.crs import crs_record
+from ..cliff_terrain.io.raster.crs import crs_record
 from ..scene.datablocks import textured_object
 from ..scene.material import image_from_array
 from ..scene.mesh_data import mesh_from_arrays
@@ -59,7 +59,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     def execute(self, context):
         try:
             from ..cliff_terrain import CliffTerrainError
-            from ..cliff_terrain.io.mosaic import MosaicReader
+            from ..cliff_terrain.io.raster.mosaic import MosaicReader
             from ..cliff_terrain.mosaic.meshes import mosaic_max_error, tile_meshes
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")

@@ -8,7 +8,7 @@ snaps the grid to the crop of the relief's orthophoto.
 
 import bpy
 
-from ..cliff_terrain.io.crs import crs_text
+from ..cliff_terrain.io.raster.crs import crs_text
 from ..scene.record import Record, is_relief
 from .file_operator import FileOperator
 from .reports import report_failure
@@ -24,7 +24,7 @@ class _OnAGrid:
 
     @classmethod
     def poll(cls, context):
-        from ..scene.plot_grid import active_grid
+        from ..scene.plot_grid_object import active_grid
 
         if active_grid(context) is None:
             cls.poll_message_set("Select a plot grid (Add Plot Grid)")
@@ -55,7 +55,7 @@ class CLIFF_TERRAIN_OT_add_plot_grid(bpy.types.Operator):
 
     def execute(self, context):
         from ..scene.datablocks import remove_datablocks
-        from ..scene.plot_grid import new_grid
+        from ..scene.plot_grid_object import new_grid
 
         created = []
         try:
@@ -84,11 +84,11 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        from ..cliff_terrain.io.geotiff import read_orthophoto
+        from ..cliff_terrain.io.raster.geotiff import read_orthophoto
         from ..cliff_terrain.measure.canopy import plant_mask
         from ..cliff_terrain.measure.plot_fit import CONFIDENT, MIN_COVER, fit_grid
         from ..cliff_terrain.measure.plot_grid import Placement
-        from ..scene.plot_grid import FIT_KEY, grid_map_corners, layout_of, mark_fit, move_grid
+        from ..scene.plot_grid_object import FIT_KEY, grid_map_corners, layout_of, mark_fit, move_grid
 
         grid = context.active_object
         settings = context.scene.cliff_terrain
@@ -135,7 +135,7 @@ class CLIFF_TERRAIN_OT_plot_table(_OnAGrid, bpy.types.Operator):
 
     def execute(self, context):
         from ..cliff_terrain.measure.canopy import relief_plot_rows
-        from ..scene.plot_grid import TABLE_KEY, grid_plots, grid_relief
+        from ..scene.plot_grid_object import TABLE_KEY, grid_plots, grid_relief
         from ..scene.probe import relief_of
 
         grid = context.active_object
@@ -172,8 +172,8 @@ class CLIFF_TERRAIN_OT_export_plots(_OnAGrid, FileOperator, bpy.types.Operator):
     def execute(self, context):
         from pathlib import Path
 
-        from ..cliff_terrain.io.plot_files import write_plots
-        from ..scene.plot_grid import grid_plots
+        from ..cliff_terrain.io.vector.plot_files import write_plots
+        from ..scene.plot_grid_object import grid_plots
 
         path = Path(bpy.path.abspath(self.filepath))
         try:
@@ -201,7 +201,7 @@ def draw_labels():
     import blf
     from bpy_extras.view3d_utils import location_3d_to_region_2d
 
-    from ..scene.plot_grid import GRID_KEY, label_positions
+    from ..scene.plot_grid_object import GRID_KEY, label_positions
 
     for grid in context.visible_objects:
         if GRID_KEY not in grid:

@@ -10,7 +10,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 
 # The core's choices, defaults and limits (a module that imports nothing: registering stays fast).
 from ..cliff_terrain import settings
-from ..cliff_terrain.relief import indices
+from ..cliff_terrain.photo_heights import indices
 
 # Names of the parameters passed to the core's build_relief (besides the image path): the
 # declarations shown in the sidebar.
@@ -75,7 +75,7 @@ ReliefParameters.__annotations__.update(
 
 def _grid_changed(settings, context):
     """Rebuild the active plot grid from the new layout (its placement stays where the user put it)."""
-    from ..scene.plot_grid import active_grid, update_grid_mesh
+    from ..scene.plot_grid_object import active_grid, update_grid_mesh
 
     grid = active_grid(context)
     if grid is not None:

@@ -142,7 +142,7 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
         """What render_views.py writes beside the views (the maps, tables, annotated figures and
         metrics.json), from the relief rebuilt from its photo and settings (a core run without a
         mesh); only metrics.json, with a warning, when the photo has changed since the build."""
-        from ..cliff_terrain.figures import outputs
+        from ..cliff_terrain.figures import writer as outputs
 
         metrics = dict(metrics)
         side, seconds = metrics.pop("side_view"), metrics.pop("timings_s")

@@ -25,7 +25,7 @@ import time
 import bpy
 from bpy.props import StringProperty
 
-from ..cliff_terrain.figures.outputs import RENDERS
+from ..cliff_terrain.figures.writer import RENDERS
 
 ADDON_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHILD_SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "render_job_child.py")

@@ -283,7 +283,7 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        from ..scene.plot_grid import FIT_KEY, GRID_KEY, TABLE_KEY
+        from ..scene.plot_grid_object import FIT_KEY, GRID_KEY, TABLE_KEY
 
         layout = self.layout
         layout.use_property_split = True

@@ -29,7 +29,7 @@ def reliefs(scene):
 
 def measured_grids():
     """{relief name: a plot grid over it with a plot table (Measure Plots)}, in one pass over the objects."""
-    from .plot_grid import GRID_KEY, TABLE_KEY
+    from .plot_grid_object import GRID_KEY, TABLE_KEY
 
     return {obj[GRID_KEY]: obj for obj in bpy.data.objects if GRID_KEY in obj and obj.get(TABLE_KEY)}
 
@@ -89,7 +89,7 @@ def height_legend(relief):
 def trait_legend(relief, grid, settings, trait):
     """(t per vertex in [0, 1], NaN outside the plots; legend) of colouring `relief` by a plot trait."""
     from ..cliff_terrain.measure.field_plots import rasterize_plots
-    from .plot_grid import TABLE_KEY, grid_plots
+    from .plot_grid_object import TABLE_KEY, grid_plots
     from .probe import grid_cells
 
     record = Record.of(relief)
@@ -119,9 +119,9 @@ def trait_legend(relief, grid, settings, trait):
 
 def index_legend(relief, index):
     """(t per vertex in [0, 1], NaN without data; legend) of colouring `relief` by a vegetation index
-    of its photo's bands (:mod:`cliff_terrain.relief.indices`), from its 2nd to 98th percentile."""
-    from ..cliff_terrain.io.bands import read_bands
-    from ..cliff_terrain.relief.indices import index_maps
+    of its photo's bands (:mod:`cliff_terrain.photo_heights.indices`), from its 2nd to 98th percentile."""
+    from ..cliff_terrain.io.raster.bands import read_bands
+    from ..cliff_terrain.photo_heights.indices import index_maps
     from .probe import grid_cells
 
     record = Record.of(relief)

@@ -130,7 +130,7 @@ def build_record(relief, path, params, scale, *, figures=None):
     """The :class:`Record` of a build (see :func:`write_record`)."""
     from ..cliff_terrain import __version__
     from ..cliff_terrain.params import ReliefParams
-    from ..cliff_terrain.relief.indices import available_indices
+    from ..cliff_terrain.photo_heights.indices import available_indices
 
     digest, figures = record_figures(relief) if figures is None else figures
     if not isinstance(params, ReliefParams):  # render_views.py passes a relief's recorded ``params``
@@ -191,7 +191,7 @@ def key_figures(relief):
         rows = relief.heights.shape[0]  # the mesh's grid
         t = canopy.transform
         figures["map_offset"] = (float(t[0, 1] * rows + t[0, 2]), float(t[1, 1] * rows + t[1, 2]))
-        from ..cliff_terrain.io.crs import crs_record
+        from ..cliff_terrain.io.raster.crs import crs_record
 
         figures["crs"] = crs_record(canopy.crs)  # an EPSG code, or a user-defined CRS's WKT
         figures["ground"] = canopy.ground_source

@@ -139,7 +139,7 @@ def make_rig(
     side_exaggeration : float, optional
         Vertical exaggeration of the side view; default a round factor that makes the relief rise
         to a useful share of the view (``cliff_terrain.figures.legends.vertical_exaggeration``).
-    transect : cliff_terrain.io.transect.Transect, optional
+    transect : cliff_terrain.io.vector.transect.Transect, optional
         A strip of the photo the side view shows alone (default: the whole relief from the south).
     photo_shape : tuple of int, optional
         (rows, cols) of the photo the transect's pixels refer to.

@@ -23,7 +23,7 @@ from ..cliff_terrain.evaluate.views import (
     resize_nearest,
     slope_degrees,
 )
-from ..cliff_terrain.figures import outputs
+from ..cliff_terrain.figures import writer as outputs
 from .mesh_data import positions
 from .record import Record
 from .render_materials import add_height_colours, flat_material, height_material, make_matte, relief_image
@@ -228,7 +228,7 @@ def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):
 
 
 def render_record(obj, *, engine, samples, light):
-    """What ``metrics.json`` records of the Blender side of a run (``figures.outputs.write_metrics``):
+    """What ``metrics.json`` records of the Blender side of a run (``figures.writer.write_metrics``):
     the relief object's mesh, the engine, samples and light of the views, the versions."""
     from ..cliff_terrain import __version__
 

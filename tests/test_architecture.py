@@ -14,7 +14,7 @@ MAX_LINES = 500
 STAGES = (
     "io",
     "data",
-    "relief",
+    "photo_heights",
     "mesh",
     "evaluate",
     "measure",

@@ -250,7 +250,7 @@ CASES = [
     Case("1x1", make_one_pixel, Refused("it is 1x1 pixels; an image needs at least 2x2")),
     Case("2x2", make_two_by_two, Built(size=(2, 2), grid=(2, 2), regions=1, covered=True)),
     Case("2x64-strip", make_strip, Built(size=(64, 2), grid=(2, 64), regions=0)),
-    # Grey has no excess green: documented (cliff_terrain.relief.segmentation) as flat, like bare soil.
+    # Grey has no excess green: documented (cliff_terrain.photo_heights.segmentation) as flat, like bare soil.
     Case("greyscale", make_greyscale, Built(size=(COLS, ROWS), grid=(ROWS, COLS), regions=0)),
     Case(
         "rgba-no-data",

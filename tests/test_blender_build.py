@@ -114,7 +114,7 @@ def test_zip_holds_the_linux_wheels_and_the_add_on_only(linux_zip, tool):
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     # The season's reader is shipped (the Season Animation button); its Dask runner and matplotlib
     # chart are command-line only.
-    assert "cliff_terrain/season/outputs.py" in names and "operators/season.py" in names
+    assert "cliff_terrain/season/reader.py" in names and "operators/season_animation.py" in names
     assert "cliff_terrain/season/runner.py" not in names and "cliff_terrain/season/charts.py" not in names
     # Mask quality and the synthetic surface serve the tests, benchmarks and tools, not the extension.
     assert "cliff_terrain/evaluate/mask_quality.py" not in names

@@ -655,8 +655,8 @@ def test_settings_match_the_brief_and_the_core(addon, core, scene):
     assert rna["filepath"].subtype == "FILE_PATH" and rna["output_dir"].subtype == "DIR_PATH"
     # The core's range, from the one module that holds it (the panel stopped at 8000 once).
     assert (rna["max_size"].hard_min, rna["max_size"].hard_max, rna["max_size"].default) == (16, 16384, 1000)
-    segmentation = importlib.import_module(f"{ADDON}.cliff_terrain.relief.segmentation")
-    heights = importlib.import_module(f"{ADDON}.cliff_terrain.relief.inflate")
+    segmentation = importlib.import_module(f"{ADDON}.cliff_terrain.photo_heights.segmentation")
+    heights = importlib.import_module(f"{ADDON}.cliff_terrain.photo_heights.inflate")
     assert tuple(item.identifier for item in rna["segmentation"].enum_items) == segmentation.METHODS
     assert tuple(item.identifier for item in rna["profile"].enum_items) == heights.PROFILES
     assert settings.relief_params().gsd is None

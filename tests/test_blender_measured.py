@@ -91,7 +91,7 @@ def test_render_views_plots_need_a_dsm(tmp_path):
 def test_render_views_with_dsm_and_plots(tmp_path):
     import json
 
-    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
 
     ortho = read_orthophoto(ex2("odm_orthophoto.tif"))
     x0, y0 = ortho.transform[0, 2] + 20, ortho.transform[1, 2] - 20
@@ -147,7 +147,7 @@ def test_render_views_with_dsm_and_plots(tmp_path):
         assert summary[key] == pytest.approx(metrics[key], rel=1e-6), key
     assert summary["threshold"] == metrics["params"]["threshold"]
     # And both are what the CHM says: the p90 of the canopy height over the plant pixels.
-    from cliff_terrain.io.geotiff import read_surface
+    from cliff_terrain.io.raster.geotiff import read_surface
 
     chm = read_surface(heights_out / "chm.tif").data
     with Image.open(out / "mask.png") as image:

@@ -21,8 +21,8 @@ def odm5(tmp_path_factory):
 def test_color_by_offers_the_indices_of_the_reliefs_bands(scene, odm5):
     import bpy
 
-    from cliff_terrain.io.bands import read_bands
-    from cliff_terrain.relief.indices import index_map
+    from cliff_terrain.io.raster.bands import read_bands
+    from cliff_terrain.photo_heights.indices import index_map
 
     settings = scene.cliff_terrain
     settings.filepath = str(odm5)

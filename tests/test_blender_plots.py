@@ -32,10 +32,10 @@ def relief(scene):
 
 def test_add_edit_fit_and_export_a_plot_grid(relief, tmp_path):
     import bpy
-    from cliff_terrain_addon.scene.plot_grid import MapFrame, grid_plots
+    from cliff_terrain_addon.scene.plot_grid_object import MapFrame, grid_plots
 
-    from cliff_terrain.io.geotiff import read_orthophoto
-    from cliff_terrain.io.plot_polygons import read_plots
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
+    from cliff_terrain.io.vector.plot_polygons import read_plots
     from cliff_terrain.measure.canopy import plant_mask
     from cliff_terrain.measure.field_plots import rasterize_plots
 
@@ -108,7 +108,7 @@ def test_plot_operators_grey_out_with_the_reason(scene):
 def test_measure_plots_shows_the_plot_table_of_the_relief(relief, tmp_path):
     import bpy
     from cliff_terrain_addon.panels.sidebar import plot_table_lines
-    from cliff_terrain_addon.scene.plot_grid import TABLE_KEY, grid_plots
+    from cliff_terrain_addon.scene.plot_grid_object import TABLE_KEY, grid_plots
 
     from cliff_terrain.build import build_relief
     from cliff_terrain.measure.field_plots import plot_table, rasterize_plots

@@ -12,8 +12,8 @@ import pytest
 import tifffile
 from conftest import REPO
 
-from cliff_terrain.io.geotiff import COG_TILE, read_surface, write_geotiff
-from cliff_terrain.io.tiff_window import TiffRaster
+from cliff_terrain.io.raster._tiff_window import TiffRaster
+from cliff_terrain.io.raster.geotiff import COG_TILE, read_surface, write_geotiff
 
 ODM_PAIR = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 

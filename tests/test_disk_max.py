@@ -7,10 +7,10 @@ from conftest import uav_image
 from scipy import ndimage
 
 import cliff_terrain._threads as threads
-import cliff_terrain.relief.disk_max as disk_max
+import cliff_terrain.photo_heights.disk_max as disk_max
 from cliff_terrain import CliffTerrainError, load_image, segment
-from cliff_terrain.relief.disk_max import disk_maximum
-from cliff_terrain.relief.labels import distance_map
+from cliff_terrain.photo_heights.disk_max import disk_maximum
+from cliff_terrain.photo_heights.labels import distance_map
 
 
 def _ellipse(radius):

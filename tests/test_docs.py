@@ -287,7 +287,7 @@ def test_the_render_views_tables_name_its_options_and_outputs():
         import render_views
     finally:
         sys.path.remove(str(REPO))
-    from cliff_terrain.figures.outputs import OUTPUTS
+    from cliff_terrain.figures.writer import OUTPUTS
 
     text = (DOCS / "cli.md").read_text()
     parser = render_views.build_parser()
@@ -297,7 +297,7 @@ def test_the_render_views_tables_name_its_options_and_outputs():
 
 
 def test_the_index_table_is_the_indices_the_code_defines():
-    from cliff_terrain.relief.indices import INDICES
+    from cliff_terrain.photo_heights.indices import INDICES
 
     text = (DOCS / "concepts" / "multispectral.md").read_text()
     section = text.split("| index | formula | bands | reference |\n", 1)[1].split("\n\n", 1)[0]

@@ -19,8 +19,8 @@ from PIL import Image, ImageOps
 import cliff_terrain
 from cliff_terrain import _deps
 from cliff_terrain.errors import CliffTerrainError, DependencyError
-from cliff_terrain.io import jpeg
-from cliff_terrain.io import photo as image_io
+from cliff_terrain.io.photo import _jpeg as jpeg
+from cliff_terrain.io.photo import _open as image_io
 from cliff_terrain.io.photo import load_image
 
 ROOT = Path(__file__).resolve().parents[1]

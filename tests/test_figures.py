@@ -17,7 +17,7 @@ from cliff_terrain.figures.legends import (
     vertical_exaggeration,
 )
 from cliff_terrain.figures.sheet import contact_sheet
-from cliff_terrain.io.transect import Transect, parse_transect
+from cliff_terrain.io.vector.transect import Transect, parse_transect
 
 
 def ink_rows(column):

@@ -11,8 +11,8 @@ from scipy import stats
 from test_measured_heights import run_cli, write_synthetic_pair
 
 from cliff_terrain.errors import CliffTerrainError, GroundError, RulerError
-from cliff_terrain.io.geotiff import read_surface
-from cliff_terrain.io.plot_polygons import PlotSet
+from cliff_terrain.io.raster.geotiff import read_surface
+from cliff_terrain.io.vector.plot_polygons import PlotSet
 from cliff_terrain.measure.ground import fit_ground, naive_block_ground
 from cliff_terrain.measure.ground_check import robust_error, spatial_folds
 from cliff_terrain.measure.ruler import agreement, calibrate, read_ruler
@@ -181,8 +181,8 @@ def test_ruler_matches_by_the_attribute_that_fits_and_converts_units(tmp_path):
 @pytest.fixture
 def trial(tmp_path):
     """The synthetic pair with 8 plots of 1.5 m and a ruler: 0.05 m + 1.1 x each plot's true p90."""
-    from cliff_terrain.io.geotiff import read_orthophoto
-    from cliff_terrain.io.plot_polygons import read_plots
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
+    from cliff_terrain.io.vector.plot_polygons import read_plots
     from cliff_terrain.measure.field_plots import rasterize_plots
 
     truth = write_synthetic_pair(tmp_path)
@@ -265,7 +265,7 @@ def test_heights_with_the_baseline_is_the_naive_peer(trial):
     assert done.returncode == 0, done.stderr
     chm = read_surface(out / "chm.tif")
     dsm = read_surface(folder / "dsm.tif")
-    from cliff_terrain.io.geotiff import resample
+    from cliff_terrain.io.raster.geotiff import resample
 
     surface = resample(dsm, transform=chm.transform, shape=chm.shape)
     expected = np.maximum(surface - naive_block_ground(surface, pixel_size=0.02, percentile=2.0), 0)

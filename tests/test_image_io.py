@@ -722,7 +722,7 @@ def _jpeg_variants(tmp_path):
 
 
 def test_jpegs_decode_in_one_call_to_exactly_pillows_pixels(tmp_path, monkeypatch):
-    import cliff_terrain.io.photo as image_io
+    import cliff_terrain.io.photo._open as image_io
 
     pillow_decodes = []
     pillow_decode = image_io.decode_pixels

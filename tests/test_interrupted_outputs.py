@@ -70,7 +70,7 @@ def test_a_terminal_gets_tqdms_bar_with_an_eta_and_no_progress_silences_it(pair,
 
 
 def test_ctrl_c_while_writing_leaves_nothing_and_the_command_runs_again(pair, tmp_path, monkeypatch, capsys):
-    import cliff_terrain.io.geotiff as geotiff
+    import cliff_terrain.io.raster.geotiff as geotiff
 
     out = tmp_path / "out"
     real = geotiff.write_geotiff

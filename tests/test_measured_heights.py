@@ -13,11 +13,11 @@ from conftest import REPO
 
 from cliff_terrain.data.synthetic_surface import synthetic_surface
 from cliff_terrain.errors import CliffTerrainError, GeoreferenceError, PlotFileError, RasterReadError
-from cliff_terrain.io.geotiff import read_orthophoto, read_surface, resample, write_geotiff
-from cliff_terrain.io.plot_polygons import PlotSet, read_plots
+from cliff_terrain.io.raster.geotiff import read_orthophoto, read_surface, resample, write_geotiff
+from cliff_terrain.io.vector.plot_polygons import PlotSet, read_plots
 from cliff_terrain.measure.field_plots import plot_table, rasterize_plots
 from cliff_terrain.measure.ground import canopy_height, estimate_ground, naive_block_ground
-from cliff_terrain.relief.segmentation import segment
+from cliff_terrain.photo_heights.segmentation import segment
 
 EX2 = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 UTM16N = 32616
@@ -162,8 +162,7 @@ def test_the_photo_reader_is_chosen_by_the_tiff_header_not_by_pillows_error(tmp_
     from PIL import Image
 
     from cliff_terrain.io import photo
-    from cliff_terrain.io.reader import PhotoReader
-    from cliff_terrain.io.tiff_photo import TiffPhoto
+    from cliff_terrain.io.photo import PhotoReader, TiffPhoto
 
     opened, original = [], Image.open
     monkeypatch.setattr(Image, "open", lambda *a, **k: opened.append(a) or original(*a, **k))
@@ -215,8 +214,8 @@ def test_ex2_orthophoto_loads_as_a_photo():
 
 
 def test_resample_follows_the_georeference():
-    from cliff_terrain.io.geotiff import GeoRaster
-    from cliff_terrain.io.transform import as_affine
+    from cliff_terrain.io.raster.geotiff import GeoRaster
+    from cliff_terrain.io.raster.transform import as_affine
 
     # A plane z = x + 2y sampled at 2 m pixels, resampled to 0.5 m pixels: bilinear is exact on a plane.
     rows, cols = np.mgrid[:20, :20]
@@ -590,7 +589,7 @@ def test_heights_command_bad_input_exits_2_with_one_line(field_files, setup, wor
 def test_build_relief_measured_and_calibrated(field_files):
     from cliff_terrain.build import build_relief
     from cliff_terrain.measure.field_plots import region_figures
-    from cliff_terrain.relief.labels import label_max
+    from cliff_terrain.photo_heights.labels import label_max
 
     folder, truth = field_files
     measured = build_relief(
@@ -658,7 +657,7 @@ def test_heights_command_on_a_coarser_grid_the_user_chooses(field_files):
 def test_plot_geojson_keeps_holes_and_islands(tmp_path):
     # A plot with a hole holding an island, and a second part: written as GeoJSON and read back, it
     # burns into exactly the same pixels (a hole written as its own polygon would come back filled).
-    from cliff_terrain.io.geojson import polygon_geometries, table_geojson
+    from cliff_terrain.io.vector.geojson import polygon_geometries, table_geojson
 
     def square(a, b):
         return np.array([[a, a], [b, a], [b, b], [a, b], [a, a]], dtype=float)
@@ -717,7 +716,7 @@ def test_a_canopy_without_bare_soil_is_refused_and_a_dtm_suggested(field_files):
 def test_bare_soil_leaves_out_dull_leaves_that_the_threshold_calls_soil():
     # Shaded, yellowing leaves below the plant threshold still stand on the canopy: they must not
     # carry the ground. The synthetic surface's shadowed flanks are exactly that.
-    from cliff_terrain.relief.vegetation import bare_soil
+    from cliff_terrain.photo_heights.vegetation import bare_soil
 
     img, _, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=6)
     soil = bare_soil(img)

@@ -15,7 +15,7 @@ import pytest
 from conftest import REPO
 
 from cliff_terrain.commands.memory_estimate import GRID_GIB_PER_MP, heights_estimate
-from cliff_terrain.io.geotiff import raster_size
+from cliff_terrain.io.raster.geotiff import raster_size
 
 ODM_PAIR = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 ORTHO, DSM = ODM_PAIR / "odm_orthophoto.tif", ODM_PAIR / "dsm.tif"

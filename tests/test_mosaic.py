@@ -19,8 +19,8 @@ from scipy.ndimage import label as _label
 
 from cliff_terrain import synthetic_field
 from cliff_terrain.errors import CliffTerrainError, ImageTooLargeError
-from cliff_terrain.io.mosaic import MosaicReader
 from cliff_terrain.io.photo import load_image
+from cliff_terrain.io.raster.mosaic import MosaicReader
 from cliff_terrain.mesh.quads import fan_triangles
 from cliff_terrain.mosaic.tiles import (
     mosaic_settings,
@@ -246,9 +246,9 @@ def test_a_real_photo_in_tiles_matches_the_whole_image_run(tmp_path):
 def _window_relief(reader, window, settings):
     """segment() and inflate() of the tile's whole window, cut to its core (what relief_tile computed
     before it limited the watershed and heights to the core's reach)."""
-    from cliff_terrain.relief.inflate import inflate
-    from cliff_terrain.relief.quaternion import quaternion_filter
-    from cliff_terrain.relief.segmentation import segment
+    from cliff_terrain.photo_heights.inflate import inflate
+    from cliff_terrain.photo_heights.quaternion import quaternion_filter
+    from cliff_terrain.photo_heights.segmentation import segment
 
     wr0, wr1, wc0, wc1 = window.window
     rgb, valid = reader.read(wr0, wr1, wc0, wc1)
@@ -427,7 +427,7 @@ BIG_SCRIPT = textwrap.dedent(
     import json, sys, time
     import numpy as np
     from cliff_terrain._memory import peak_rss
-    from cliff_terrain.io.mosaic import MosaicReader
+    from cliff_terrain.io.raster.mosaic import MosaicReader
     from cliff_terrain.mosaic.tiles import mosaic_settings, relief_tiles
     path, tiles_wanted = sys.argv[1], int(sys.argv[2])
     start = time.perf_counter()

@@ -21,13 +21,13 @@ import tifffile
 from conftest import REPO
 
 from cliff_terrain.errors import CliffTerrainError, MissingBandError
-from cliff_terrain.io.bands import Bands, band_name, parse_band_names, read_bands, rgb_rendering
-from cliff_terrain.io.geotiff import read_orthophoto
 from cliff_terrain.io.photo import load_image
+from cliff_terrain.io.raster.bands import Bands, band_name, parse_band_names, read_bands, rgb_rendering
+from cliff_terrain.io.raster.geotiff import read_orthophoto
 from cliff_terrain.measure.field_plots import plot_table, rasterize_plots, table_columns
 from cliff_terrain.measure.index_figures import index_columns, index_figures
 from cliff_terrain.measure.tables import REGION_COLUMNS, region_columns, region_table
-from cliff_terrain.relief.indices import INDICES, index_map, index_maps, parse_indices
+from cliff_terrain.photo_heights.indices import INDICES, index_map, index_maps, parse_indices
 
 EX2 = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 PLOTS = REPO / "tests" / "data" / "odm_plots_by_hand.geojson"
@@ -249,7 +249,7 @@ def test_tables_keep_their_columns_without_indices():
     with_index = region_table(labels, pixel_size=0.1, index_maps={"NDVI": np.full((6, 6), 0.5)})[0]
     assert with_index["ndvi_plant_mean"] == 0.5
     assert list(region_columns(("NDVI",)))[-4:] == list(index_columns(("NDVI",)))
-    from cliff_terrain.io.plot_polygons import PlotSet
+    from cliff_terrain.io.vector.plot_polygons import PlotSet
 
     square = [np.array([[0.0, 0.0], [4.0, 0.0], [4.0, -4.0], [0.0, -4.0]])]
     plots = PlotSet([square], [{}], (), None, "")
@@ -342,7 +342,7 @@ def test_ndvi_segments_plants_with_the_photos_own_threshold(odm5):
 
 
 def test_segment_refuses_an_index_map_of_another_shape():
-    from cliff_terrain.relief.segmentation import segment
+    from cliff_terrain.photo_heights.segmentation import segment
 
     image = np.full((20, 20, 3), (120, 90, 60), np.uint8)
     ndvi = np.full((20, 20), 0.15, np.float32)
@@ -420,8 +420,8 @@ def test_blender_render_views_writes_index_columns(tmp_path, odm5):
 
 
 def test_season_animation_colours_by_an_index_column(tmp_path, odm5):
-    from cliff_terrain.io.plot_polygons import read_plots
-    from cliff_terrain.season.outputs import plot_colours, read_season
+    from cliff_terrain.io.vector.plot_polygons import read_plots
+    from cliff_terrain.season.reader import plot_colours, read_season
 
     path, _, _ = odm5
     out = tmp_path / "season"

@@ -14,8 +14,8 @@ import pytest
 import tifffile
 
 from cliff_terrain.errors import CliffTerrainError
-from cliff_terrain.io.bands import read_bands
-from cliff_terrain.relief.indices import index_map
+from cliff_terrain.io.raster.bands import read_bands
+from cliff_terrain.photo_heights.indices import index_map
 
 REPO = Path(__file__).resolve().parents[1]
 CLIP = REPO / "tests" / "data" / "multispectral" / "615.tif"
@@ -102,7 +102,7 @@ def test_render_views_on_the_real_clip_shows_its_ndvi(tmp_path):
 
 def test_build_relief_names_the_bands_of_an_unnamed_clip():
     from cliff_terrain import build_relief
-    from cliff_terrain.io.bands import rgb_rendering
+    from cliff_terrain.io.raster.bands import rgb_rendering
 
     relief = build_relief(CLIP, bands="B,G,R,RE,NIR", mesh=None)
     assert relief.metadata.band_names == ORDER and relief.params["bands"] == ORDER

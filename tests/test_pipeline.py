@@ -338,7 +338,7 @@ def test_orthophoto_no_data_stays_flat():
     ],
 )
 def test_resized_shape_is_the_shape_resize_longest_makes(shape, max_size, expected):
-    from cliff_terrain.relief.resize import resize_longest, resized_shape
+    from cliff_terrain.photo_heights.resize import resize_longest, resized_shape
 
     assert resized_shape(shape, max_size) == expected
     assert resize_longest(np.zeros((*shape, 3), np.uint8), max_size).shape[:2] == expected

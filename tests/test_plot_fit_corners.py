@@ -21,7 +21,7 @@ from conftest import REPO, SHARED_UAV
 from scipy.optimize import linear_sum_assignment
 
 from cliff_terrain.errors import CliffTerrainError
-from cliff_terrain.io.plot_polygons import read_plots
+from cliff_terrain.io.vector.plot_polygons import read_plots
 from cliff_terrain.measure.field_plots import rasterize_plots
 from cliff_terrain.measure.fit_flags import fitted_plots
 from cliff_terrain.measure.plot_fit import fit_grid
@@ -163,7 +163,7 @@ def soybean(date):
     tif = SOYBEAN / f"{date}_Lamberton_clipped.tif"
     if not tif.is_file():
         pytest.skip(f"{tif} not found (../shared is absent)")
-    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
     from cliff_terrain.measure.canopy import plant_mask
 
     ortho = read_orthophoto(tif)
@@ -225,7 +225,7 @@ def test_potato_single_rows_from_corners_off_by_a_quarter_metre(day):
         pytest.skip(
             f"the FIELDimageR potato trial is not in {POTATO} (fetched data, never in the repository)"
         )
-    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
     from cliff_terrain.measure.canopy import plant_mask
 
     ortho = read_orthophoto(tif)

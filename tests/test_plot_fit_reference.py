@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from cliff_terrain.io.plot_polygons import read_plots
+from cliff_terrain.io.vector.plot_polygons import read_plots
 from cliff_terrain.measure.field_plots import rasterize_plots
 
 ODM = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2" / "odm_orthophoto.tif"
@@ -27,7 +27,7 @@ GRID = ["--grid", "4x9", "--plot-size", "14.2x4.8"]
 def orthophoto():
     if not ODM.is_file():
         pytest.skip(f"shared OpenDroneMap orthophoto {ODM} not found (../shared is absent)")
-    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
 
     return read_orthophoto(ODM)
 
@@ -58,7 +58,7 @@ def outer_corners(plots):
 
 
 def test_the_hand_drawn_reference_covers_the_crop():
-    from cliff_terrain.io.plot_files import check_plots_fit
+    from cliff_terrain.io.vector.plot_files import check_plots_fit
     from cliff_terrain.measure.canopy import plant_mask
 
     ortho = orthophoto()

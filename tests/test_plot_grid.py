@@ -13,8 +13,8 @@ import pytest
 from conftest import REPO, SHARED_UAV
 
 from cliff_terrain.errors import CliffTerrainError, PlotFileError
-from cliff_terrain.io.plot_files import read_field_book, write_plots
-from cliff_terrain.io.plot_polygons import polygon_area, read_plots
+from cliff_terrain.io.vector.plot_files import read_field_book, write_plots
+from cliff_terrain.io.vector.plot_polygons import polygon_area, read_plots
 from cliff_terrain.measure.field_plots import rasterize_plots
 from cliff_terrain.measure.plot_grid import (
     Placement,
@@ -156,7 +156,7 @@ def run_cli(*args):
 def odm():
     if not ODM.is_file():
         pytest.skip(f"shared OpenDroneMap pair {ODM} not found (../shared is absent)")
-    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
 
     return read_orthophoto(ODM)
 
@@ -196,7 +196,7 @@ def test_fit_puts_every_plot_on_its_block_of_crop(tmp_path, seed):
 
 
 def test_fit_matches_the_soybean_plots_from_rough_corners_and_from_nothing():
-    from cliff_terrain.io.geotiff import read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
     from cliff_terrain.measure.canopy import plant_mask
     from cliff_terrain.measure.plot_fit import fit_grid
 

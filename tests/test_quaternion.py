@@ -6,7 +6,7 @@ import quaternion  # numpy-quaternion: Hamilton products, independent of the fil
 from conftest import SHARED_UAV as UAV
 
 from cliff_terrain.errors import CliffTerrainError
-from cliff_terrain.relief.quaternion import quaternion_filter
+from cliff_terrain.photo_heights.quaternion import quaternion_filter
 
 MU = quaternion.quaternion(0, 1, 1, 1) / np.sqrt(3)
 SCALE = 1 / np.sqrt(6)  # Sangwine's choice, the documented default

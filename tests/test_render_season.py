@@ -148,7 +148,7 @@ def test_frames_coloured_by_cover(season_dir, tmp_path):
 def test_colours_from_traits_are_per_plot_and_dates_read_as_dates(season_dir, tmp_path):
     """A trait of traits.csv colours a plot the same on every date; a date trait reads as days, its
     scale written as dates; text columns are not offered."""
-    from cliff_terrain.season.outputs import plot_colours, read_season
+    from cliff_terrain.season.reader import plot_colours, read_season
 
     season = read_season(season_dir)
     n = 40
@@ -204,7 +204,7 @@ def test_bad_season_folder_is_one_line(tmp_path):
 def test_sidebar_operator_builds_and_renders_the_season(addon, scene, season_dir):
     import bpy
 
-    from cliff_terrain.season.outputs import read_season
+    from cliff_terrain.season.reader import read_season
 
     result = bpy.ops.cliff_terrain.season_animation(directory=str(season_dir), show_plots=True, render=True)
     assert result == {"FINISHED"}
@@ -250,7 +250,7 @@ def test_sidebar_operator_builds_and_renders_the_season(addon, scene, season_dir
 def test_sidebar_operator_colours_by_cover(addon, scene, season_dir):
     import bpy
 
-    from cliff_terrain.season.outputs import read_season
+    from cliff_terrain.season.reader import read_season
 
     result = bpy.ops.cliff_terrain.season_animation(
         directory=str(season_dir), show_plots=False, render=False, color_by="cover"

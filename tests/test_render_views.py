@@ -21,7 +21,7 @@ from conftest import SHARED_UAV as UAV
 from PIL import Image
 
 from cliff_terrain import synthetic_field
-from cliff_terrain.figures.outputs import FIGURES, MAPS
+from cliff_terrain.figures.writer import FIGURES, MAPS
 
 pytestmark = pytest.mark.blender
 if importlib.util.find_spec("bpy") is None:

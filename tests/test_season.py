@@ -94,7 +94,7 @@ def test_plot_figures_against_an_independent_reference(serial, soybean):
     from matplotlib.path import Path as Polygon
 
     from cliff_terrain import build_relief
-    from cliff_terrain.season.outputs import read_season
+    from cliff_terrain.season.reader import read_season
 
     outputs = read_season(serial)
     date = outputs.dates[0]
@@ -137,7 +137,7 @@ def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
         json.loads((tmp_path / "season.json").read_text())["runner"]["runner"] == "local cluster, 2 workers"
     )
     # The height grids too, to the bit (the animation reads them).
-    from cliff_terrain.season.outputs import read_season
+    from cliff_terrain.season.reader import read_season
 
     for ours, theirs in zip(read_season(tmp_path).dates, read_season(serial).dates, strict=True):
         assert ours.heights.tobytes() == theirs.heights.tobytes()
@@ -473,7 +473,7 @@ def test_dsm_gives_measured_heights(tmp_path):
     from matplotlib.path import Path as Polygon
 
     from cliff_terrain import build_relief
-    from cliff_terrain.season.outputs import read_season
+    from cliff_terrain.season.reader import read_season
 
     folder = SHARED_UAV.parent / "dsm" / "fieldimager_ex2"
     if not (folder / "dsm.tif").is_file():
@@ -534,9 +534,9 @@ def test_opencv_distance_is_exact_with_two_threads(soybean):
     from PIL import Image
     from scipy import ndimage
 
-    from cliff_terrain.relief.labels import distance_map, region_interiors
-    from cliff_terrain.relief.resize import resize_longest
-    from cliff_terrain.relief.segmentation import segment
+    from cliff_terrain.photo_heights.labels import distance_map, region_interiors
+    from cliff_terrain.photo_heights.resize import resize_longest
+    from cliff_terrain.photo_heights.segmentation import segment
 
     rgb = np.asarray(Image.open(soybean / "20180905_Lamberton_clipped.tif").convert("RGB"))
     labels = segment(resize_longest(rgb, 1000)).labels

@@ -18,7 +18,7 @@ from cliff_terrain import (
     synthetic_field,
     vegetation_index,
 )
-from cliff_terrain.relief.watershed import split_regions
+from cliff_terrain.photo_heights.watershed import split_regions
 
 
 def test_vegetation_mode_finds_every_synthetic_plant():
@@ -133,7 +133,7 @@ def test_cleaning_matches_scipy_and_skimage():
     # remove_small_objects: 0.26 changed its size parameter.
     from scipy import ndimage as ndi
 
-    from cliff_terrain.relief.segmentation import _clean
+    from cliff_terrain.photo_heights.segmentation import _clean
 
     rng = np.random.default_rng(0)
     for i in range(12):
@@ -147,7 +147,7 @@ def test_cleaning_matches_scipy_and_skimage():
 
 
 def test_colour_edges_are_the_distance_from_the_grey_axis():
-    from cliff_terrain.relief.watershed import colour_edges
+    from cliff_terrain.photo_heights.watershed import colour_edges
 
     rng = np.random.default_rng(1)
     f = rng.normal(size=(9, 11, 3)).astype(np.float32)
@@ -158,7 +158,7 @@ def test_colour_edges_are_the_distance_from_the_grey_axis():
 def test_inner_boundaries_match_scikit_image():
     from skimage.segmentation import find_boundaries
 
-    from cliff_terrain.relief.labels import inner_boundaries
+    from cliff_terrain.photo_heights.labels import inner_boundaries
 
     image, _ = synthetic_field(shape=(240, 360), seed=5)
     labels = segment(image).labels
@@ -176,7 +176,7 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
     import cv2
     from skimage.segmentation import watershed
 
-    import cliff_terrain.relief.watershed as flooding
+    import cliff_terrain.photo_heights.watershed as flooding
 
     monkeypatch.setattr(flooding, "_POOL_PIXELS", 1)
     monkeypatch.setattr(flooding, "_FLOOD_THREADS", threads)
@@ -204,7 +204,7 @@ def test_components_flooded_in_groups_are_one_watershed_to_the_pixel(seed, threa
 
 
 def test_a_real_photo_splits_the_same_with_one_thread_or_several(monkeypatch):
-    import cliff_terrain.relief.watershed as flooding
+    import cliff_terrain.photo_heights.watershed as flooding
 
     image, _ = load_image(uav_image("caliterra/IMG_9370.jpg"))
     image = resize_longest(image, 1500)
@@ -219,7 +219,7 @@ def test_the_region_distance_from_the_flood_is_the_whole_images_map(seed):
     """`split_regions(return_distance=True)` measures each split component on its bounding box
     only; blobs that touch diagonally, the frame and narrow necks are where a crop could go wrong.
     Values may differ by one float32 rounding (OpenCV's transform of another array), no more."""
-    from cliff_terrain.relief.labels import distance_map
+    from cliff_terrain.photo_heights.labels import distance_map
 
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(40, 120)), int(rng.integers(40, 120)))
@@ -237,13 +237,13 @@ def test_the_region_distance_from_the_flood_is_the_whole_images_map(seed):
 
 
 def label_count(mask):
-    from cliff_terrain.relief.labels import label4
+    from cliff_terrain.photo_heights.labels import label4
 
     return label4(mask)[1]
 
 
 def test_the_region_distance_without_ground_or_without_a_split():
-    from cliff_terrain.relief.labels import distance_map
+    from cliff_terrain.photo_heights.labels import distance_map
 
     # No flat pixel: the map measures to the frame, as distance_map does for a full mask.
     full = np.ones((30, 61), bool)
@@ -269,7 +269,7 @@ def test_the_region_distance_without_ground_or_without_a_split():
 def test_real_photos_region_distance_is_the_labels_distance_map(shared_uav, method):
     """On real photos (at 1000 px, both modes) the inflation's D computed with the watershed is
     ``distance_map(labels)`` to within one float32 rounding."""
-    from cliff_terrain.relief.labels import distance_map
+    from cliff_terrain.photo_heights.labels import distance_map
 
     photos = sorted(
         p for p in shared_uav.rglob("*") if p.suffix.lower() in (".jpg", ".tif") and "plantcv" not in str(p)
@@ -288,7 +288,7 @@ def test_real_photos_region_distance_is_the_labels_distance_map(shared_uav, meth
 def test_flood_is_scikit_images_watershed(seed):
     from skimage.segmentation import watershed
 
-    from cliff_terrain.relief.watershed import _flood
+    from cliff_terrain.photo_heights.watershed import _flood
 
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(1, 60)), int(rng.integers(1, 60)))
@@ -308,7 +308,7 @@ def test_the_flood_kernel_is_scikit_images_own_and_its_neighbour_order():
     from skimage.morphology._util import _offsets_to_raveled_neighbors, _validate_connectivity
     from skimage.segmentation import _watershed_cy
 
-    import cliff_terrain.relief.watershed as flooding
+    import cliff_terrain.photo_heights.watershed as flooding
 
     assert flooding._watershed_raveled is not None
     assert flooding._watershed_raveled.__module__ == _watershed_cy.__name__
@@ -323,7 +323,7 @@ def test_the_flood_kernel_is_scikit_images_own_and_its_neighbour_order():
 def test_otsu_is_scikit_images_on_real_indices_and_odd_histograms(shared_uav):
     from skimage.filters import threshold_otsu
 
-    from cliff_terrain.relief.vegetation import _otsu, blurred_index
+    from cliff_terrain.photo_heights.vegetation import _otsu, blurred_index
 
     samples = []
     for path in sorted(shared_uav.rglob("*")):
@@ -365,7 +365,7 @@ def _dark_wet_soil_field(seed=0):
 
 def test_dark_wet_soil_gets_the_photos_own_threshold():
     from cliff_terrain.evaluate.mask_quality import mask_agreement
-    from cliff_terrain.relief.vegetation import _GREEN_BAND
+    from cliff_terrain.photo_heights.vegetation import _GREEN_BAND
 
     image, truth = _dark_wet_soil_field()
     vi, _ = vegetation_index(image)
@@ -393,7 +393,7 @@ def test_a_closed_canopy_is_not_split_into_sunlit_and_shaded_leaves():
     sunlit, shaded = np.array([150.0, 180.0, 60.0]), np.array([30.0, 90.0, 35.0])
     rgb = sunlit * (1 - shade[..., None]) + shaded * shade[..., None] + rng.normal(0, 3.0, (240, 320, 3))
     image = np.clip(np.round(rgb), 0, 255).astype(np.uint8)
-    from cliff_terrain.relief.vegetation import blurred_index, otsu_threshold
+    from cliff_terrain.photo_heights.vegetation import blurred_index, otsu_threshold
 
     vi, _ = blurred_index(image)
     assert otsu_threshold(vi) > 0.3  # Otsu alone would call the sunlit half of the canopy soil
@@ -428,8 +428,8 @@ def _maize_on_dark_wet_soil(shape=(480, 720), seed=0):
 
 def test_maize_on_dark_wet_soil_without_a_valley_is_split_by_its_colour():
     from cliff_terrain.evaluate.mask_quality import mask_agreement, volume_fraction
-    from cliff_terrain.relief.separation import chroma_map
-    from cliff_terrain.relief.vegetation import (
+    from cliff_terrain.photo_heights.separation import chroma_map
+    from cliff_terrain.photo_heights.vegetation import (
         _GREEN_BAND,
         COLOUR_SEPARATION,
         TWO_CLASS_VALLEY,
@@ -460,7 +460,7 @@ def test_a_closed_canopy_does_not_pass_the_colour_test():
     # Sunlit and shaded leaves are both green: their chroma does not separate them, the band stands.
     import cv2
 
-    from cliff_terrain.relief.vegetation import COLOUR_SEPARATION
+    from cliff_terrain.photo_heights.vegetation import COLOUR_SEPARATION
 
     rng = np.random.default_rng(1)
     field = cv2.GaussianBlur(rng.standard_normal((240, 320)), (0, 0), 6.0)
@@ -520,7 +520,7 @@ def test_yellow_canopy_over_brown_soil_is_undecided_not_guessed():
 def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     # None of these photos has a two-class histogram whose own threshold lies above the band: the
     # rule leaves their masks (and every figure checked on them) as they were.
-    from cliff_terrain.relief.vegetation import _GREEN_BAND, _NIR_BAND, blurred_index, otsu_threshold
+    from cliff_terrain.photo_heights.vegetation import _GREEN_BAND, _NIR_BAND, blurred_index, otsu_threshold
 
     image, meta = load_image(uav_image(name), max_size=1000)
     image = resize_longest(image, 1000)
@@ -544,7 +544,7 @@ def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
     from test_measured_heights import UTM16N, geokeys, write_tiff
 
     from cliff_terrain.evaluate.mask_quality import mask_agreement
-    from cliff_terrain.io.geotiff import write_geotiff
+    from cliff_terrain.io.raster.geotiff import write_geotiff
 
     rng = np.random.default_rng(4)
     rows, cols, gsd = 200, 300, 0.02

@@ -20,9 +20,9 @@ from conftest import REPO
 
 from cliff_terrain.data.synthetic_surface import synthetic_surface
 from cliff_terrain.errors import GeoreferenceError, PlotFileError, RasterReadError
-from cliff_terrain.io.crs import UserCrs, parse_wkt, wkt_crs
-from cliff_terrain.io.geotiff import read_orthophoto, read_surface, write_geotiff
-from cliff_terrain.io.plot_polygons import read_plots
+from cliff_terrain.io.raster.crs import UserCrs, parse_wkt, wkt_crs
+from cliff_terrain.io.raster.geotiff import read_orthophoto, read_surface, write_geotiff
+from cliff_terrain.io.vector.plot_polygons import read_plots
 
 # The CRS of an R export centred on its field: AEQD on the authalic sphere GDAL/PROJ use for it.
 SPHERE = 6371007.181

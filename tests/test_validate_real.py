@@ -14,7 +14,7 @@ from PIL import Image
 from test_measured_heights import FIELD_TRANSFORM, UTM16N, write_synthetic_pair
 
 from cliff_terrain.data.synthetic import synthetic_field
-from cliff_terrain.io.geotiff import write_geotiff
+from cliff_terrain.io.raster.geotiff import write_geotiff
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 from cliff_terrain import build_relief  # noqa: E402
 from cliff_terrain.data.synthetic import synthetic_field  # noqa: E402
 from cliff_terrain.evaluate.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
-from cliff_terrain.relief.vegetation import vegetation_index  # noqa: E402
+from cliff_terrain.photo_heights.vegetation import vegetation_index  # noqa: E402
 
 SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 SYNTHETIC = ("synthetic-open", "synthetic-closed")

@@ -3,7 +3,7 @@
     python tools/test_map.py           # print the table
     python tools/test_map.py --write   # write tests/TEST_MAP.md
 
-A test file tests a module when it imports it (``from cliff_terrain.io.bands import read_bands``;
+A test file tests a module when it imports it (``from cliff_terrain.io.raster.bands import read_bands``;
 ``from cliff_terrain import build_relief``, the package's public name, counts for the module that
 defines it; the Blender tests' ``cliff_terrain_addon.cliff_terrain...`` and
 ``f"{ADDON}.cliff_terrain..."`` too). A module no test imports is reached through another entry point
@@ -67,10 +67,10 @@ REACHED_THROUGH = {
     "cliff_terrain.commands.season": (("test_season.py",), "`cliff-terrain season`"),
     "cliff_terrain.commands.synthetic": (("test_cli.py",), "`cliff-terrain synthetic`"),
     "cliff_terrain.commands.traits": (("test_traits.py",), "`cliff-terrain traits`"),
-    "cliff_terrain.io.camera": (("test_image_io.py",), "a photo's metadata"),
-    "cliff_terrain.io.geokeys": (("test_measured_heights.py", "test_season.py"), "reading GeoTIFFs"),
-    "cliff_terrain.io.photo_metadata": (("test_image_io.py",), "a photo's metadata"),
-    "cliff_terrain.io.pillow_pixels": (("test_image_io.py",), "decoding photos"),
+    "cliff_terrain.io.photo._camera": (("test_image_io.py",), "a photo's metadata"),
+    "cliff_terrain.io.raster._geokeys": (("test_measured_heights.py", "test_season.py"), "reading GeoTIFFs"),
+    "cliff_terrain.io.photo._metadata": (("test_image_io.py",), "a photo's metadata"),
+    "cliff_terrain.io.photo._pillow_pixels": (("test_image_io.py",), "decoding photos"),
     "cliff_terrain.season.align": (("test_season.py",), "`cliff-terrain season`"),
     "cliff_terrain.season.charts": (("test_season.py",), "`cliff-terrain season` (growth.png)"),
     "cliff_terrain.season.security": (("test_season.py",), "`cliff-terrain season --scheduler`"),

@@ -26,7 +26,7 @@ PHOTO = ROOT.parent / "shared" / "data" / "uav" / "caliterra" / "IMG_9370.jpg"
 sys.path.insert(0, str(ROOT))
 
 from cliff_terrain.data.synthetic import synthetic_field  # noqa: E402
-from cliff_terrain.io.mosaic import MosaicReader  # noqa: E402
+from cliff_terrain.io.raster.mosaic import MosaicReader  # noqa: E402
 from cliff_terrain.mosaic.meshes import tile_meshes  # noqa: E402
 
 

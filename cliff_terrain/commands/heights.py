@@ -14,7 +14,7 @@ index columns (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant
 and ``summary.json`` (the key figures, the ground's source, method and held-out check, the ruler's
 agreement and the plant/soil threshold). All files appear together or none does.
 The rasters and plots may be in an EPSG CRS or in a user-defined projected CRS in metres (no EPSG
-code; ``summary.json``'s ``crs_wkt``) when their definitions agree (:mod:`cliff_terrain.io.crs`).
+code; ``summary.json``'s ``crs_wkt``) when their definitions agree (:mod:`cliff_terrain.io.raster.crs`).
 The run's memory is estimated before the work and refused past ``--max-memory`` (4 GiB) with the
 ``--max-size``/``--resolution`` that fit (:mod:`.memory_estimate`). ``chm.tif`` and
 ``ground_support.tif`` are tiled, compressed and have overviews. On a terminal a progress bar shows
@@ -95,7 +95,7 @@ def grid_size(ortho, *, resolution=None, max_size=None):
 
     from .._validate import check_float, check_int
     from ..errors import CliffTerrainError
-    from ..io.geotiff import raster_size, read_georeference
+    from ..io.raster.geotiff import raster_size, read_georeference
 
     if resolution is not None and max_size is not None:
         raise CliffTerrainError(
@@ -120,8 +120,8 @@ def run(args):
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..evaluate.views import json_safe
-    from ..io.geotiff import write_geotiff
-    from ..io.plot_polygons import read_plots
+    from ..io.raster.geotiff import write_geotiff
+    from ..io.vector.plot_polygons import read_plots
     from ..measure.canopy import relief_tables
     from ..measure.key_figures import figures_line, key_figures
     from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, REGIONS_CSV, REGIONS_GEOJSON, write_files

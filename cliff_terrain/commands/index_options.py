@@ -36,8 +36,8 @@ def requested_bands(args, ortho):
     Raises :class:`~cliff_terrain.errors.MissingBandError` (exit 2, one line) when an index needs a
     band the file lacks.
     """
-    from ..io.bands import read_bands
-    from ..relief.indices import check_indices, parse_indices
+    from ..io.raster.bands import read_bands
+    from ..photo_heights.indices import check_indices, parse_indices
 
     names = parse_indices(getattr(args, "indices", None))
     if not names:
@@ -49,7 +49,7 @@ def requested_bands(args, ortho):
 
 def relief_index_maps(args, bands, shape):
     """{index: map} on a relief grid of `shape` for the requested indices (empty without)."""
-    from ..relief.indices import index_maps, parse_indices
+    from ..photo_heights.indices import index_maps, parse_indices
 
     if bands is None:
         return {}

@@ -46,8 +46,8 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
     Returns the estimate in GiB.
     """
     from .._validate import check_float
-    from ..io.geotiff import raster_size, read_georeference
     from ..io.photo import MAX_PIXELS
+    from ..io.raster.geotiff import raster_size, read_georeference
 
     cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
     rows, cols = raster_size(ortho)

@@ -142,9 +142,9 @@ def run(args):
 
 def _run(args, progress):
     from ..errors import CliffTerrainError
-    from ..io.crs import crs_text
-    from ..io.geotiff import read_orthophoto
-    from ..io.plot_files import check_plots_fit, read_field_book, write_plots
+    from ..io.raster.crs import crs_text
+    from ..io.raster.geotiff import read_orthophoto
+    from ..io.vector.plot_files import check_plots_fit, read_field_book, write_plots
     from ..measure.plot_grid import parse_pair, place_grid, plots_from
 
     out = args.out

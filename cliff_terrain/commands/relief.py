@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from .._progress import add_progress_argument
-from ..figures.outputs import HEIGHT_MAP, MASK
+from ..figures.writer import HEIGHT_MAP, MASK
 from ..params import ReliefParams
 
 LABELS, SUMMARY = "labels.tif", "relief.json"
@@ -35,7 +35,7 @@ def run(args):
     from .._progress import stage_bar
     from ..build import build_relief
     from ..errors import CliffTerrainError
-    from ..figures.outputs import write_height_map
+    from ..figures.writer import write_height_map
     from ..measure.tables import REGION_COLUMNS, REGIONS_CSV, region_table, table_csv, write_files
     from .out_folder import check_out_folder, finished_outputs
 

@@ -75,8 +75,8 @@ def run(args):
     files = {out / "traits.csv": table_csv(traits, columns)}
     plots = None
     if plots_path:
-        from ..io.geojson import polygon_geometries, table_geojson
-        from ..io.plot_polygons import read_plots
+        from ..io.vector.geojson import polygon_geometries, table_geojson
+        from ..io.vector.plot_polygons import read_plots
 
         plots = read_plots(plots_path)
         by_index = {str(t["plot"]): t for t in traits}

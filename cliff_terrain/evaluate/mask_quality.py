@@ -5,7 +5,7 @@ no band, no hole filling, no second index): the excess-green index ExG = 2g - r 
 coordinates (Woebbecke et al. 1995; Meyer & Neto 2008), or (NIR - B) / (NIR + B) for a false-colour
 NIR camera (NIR in the red channel), or the green-red axis a* of CIELAB (plants below the
 threshold), which PlantCV's workflows use and which, unlike ExG, keeps pale and bluish-green plants
-such as broccoli. They are independent of :func:`cliff_terrain.relief.segmentation.segment` (ExG + NGRDI,
+such as broccoli. They are independent of :func:`cliff_terrain.photo_heights.segmentation.segment` (ExG + NGRDI,
 a blue penalty, a threshold band, hole filling, speck removal) and imperfect themselves (Otsu
 always splits, so a photo of bare soil still gets a "plant" class), so agreement with them is a
 measure, not ground truth.

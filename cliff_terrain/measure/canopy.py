@@ -12,8 +12,15 @@ import numpy as np
 
 from .._validate import check_float
 from ..errors import GeoreferenceError
-from ..io.crs import crs_record, crs_text
-from ..io.geotiff import GeoRaster, check_same_crs, overlap_fraction, read_orthophoto, read_surface, resample
+from ..io.raster.crs import crs_record, crs_text
+from ..io.raster.geotiff import (
+    GeoRaster,
+    check_same_crs,
+    overlap_fraction,
+    read_orthophoto,
+    read_surface,
+    resample,
+)
 from .ground import DEFAULT_BLOCK_M, canopy_height, fit_ground
 
 
@@ -26,7 +33,7 @@ class Canopy:
     transform : (3, 3) float64
         Pixel (col, row) -> map (x, y) of the grid.
     crs : int or UserCrs
-        EPSG code, or a user-defined CRS (:mod:`cliff_terrain.io.crs`).
+        EPSG code, or a user-defined CRS (:mod:`cliff_terrain.io.raster.crs`).
     dsm, ground, chm : (rows, cols) float32
     ground_source : {"dtm", "estimated"}
     pixel_size : float
@@ -72,7 +79,7 @@ def grid_for(raster, shape):
 
 def photo_grid(path, metadata, shape):
     """(transform, EPSG code) of the processing grid `shape` (rows, cols) of georeferenced photo `path`."""
-    from ..io.geotiff import read_georeference
+    from ..io.raster.geotiff import read_georeference
 
     transform, crs = read_georeference(path)
     return transform @ np.diag([*metadata.grid_scale(shape), 1.0]), crs
@@ -81,7 +88,7 @@ def photo_grid(path, metadata, shape):
 def surface_on_grid(path, metadata, shape, dsm):
     """The DSM `dsm` (a path or :class:`GeoRaster`) resampled onto the processing grid `shape` of
     georeferenced photo `path` (NaN where it has no height)."""
-    from ..io.geotiff import resample
+    from ..io.raster.geotiff import resample
 
     transform, crs = photo_grid(path, metadata, shape)
     surface = load_surfaces(dsm)[0]
@@ -141,7 +148,7 @@ def measure_canopy(
     valid : (rows, cols) bool array, optional
         Pixels where the photo has data: only there can soil be told from plants.
     soil : (rows, cols) bool array, optional
-        What the photo calls bare soil (see :func:`cliff_terrain.relief.vegetation.bare_soil`):
+        What the photo calls bare soil (see :func:`cliff_terrain.photo_heights.vegetation.bare_soil`):
         evidence for the ground, which the surface can overrule; default: every pixel that is not
         a plant.
     ground_method : {"auto", "baseline", "smooth", "detailed"}, optional
@@ -200,10 +207,10 @@ def measure_canopy(
 def plant_mask(rgb, *, valid=None):
     """Plant pixels of a photo by its vegetation index (the segmentation's threshold, no watershed).
 
-    Cheaper than :func:`cliff_terrain.relief.segmentation.segment` on large orthophotos, where only
+    Cheaper than :func:`cliff_terrain.photo_heights.segmentation.segment` on large orthophotos, where only
     plant/soil matters (the ground, plot cover).
     """
-    from ..relief.vegetation import blurred_index, photo_threshold
+    from ..photo_heights.vegetation import blurred_index, photo_threshold
 
     vi, name = blurred_index(rgb)
     # The same rule as the segmentation's, colour test included.
@@ -247,7 +254,7 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
             rgb = cv2.resize(rgb, shape[::-1], interpolation=cv2.INTER_AREA)
             if valid is not None:
                 valid = cv2.resize(valid.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
-    from ..relief.vegetation import bare_soil
+    from ..photo_heights.vegetation import bare_soil
 
     plants = plant_mask(rgb, valid=valid)
     canopy = measure_canopy(
@@ -275,13 +282,13 @@ def relief_heights(
     measured p99 height, ``"inflated"`` ones the domes as they are (the canopy is then only
     measured, for the figures); all times `exaggeration`.
     """
-    from ..relief.labels import label_max
+    from ..photo_heights.labels import label_max
 
     name = str(path)
     transform, crs = photo_grid(path, stages.metadata, stages.working.shape[:2])
     plants = stages.segmentation.mask
     valid = photo_valid(stages.metadata, plants.shape)  # an orthophoto's no-data is neither soil nor plant
-    from ..relief.vegetation import bare_soil
+    from ..photo_heights.vegetation import bare_soil
 
     seg = stages.segmentation
     # The ground's soil by the threshold the plants got (the DSM's, when it decided a senescent class).
@@ -359,13 +366,13 @@ def relief_tables(relief, *, plots=None, source="", index_maps=None, extra=None)
 
     ``regions.csv`` always (heights NaN without a surface model; areas in m² with a GSD),
     ``regions.geojson`` when georeferenced, ``plots.csv`` and ``plots.geojson`` with `plots`
-    (a :class:`~cliff_terrain.io.plot_polygons.PlotSet` in the orthophoto's CRS; needs a surface model).
+    (a :class:`~cliff_terrain.io.vector.plot_polygons.PlotSet` in the orthophoto's CRS; needs a surface model).
     `source` names the orthophoto in errors. `index_maps` ({index name: map on the relief's grid},
     :func:`cliff_terrain.measure.index_figures.relief_index_maps`) adds the index columns.
     `extra` (``rows -> extra columns``) may add columns to the plot rows (a ruler's, say).
     """
     from ..errors import CliffTerrainError
-    from ..io.geojson import point_geometries, table_geojson
+    from ..io.vector.geojson import point_geometries, table_geojson
     from .tables import REGIONS_CSV, REGIONS_GEOJSON, region_columns, region_table, table_csv
 
     columns = region_columns(tuple(index_maps or ()))
@@ -450,7 +457,7 @@ def plot_table_files(plots, canopy, *, heights, mask, source, index_maps=None, e
     `heights` and `mask` are on that grid; `source` names the orthophoto in errors. `extra`, a
     callable ``rows -> column names``, may add columns to the rows (before ``error``).
     """
-    from ..io.geojson import polygon_geometries, table_geojson
+    from ..io.vector.geojson import polygon_geometries, table_geojson
     from .field_plots import check_plot_crs, plot_table, rasterize_plots, table_columns
     from .tables import PLOTS_CSV, PLOTS_GEOJSON, table_csv
 

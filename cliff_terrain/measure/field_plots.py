@@ -1,9 +1,9 @@
 """Field plots burnt into a raster, and their height table.
 
-:func:`rasterize_plots` turns plot polygons (:func:`cliff_terrain.io.plot_polygons.read_plots`)
+:func:`rasterize_plots` turns plot polygons (:func:`cliff_terrain.io.vector.plot_polygons.read_plots`)
 into a label image on a raster's grid (pixel centres inside a polygon, even-odd rule, so holes and
 multi-part plots work), and :func:`plot_table` gives one row per plot. Transforms map pixel
-(col, row) to map (x, y), GDAL's convention (see :mod:`cliff_terrain.io.transform`).
+(col, row) to map (x, y), GDAL's convention (see :mod:`cliff_terrain.io.raster.transform`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import numpy as np
 
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError, GeoreferenceError
-from ..io.crs import crs_text
-from ..io.plot_polygons import polygon_area
-from ..io.transform import affine_inverse, apply_affine, as_affine
+from ..io.raster.crs import crs_text
+from ..io.raster.transform import affine_inverse, apply_affine, as_affine
+from ..io.vector.plot_polygons import polygon_area
 from .index_figures import index_columns, index_figures
 
 # Metric statistics of a plot, in the order of the table's columns.
@@ -27,7 +27,7 @@ HEIGHT_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 def check_plot_crs(plots, crs, *, raster):
     """Refuse plots that do not use the raster's CRS (`crs`, read from file `raster`): another EPSG
-    code, or a user-defined CRS that does not agree (:class:`cliff_terrain.io.crs.UserCrs`).
+    code, or a user-defined CRS that does not agree (:class:`cliff_terrain.io.raster.crs.UserCrs`).
 
     Plots that declare no CRS are taken to be in the raster's, unless their coordinates all look
     like longitude/latitude while the raster's are projected (GeoJSON without a ``crs`` is WGS 84).
@@ -71,7 +71,7 @@ def rasterize_plots(plots, *, transform, shape):
     Examples
     --------
     >>> square = [np.array([[1.0, -1.0], [3.0, -1.0], [3.0, -3.0], [1.0, -3.0]])]
-    >>> from cliff_terrain.io.plot_polygons import PlotSet
+    >>> from cliff_terrain.io.vector.plot_polygons import PlotSet
     >>> plots = PlotSet([square], [{}], (), None, "")
     >>> rasterize_plots(plots, transform=[[1, 0, 0], [0, -1, 0]], shape=(4, 4))
     array([[0, 0, 0, 0],
@@ -186,7 +186,7 @@ def plot_table(
     Examples
     --------
     >>> square = [np.array([[0.0, 0.0], [2.0, 0.0], [2.0, -2.0], [0.0, -2.0]])]
-    >>> from cliff_terrain.io.plot_polygons import PlotSet
+    >>> from cliff_terrain.io.vector.plot_polygons import PlotSet
     >>> plots = PlotSet([square], [{"name": "A"}], ("name",), None, "")
     >>> labels = rasterize_plots(plots, transform=[[1, 0, 0], [0, -1, 0]], shape=(2, 2))
     >>> h = np.array([[0.0, 0.5], [1.0, 0.0]])

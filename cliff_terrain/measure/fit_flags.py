@@ -60,7 +60,7 @@ def fitted_plots(layout, placement, fit, **numbering):
             {"fit_shift_m": round(shift, 3), "fit_confidence": round(own, 3), "fit_flag": int(not accepted)}
         )
     extra = {a["plot"]: e for a, e in zip(given.attributes, attributes, strict=True)}
-    from ..io.plot_polygons import PlotSet
+    from ..io.vector.plot_polygons import PlotSet
 
     return PlotSet(
         chosen.polygons,

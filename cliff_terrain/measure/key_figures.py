@@ -73,7 +73,7 @@ def key_figures(relief):
     >>> figures["plants"], round(figures["cover"], 3), figures["units"]
     (1, 0.133, 'px')
     """
-    from ..relief.labels import label_max
+    from ..photo_heights.labels import label_max
 
     heights, unit = canopy_heights(relief)
     valid = relief_valid(relief)

@@ -139,7 +139,7 @@ def fit_grid(
     >>> np.round(fit.placement.corners[0], 2).tolist(), fit.report["accepted"]
     ([0.5, 3.0], True)
     """
-    from ..io.transform import as_affine
+    from ..io.raster.transform import as_affine
 
     if tolerance is not None:
         tolerance = check_float("tolerance", tolerance, minimum=0.0)

@@ -9,7 +9,7 @@ follow the quadrilateral bilinearly), or an origin and an angle (a rigid grid; t
 direction of ``u``, counter-clockwise from the map's x axis, and ``v`` points 90 degrees further).
 :mod:`cliff_terrain.measure.plot_fit` snaps a placement to the crop.
 
-The result is a :class:`cliff_terrain.io.plot_polygons.PlotSet` whose attributes are ``plot`` (the plot number),
+The result is a :class:`cliff_terrain.io.vector.plot_polygons.PlotSet` whose attributes are ``plot`` (the plot number),
 ``column`` and ``row`` (1-based, counted from the `start` corner) and the field book's columns: the
 plot tables read it unchanged.
 """
@@ -23,7 +23,7 @@ import numpy as np
 
 from .._validate import check_choice, check_float, check_int
 from ..errors import CliffTerrainError
-from ..io.plot_polygons import PlotSet
+from ..io.vector.plot_polygons import PlotSet
 
 NUMBERINGS = ("rows", "columns", "serpentine")
 STARTS = ("top-left", "top-right", "bottom-left", "bottom-right")
@@ -291,7 +291,7 @@ def plot_grid(
         Trimmed from each side of every plot (across, along), metres.
     field_book : list of dict, optional
         Rows joined to the plots by ``plot`` (plot number) or by ``column`` and ``row``; see
-        :func:`cliff_terrain.io.plot_files.read_field_book`.
+        :func:`cliff_terrain.io.vector.plot_files.read_field_book`.
     crs : int, optional
         EPSG code of the map coordinates.
 
@@ -365,7 +365,7 @@ def plots_from(
     attributes = [{"plot": n, "column": c, "row": r} for n, c, r in ids]
     fields = ("plot", "column", "row")
     if field_book is not None:
-        from ..io.plot_files import join_field_book
+        from ..io.vector.plot_files import join_field_book
 
         extra, book_fields = join_field_book(attributes, field_book)
         attributes = [{**a, **e} for a, e in zip(attributes, extra, strict=True)]

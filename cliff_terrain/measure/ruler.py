@@ -74,7 +74,7 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
     path : path
         A CSV file with a header: a plot id column and a height column.
     plots : PlotSet
-        The plots (:func:`cliff_terrain.io.plot_polygons.read_plots`); an id matches one of their
+        The plots (:func:`cliff_terrain.io.vector.plot_polygons.read_plots`); an id matches one of their
         attributes (the one that matches most rows) or ``plot``, the 0-based index.
     id_column, height_column : str, optional
         The file's columns; default: the column whose values match the plots best, and the column
@@ -96,7 +96,7 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
     Examples
     --------
     >>> import tempfile, os
-    >>> from cliff_terrain.io.plot_polygons import PlotSet
+    >>> from cliff_terrain.io.vector.plot_polygons import PlotSet
     >>> square = [np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])]
     >>> plots = PlotSet([square] * 3, [{"id": "A1"}, {"id": "A2"}, {"id": "A3"}], ("id",), None, "")
     >>> folder = tempfile.mkdtemp(); path = os.path.join(folder, "ruler.csv")

@@ -53,7 +53,7 @@ def region_table(labels, *, heights=None, pixel_size=None, transform=None, valid
     valid : (rows, cols) bool array, optional
         Pixels with data (for `cover`); default all.
     index_maps : dict, optional
-        Vegetation index name -> (rows, cols) map (:func:`cliff_terrain.relief.indices.index_maps`):
+        Vegetation index name -> (rows, cols) map (:func:`cliff_terrain.photo_heights.indices.index_maps`):
         adds ``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ... (see
         :mod:`cliff_terrain.measure.index_figures`; a region's pixels are its plant pixels).
 

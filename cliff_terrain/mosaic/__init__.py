@@ -1,2 +1,2 @@
 """Orthomosaics larger than memory, tile by tile: the relief of each tile (``tiles``) and its mesh, joined
-to its neighbours (``meshes``); the windows are read by :class:`cliff_terrain.io.mosaic.MosaicReader`."""
+to its neighbours (``meshes``); the windows are read by :class:`cliff_terrain.io.raster.mosaic.MosaicReader`."""

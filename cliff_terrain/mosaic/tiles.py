@@ -1,6 +1,6 @@
 """Orthomosaics larger than memory: read a tiled GeoTIFF in windows, build the relief tile by tile.
 
-A whole farm's orthomosaic has hundreds of megapixels; :class:`cliff_terrain.io.mosaic.MosaicReader`
+A whole farm's orthomosaic has hundreds of megapixels; :class:`cliff_terrain.io.raster.mosaic.MosaicReader`
 reads any window of a tiled GeoTIFF, decoding only the TIFF tiles it overlaps.
 
 :func:`relief_tiles` builds the relief in tiles of `tile` x `tile` pixels, each read with an
@@ -8,7 +8,7 @@ reads any window of a tiled GeoTIFF, decoding only the TIFF tiles it overlaps.
 border lies whole in the windows of both tiles and gets the same mask, region and heights in
 each, as it would in one piece (plants smaller than the margin). Settings that depend on the whole
 image are fixed first, from an overview read with every TIFF tile decoded once: the vegetation
-index and its threshold (as :func:`cliff_terrain.relief.segmentation.segment` picks them for the
+index and its threshold (as :func:`cliff_terrain.photo_heights.segmentation.segment` picks them for the
 overview), the watershed's scales and the plateau's canopy height. Tiles are independent: each is
 a call of :func:`relief_tile`, ``segment()`` and ``inflate()`` on the tile's window with those
 settings, which a Dask task can run as well.
@@ -23,7 +23,7 @@ import numpy as np
 
 from .._validate import check_float, check_int
 from ..errors import CliffTerrainError
-from ..io.mosaic import MosaicReader
+from ..io.raster.mosaic import MosaicReader
 from ..settings import DEFAULT_EXAGGERATION, DEFAULT_PROFILE
 
 DEFAULT_TILE = 4096
@@ -92,11 +92,11 @@ def mosaic_settings(
     profile, exaggeration
         As in :func:`cliff_terrain.build_relief` (the mosaic is segmented in the vegetation mode,
         so ``"auto"`` is ``"plateau"``). The plateau's canopy height is the overview's typical
-        plant radius (:func:`cliff_terrain.relief.inflate.typical_plant_radius`), fixed for every
+        plant radius (:func:`cliff_terrain.photo_heights.inflate.typical_plant_radius`), fixed for every
         tile: a height estimated per tile could cap a plant on one side of a border only.
     min_region : int, optional
         Regions smaller than this many pixels are dropped; default as
-        :func:`cliff_terrain.relief.segmentation.segment` picks it for one tile.
+        :func:`cliff_terrain.photo_heights.segmentation.segment` picks it for one tile.
     tile : int, optional
         The tile size (for the default `min_region`).
 
@@ -106,12 +106,12 @@ def mosaic_settings(
     """
     from scipy import ndimage
 
-    from ..relief.inflate import resolve_profile, typical_plant_radius
-    from ..relief.labels import distance_map, label_max
-    from ..relief.quaternion import quaternion_filter
-    from ..relief.segmentation import segment, soil_level
-    from ..relief.vegetation import blurred_index
-    from ..relief.watershed import colour_edges, default_edge_scale
+    from ..photo_heights.inflate import resolve_profile, typical_plant_radius
+    from ..photo_heights.labels import distance_map, label_max
+    from ..photo_heights.quaternion import quaternion_filter
+    from ..photo_heights.segmentation import segment, soil_level
+    from ..photo_heights.vegetation import blurred_index
+    from ..photo_heights.watershed import colour_edges, default_edge_scale
 
     profile = resolve_profile(profile, "vegetation")
     exaggeration = check_float("exaggeration", exaggeration, minimum=0.0, strict_minimum=True)
@@ -176,9 +176,9 @@ def relief_tile(reader, window, settings):
     if isinstance(reader, str | os.PathLike):
         with MosaicReader(reader) as opened:
             return relief_tile(opened, window, settings)
-    from ..relief.inflate import inflate
-    from ..relief.quaternion import quaternion_filter
-    from ..relief.segmentation import segment, vegetation_mask
+    from ..photo_heights.inflate import inflate
+    from ..photo_heights.quaternion import quaternion_filter
+    from ..photo_heights.segmentation import segment, vegetation_mask
 
     wr0, wr1, wc0, wc1 = window.window
     r0, r1, c0, c1 = window.core

@@ -28,7 +28,7 @@ MIN_SCORE = 0.1
 
 def grid_index(rgb):
     """The segmentation's green vegetation index of an RGB grid (the same index on every date)."""
-    from ..relief.vegetation import vegetation_index
+    from ..photo_heights.vegetation import vegetation_index
 
     vi, _ = vegetation_index(rgb, index="green")
     return np.asarray(vi, dtype=np.float64)
@@ -38,8 +38,8 @@ def index_grid(path, *, size=ALIGN_SIZE):
     """A photo's vegetation index on its alignment grid: (index, transform), NaN where it has no data."""
     import cv2
 
-    from ..io.geotiff import read_georeference
     from ..io.photo import load_image
+    from ..io.raster.geotiff import read_georeference
 
     rgb, meta = load_image(path)
     transform, _ = read_georeference(path)

@@ -66,7 +66,7 @@ def estimate_work(jobs):
     -------
     Work
     """
-    from ..io.geotiff import raster_size
+    from ..io.raster.geotiff import raster_size
 
     cache = Cache(jobs[0].cache) if jobs else None
     hashing = cache is not None and cache.folder.is_dir() and any(cache.folder.glob("*.json"))

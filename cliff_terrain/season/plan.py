@@ -36,7 +36,7 @@ class Job:
     cache: str = ""  # the cache folder (set by run_season)
     plots_hash: str = ""
     version: str = ""
-    indices: tuple = ()  # vegetation indices per plot (cliff_terrain.relief.indices.INDICES names)
+    indices: tuple = ()  # vegetation indices per plot (cliff_terrain.photo_heights.indices.INDICES names)
     bands: tuple | None = None  # the photos' band names when their files do not name them
 
     def as_dict(self):
@@ -152,11 +152,11 @@ def plan_season(
         For a missing file, a photo without a date, two photos of one date, or a photo whose CRS
         differs from the plots'.
     """
-    from ..io.bands import parse_band_names, read_bands
-    from ..io.geotiff import read_georeference
-    from ..io.plot_polygons import read_plots
+    from ..io.raster.bands import parse_band_names, read_bands
+    from ..io.raster.geotiff import read_georeference
+    from ..io.vector.plot_polygons import read_plots
     from ..measure.field_plots import check_plot_crs
-    from ..relief.indices import check_indices, parse_indices
+    from ..photo_heights.indices import check_indices, parse_indices
 
     source = height_source or ("inflated" if dsm is None else "measured")
     if dsm is None and source in settings.ids(settings.HEIGHT_SOURCES) and source != "inflated":

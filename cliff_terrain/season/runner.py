@@ -17,7 +17,7 @@ from pathlib import Path
 from .._progress import count_bar
 from .._validate import check_float, check_int
 from ..errors import CliffTerrainError
-from ..io.crs import crs_record
+from ..io.raster.crs import crs_record
 from ..measure.tables import write_files
 from .cache import file_hash
 from .cluster import choose_runner, run_on_dask

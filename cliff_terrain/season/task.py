@@ -12,7 +12,7 @@ import platform
 import time
 
 from .._memory import peak_rss
-from ..io.crs import crs_record
+from ..io.raster.crs import crs_record
 from ..params import ReliefParams
 from .cache import Cache, cache_key, file_hash
 
@@ -84,7 +84,7 @@ def _process(job):
     import numpy as np
 
     from ..build import build_relief
-    from ..io.geotiff import read_georeference
+    from ..io.raster.geotiff import read_georeference
 
     params = job["params"]
     photo_transform, crs = read_georeference(job["path"])
@@ -101,8 +101,8 @@ def _process(job):
     transform = photo_transform @ np.diag([*meta.grid_scale(shape), 1.0])
     maps = {}
     if job.get("indices"):
-        from ..io.bands import read_bands
-        from ..relief.indices import index_maps
+        from ..io.raster.bands import read_bands
+        from ..photo_heights.indices import index_maps
 
         maps = index_maps(read_bands(job["path"], names=job.get("bands")), job["indices"], shape=shape)
     table = _table(_plots(job["plots"]), transform, relief.mask, relief.heights, relief.units, maps)
@@ -148,7 +148,7 @@ def aligned_result(job, result, plot_set):
     """
     import numpy as np
 
-    from ..io.geotiff import read_georeference
+    from ..io.raster.geotiff import read_georeference
 
     dx, dy = job.shift
     grid = result["grid"]
@@ -179,7 +179,7 @@ _PLOTS = {}
 def _plots(path):
     """The plots, read once per worker process."""
     if path not in _PLOTS:
-        from ..io.plot_polygons import read_plots
+        from ..io.vector.plot_polygons import read_plots
 
         _PLOTS[path] = read_plots(path)
     return _PLOTS[path]

@@ -504,8 +504,8 @@ class Test:
             bpy.ops.cliff_terrain.add_plot_grid("EXEC_DEFAULT")
             grid = bpy.context.view_layer.objects.active
             # Dragged roughly onto the plots (G), 1 m off: the plots' bottom-left corner read off the photo.
-            plot_grid = importlib.import_module(f"{addon_package()}.scene.plot_grid")
-            georaster = importlib.import_module(f"{addon_package()}.cliff_terrain.io.geotiff")
+            plot_grid = importlib.import_module(f"{addon_package()}.scene.plot_grid_object")
+            georaster = importlib.import_module(f"{addon_package()}.cliff_terrain.io.raster.geotiff")
             transform, _ = georaster.read_georeference(ARGS.ortho)
             corner = (
                 transform[0, 2] + transform[0, 0] * 91 + 1.0,

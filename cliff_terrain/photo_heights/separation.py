@@ -2,7 +2,7 @@
 
 Ashman's D, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2), with medians and robust spreads (1.4826 times
 the median absolute deviation): 2 or more is Ashman, Bird and Zepf's (1994) bound for two cleanly
-separated classes. :func:`cliff_terrain.relief.vegetation.index_threshold` reads the chroma's to
+separated classes. :func:`cliff_terrain.photo_heights.vegetation.index_threshold` reads the chroma's to
 take the photo's own split without a valley; ``build_relief`` the surface's to decide a class that
 colour cannot (senescent canopy or straw?).
 """

@@ -2,7 +2,7 @@
 
 :func:`cliff_terrain.io.photo.open_image` returns a reader chosen by the file's format: Pillow's
 (:class:`cliff_terrain.io.photo.OpenImage`) for JPEG, PNG, WebP, BMP and most TIFFs, tifffile's
-(:class:`cliff_terrain.io.tiff_photo.TiffPhoto`) for the TIFF orthophotos Pillow cannot read.
+(:class:`cliff_terrain.io.photo.TiffPhoto`) for the TIFF orthophotos Pillow cannot read.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import Protocol, runtime_checkable
 
 from PIL import Image
 
-from .._deps import environment_error
-from ..errors import CliffTerrainError, ImageReadError, ImageTooLargeError
+from ..._deps import environment_error
+from ...errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 
 #: Fewest rows and columns an image may have (a 1-pixel-wide image has no surface to relieve).
 MIN_SIDE = 2

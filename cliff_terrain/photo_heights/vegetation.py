@@ -210,10 +210,10 @@ def index_threshold(values, *, index="green", chroma=None):
         Index values of the pixels with data (any shape; a sample is taken from large arrays).
     index : {"green", "nir", "ndvi"}, optional
         Which index, for its prior band. ``"ndvi"`` (a multispectral orthomosaic's NDVI, see
-        :func:`cliff_terrain.relief.indices.nir_index_map`) has none: its threshold is the photo's
+        :func:`cliff_terrain.photo_heights.indices.nir_index_map`) has none: its threshold is the photo's
         own, Otsu's, never below ``NDVI_FLOOR`` (0.1).
     chroma : array of float, optional
-        CIELAB chroma of the same pixels, in the same order (see :func:`~cliff_terrain.relief.separation.chroma_map`); without it
+        CIELAB chroma of the same pixels, in the same order (see :func:`~cliff_terrain.photo_heights.separation.chroma_map`); without it
         (false-colour and NDVI frames) only the valley test applies.
 
     Returns

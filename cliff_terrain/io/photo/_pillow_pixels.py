@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ImageReadError
+from ...errors import ImageReadError
 
 # Rows are copied out of Pillow in bands of about this many bytes, so no full-size temporary copy
 # (Pillow's tobytes) exists next to the decoded image and the result.

@@ -2,21 +2,21 @@
 
 OpenDroneMap's standard orthophoto is one: float32 samples in [0, 255], stored planar and tagged
 greyscale. :func:`cliff_terrain.io.photo.open_image` asks :func:`open_tiff_photo` first: for such a
-file (told by its header) it returns a :class:`TiffPhoto`, a :class:`~cliff_terrain.io.reader.PhotoReader`
+file (told by its header) it returns a :class:`TiffPhoto`, a :class:`~cliff_terrain.io.photo.PhotoReader`
 like Pillow's, so the photo loads like any other (with its GeoTIFF GSD and no-data mask).
 """
 
 from __future__ import annotations
 
-from ..errors import GeoreferenceError, ImageReadError, ImageTooLargeError, RasterReadError
-from . import camera
-from .bands import is_multispectral, read_bands, rgb_rendering
-from .geokeys import GDAL_NODATA, georeference, nodata_value
-from .geotiff import photo_bands, read_tiff
-from .photo_metadata import header_metadata, image_metadata
-from .reader import reading
-from .tiff_window import TiffRaster
-from .transform import pixel_size
+from ...errors import GeoreferenceError, ImageReadError, ImageTooLargeError, RasterReadError
+from ..raster._geokeys import GDAL_NODATA, georeference, nodata_value
+from ..raster._tiff_window import TiffRaster
+from ..raster.bands import is_multispectral, read_bands, rgb_rendering
+from ..raster.geotiff import photo_bands, read_tiff
+from ..raster.transform import pixel_size
+from . import _camera as camera
+from ._metadata import header_metadata, image_metadata
+from ._reader import reading
 
 _TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 # TIFF SampleFormat 3 (IEEE float) and PhotometricInterpretation 0/1 (grey): Pillow reads neither
@@ -63,7 +63,7 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
 
 class TiffPhoto:
     """A TIFF orthophoto decoded by tifffile (see :func:`open_tiff_photo`): a
-    :class:`~cliff_terrain.io.reader.PhotoReader`, as :class:`~cliff_terrain.io.photo.OpenImage` is.
+    :class:`~cliff_terrain.io.photo.PhotoReader`, as :class:`~cliff_terrain.io.photo.OpenImage` is.
 
     Attributes
     ----------

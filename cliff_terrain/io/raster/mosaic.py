@@ -14,11 +14,11 @@ import math
 
 import numpy as np
 
-from .._validate import check_int
-from ..errors import CliffTerrainError, ImageReadError, ImageTooLargeError
-from .geokeys import GDAL_NODATA, georeference, nodata_value
+from ..._validate import check_int
+from ...errors import CliffTerrainError, ImageReadError, ImageTooLargeError
+from ._geokeys import GDAL_NODATA, georeference, nodata_value
+from ._tiff_window import TiffRaster
 from .geotiff import photo_bands
-from .tiff_window import TiffRaster
 
 # A striped GeoTIFF is decoded whole: above this many pixels (a 12-bit 150 MP RGB image is 0.9 GB
 # decoded) it is refused with the command that tiles it.

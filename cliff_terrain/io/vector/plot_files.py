@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CliffTerrainError, PlotFileError
+from ...errors import CliffTerrainError, PlotFileError
+from ..raster.transform import affine_inverse, apply_affine, as_affine
 from .geojson import polygon_geometries, table_geojson
-from .transform import affine_inverse, apply_affine, as_affine
 
 
 def read_field_book(path):
@@ -182,8 +182,8 @@ def _ccw(ring):
 
 def epsg_wkt(crs):
     """ESRI WKT of a CRS for a .prj: WGS 84 / UTM zones in full, other codes by authority only, a
-    user-defined CRS (:class:`cliff_terrain.io.crs.UserCrs`) as it was read."""
-    from .crs import UserCrs, utm_wkt
+    user-defined CRS (:class:`cliff_terrain.io.raster.crs.UserCrs`) as it was read."""
+    from ..raster.crs import UserCrs, utm_wkt
 
     if isinstance(crs, UserCrs):
         return crs.wkt

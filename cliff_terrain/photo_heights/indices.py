@@ -2,7 +2,7 @@
 
 :data:`INDICES` holds the definitions (the README's index table is this table); :func:`index_map`
 computes one as a float32 map, NaN where it is undefined (no data, or a zero denominator). Bands
-are reflectance from :func:`cliff_terrain.io.bands.read_bands`. An index whose band the file lacks
+are reflectance from :func:`cliff_terrain.io.raster.bands.read_bands`. An index whose band the file lacks
 raises :class:`~cliff_terrain.errors.MissingBandError` naming the index, the band and the file.
 """
 
@@ -128,7 +128,7 @@ def index_map(bands, name):
 
     Examples
     --------
-    >>> from cliff_terrain.io.bands import Bands
+    >>> from cliff_terrain.io.raster.bands import Bands
     >>> data = np.array([[[0.05, 0.5]]], np.float32)            # red, NIR
     >>> bands = Bands(("red", "nir"), data, np.ones((1, 1), bool), None, None, "x.tif")
     >>> round(float(index_map(bands, "NDVI")[0, 0]), 4)

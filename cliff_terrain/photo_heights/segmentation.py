@@ -71,7 +71,7 @@ class Segmentation:
         :func:`index_threshold`); NaN in paper mode.
     separation : float
         Ashman's D of the chroma between the two sides of Otsu's split (see
-        :func:`~cliff_terrain.relief.vegetation.colour_separation`); NaN where not measured.
+        :func:`~cliff_terrain.photo_heights.vegetation.colour_separation`); NaN where not measured.
     threshold_note : str
         Empty, or why the photo could not decide (see :func:`index_threshold`).
     distance : (rows, cols) float32
@@ -249,7 +249,7 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
     The photo's own split (Otsu's threshold, below the index floor) is used when the pixels above
     it stand above the others on `surface` by Ashman's D >= ``COLOUR_SEPARATION`` (2), a plane
     fitted to the others (the ground) taken off first (see
-    :func:`~cliff_terrain.relief.separation.surface_separation`): senescent canopy stands, straw
+    :func:`~cliff_terrain.photo_heights.separation.surface_separation`): senescent canopy stands, straw
     and residue lie on the ground. Otherwise `seg` is returned with its note saying that the
     surface did not tell either.
 

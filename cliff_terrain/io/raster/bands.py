@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import CliffTerrainError, GeoreferenceError, MissingBandError, RasterReadError
-from .geokeys import GDAL_NODATA, georeference, nodata_value
-from .tiff_window import TiffRaster
+from ...errors import CliffTerrainError, GeoreferenceError, MissingBandError, RasterReadError
+from ._geokeys import GDAL_NODATA, georeference, nodata_value
+from ._tiff_window import TiffRaster
 
 GDAL_METADATA = 42112
 #: The bands an index may ask for, in spectral order.

@@ -1,6 +1,6 @@
 """The Season Animation operator: a ``cliff-terrain season`` folder -> one relief per date, shown in turn.
 
-It reads the season's outputs (never runs Dask), builds the scene with :mod:`scene.season` (reliefs
+It reads the season's outputs (never runs Dask), builds the scene with :mod:`scene.season_animation` (reliefs
 aligned by georeference, a timeline marker per date, optional plot outlines, a camera) and, with
 ``render``, renders one PNG per date and a video into ``FOLDER/animation/``. Errors in the season's
 files are reported and the operator returns CANCELLED.
@@ -46,9 +46,9 @@ class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
     def execute(self, context):
         try:
             from ..cliff_terrain.errors import CliffTerrainError
-            from ..cliff_terrain.io.plot_polygons import read_plots
-            from ..cliff_terrain.season.outputs import plot_colours, read_season
-            from ..scene.season import build_season_scene, render_season
+            from ..cliff_terrain.io.vector.plot_polygons import read_plots
+            from ..cliff_terrain.season.reader import plot_colours, read_season
+            from ..scene.season_animation import build_season_scene, render_season
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
             return {"CANCELLED"}

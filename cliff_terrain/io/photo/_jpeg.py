@@ -11,8 +11,8 @@ import os
 import cv2
 import numpy as np
 
-from ..errors import ImageReadError
-from .reader import MIN_SIDE
+from ...errors import ImageReadError
+from ._reader import MIN_SIDE
 
 JPEG_FORMATS = ("JPEG", "MPO")
 

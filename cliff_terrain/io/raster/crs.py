@@ -32,7 +32,7 @@ import math
 import re
 from dataclasses import dataclass, field
 
-from ..errors import CliffTerrainError
+from ...errors import CliffTerrainError
 
 # Projection method names (WKT1 OGC, ESRI, PROJ) and GeoTIFF CT codes -> one name.
 _METHODS = {

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import camera
+from . import _camera as camera
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import CliffTerrainError
 from ..measure.index_figures import index_columns
-from ..relief.indices import INDICES
+from ..photo_heights.indices import INDICES
 
 
 @dataclass
@@ -32,9 +32,9 @@ class SeasonDate:
         Plant pixels.
     transform : (2, 3) float64 array
         Pixel (col, row) -> map (x, y) of the grid, (0, 0) being the top-left pixel's top-left
-        corner (as in :mod:`cliff_terrain.io.transform`).
+        corner (as in :mod:`cliff_terrain.io.raster.transform`).
     crs : int, str or None
-        EPSG code, or the WKT of a user-defined CRS (:func:`cliff_terrain.io.crs.crs_record`).
+        EPSG code, or the WKT of a user-defined CRS (:func:`cliff_terrain.io.raster.crs.crs_record`).
     units, height_mode : str
     """
 

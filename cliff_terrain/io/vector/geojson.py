@@ -23,7 +23,7 @@ def _json_value(value):
 def table_geojson(rows, geometries, *, crs):
     """GeoJSON text: one Feature per row, with its geometry (a GeoJSON geometry dict) and EPSG `crs`.
 
-    A CRS without an EPSG code (a :class:`cliff_terrain.io.crs.UserCrs`, or its WKT as a record
+    A CRS without an EPSG code (a :class:`cliff_terrain.io.raster.crs.UserCrs`, or its WKT as a record
     holds it) is left out, as GDAL does: GeoJSON's ``crs`` member names CRSs by URN only.
     """
     features = [

@@ -18,8 +18,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from ..errors import DependencyError, RasterReadError
-from .geokeys import GEO_TAGS
+from ...errors import DependencyError, RasterReadError
+from ._geokeys import GEO_TAGS
 
 
 @contextmanager
@@ -75,7 +75,7 @@ class TiffRaster:
         (rows, cols) of a TIFF tile; the whole image when striped.
     tags : dict
         Tag code -> value of the georeference and GDAL_NODATA tags present
-        (:data:`cliff_terrain.io.geokeys.GEO_TAGS`).
+        (:data:`cliff_terrain.io.raster._geokeys.GEO_TAGS`).
     """
 
     def __init__(self, path, *, what="raster", error=RasterReadError):

@@ -8,7 +8,7 @@ Decisions (each documented where it applies):
   CMYK, YCbCr and 16-bit images become RGB; 16-bit greyscale is scaled by 255/65535 (rounded), 16-bit
   colour is reduced by Pillow to its high byte (the two differ by at most 1). Colour profiles (ICC)
   are not applied.
-* **Two readers, one protocol** (:class:`~cliff_terrain.io.reader.PhotoReader`): :func:`open_image`
+* **Two readers, one protocol** (:class:`~cliff_terrain.io.photo.PhotoReader`): :func:`open_image`
   picks the reader by the file's header: tifffile's (:mod:`.tiff_photo`) for a TIFF of three or more
   float or greyscale-tagged samples (OpenDroneMap's orthophoto), which Pillow cannot read; Pillow's
   (:class:`OpenImage`, JPEG decoding in :mod:`.jpeg`, pixels in :mod:`.pillow_pixels`) for the rest.
@@ -50,11 +50,11 @@ import stat
 import numpy as np
 from PIL import Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
-from .._validate import check_float, check_int
-from ..errors import CliffTerrainError, ImageReadError, ImageTooLargeError
-from . import camera
-from .jpeg import JPEG_FORMATS, check_jpeg_size, decode_jpeg_at_once, jpeg_data, jpeg_reduction
-from .photo_metadata import (
+from ..._validate import check_float, check_int
+from ...errors import CliffTerrainError, ImageReadError, ImageTooLargeError
+from . import _camera as camera
+from ._jpeg import JPEG_FORMATS, check_jpeg_size, decode_jpeg_at_once, jpeg_data, jpeg_reduction
+from ._metadata import (
     ImageMetadata,
     header_metadata,
     image_metadata,
@@ -63,9 +63,9 @@ from .photo_metadata import (
     read_exif,
     read_xmp,
 )
-from .pillow_pixels import composite_over_black, decode_pixels
-from .reader import MIN_SIDE, PhotoReader, reading
-from .tiff_photo import open_tiff_photo
+from ._pillow_pixels import composite_over_black, decode_pixels
+from ._reader import MIN_SIDE, PhotoReader, reading
+from ._tiff import open_tiff_photo
 
 #: Largest decoded image, in pixels, that :func:`load_image` decodes by default (150 megapixels,
 #: about 0.45 GB as RGB uint8). A larger JPEG is decoded reduced when `max_size` allows it.
@@ -96,7 +96,7 @@ def load_image(path, *, max_size=None, gsd=None, height_above_ground=None, max_p
         Largest decoded image in pixels (default :data:`MAX_PIXELS`, 150 MP).
     bands : str or sequence of str, optional
         A multispectral TIFF's band names in order (``"B,G,R,RE,NIR"``) when the file gives none;
-        it is returned in true colour (:func:`cliff_terrain.io.bands.rgb_rendering`).
+        it is returned in true colour (:func:`cliff_terrain.io.raster.bands.rgb_rendering`).
 
     Returns
     -------
@@ -197,8 +197,8 @@ def _open_checked(path, max_size, gsd, height_above_ground, max_pixels, *, read_
 class OpenImage:
     """A photo whose header Pillow has read and checked, its pixels not yet decoded (see :func:`open_image`).
 
-    The :class:`~cliff_terrain.io.reader.PhotoReader` of every format but the TIFFs
-    :class:`~cliff_terrain.io.tiff_photo.TiffPhoto` reads.
+    The :class:`~cliff_terrain.io.photo.PhotoReader` of every format but the TIFFs
+    :class:`~cliff_terrain.io.photo.TiffPhoto` reads.
 
     Attributes
     ----------

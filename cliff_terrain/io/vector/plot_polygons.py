@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CliffTerrainError, PlotFileError
-from .crs import UserCrs, wkt_crs
+from ...errors import CliffTerrainError, PlotFileError
+from ..raster.crs import UserCrs, wkt_crs
 
 
 @dataclass
@@ -33,7 +33,7 @@ class PlotSet:
         The attribute names, in file order (the union over all features for GeoJSON).
     crs : int, UserCrs or None
         The EPSG code the file declares, a user-defined projected CRS in metres its .prj declares
-        (:class:`cliff_terrain.io.crs.UserCrs`), None when it declares none.
+        (:class:`cliff_terrain.io.raster.crs.UserCrs`), None when it declares none.
     path : str
         The file read.
     """
@@ -242,7 +242,7 @@ def _prj_crs(prj, name):
 
 def wkt_epsg(wkt, *, source):
     """EPSG code of a WKT1 CRS: its outermost AUTHORITY, else a WGS 84 UTM or geographic name; a
-    projected CRS in metres without either is a :class:`cliff_terrain.io.crs.UserCrs`.
+    projected CRS in metres without either is a :class:`cliff_terrain.io.raster.crs.UserCrs`.
 
     Examples
     --------

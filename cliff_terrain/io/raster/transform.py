@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import CliffTerrainError
+from ...errors import CliffTerrainError
 
 
 def as_affine(transform):

@@ -61,11 +61,11 @@ class MapFrame:
             )
         if record.map_offset is not None:
             self.offset = np.array(record.map_offset, dtype=np.float64)
-            from ..cliff_terrain.io.crs import crs_from_record
+            from ..cliff_terrain.io.raster.crs import crs_from_record
 
             self.crs = crs_from_record(record.crs, source=relief.name)
         else:
-            from ..cliff_terrain.io.geotiff import read_georeference
+            from ..cliff_terrain.io.raster.geotiff import read_georeference
 
             transform, self.crs = read_georeference(record.source)
             # The mesh's local (0, 0) is the photo's bottom-left corner.
@@ -186,7 +186,7 @@ def move_grid(grid, frame, placement):
 
 
 def grid_plots(grid, settings):
-    """The grid as numbered plots in the relief's CRS (:class:`cliff_terrain.io.plot_polygons.PlotSet`), and the frame."""
+    """The grid as numbered plots in the relief's CRS (:class:`cliff_terrain.io.vector.plot_polygons.PlotSet`), and the frame."""
     from ..cliff_terrain.measure.plot_grid import Placement, plots_from
 
     layout = layout_of(settings)

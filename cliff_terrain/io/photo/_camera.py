@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 import re
 
-from .._validate import check_float, check_int
-from .geokeys import (
+from ..._validate import check_float, check_int
+from ..raster._geokeys import (
     GEO_KEY_DIRECTORY,
     GT_MODEL_TYPE,
     MODEL_PIXEL_SCALE,

@@ -10,7 +10,7 @@ are read by :mod:`.tiff_window` (whole here, in windows for mosaics). Only proje
 are accepted: heights, areas and volumes are in metres.
 
 Transforms map pixel (col, row) to map (x, y) with (0, 0) the top-left corner of the top-left
-pixel, as 3x3 arrays (see :mod:`cliff_terrain.io.transform`).
+pixel, as 3x3 arrays (see :mod:`cliff_terrain.io.raster.transform`).
 """
 
 from __future__ import annotations
@@ -21,9 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import GeoreferenceError, RasterReadError
-from .crs import UserCrs, crs_text, user_geokeys
-from .geokeys import (
+from ...errors import GeoreferenceError, RasterReadError
+from ._geokeys import (
     GDAL_NODATA,
     GEO_ASCII_PARAMS,
     GEO_DOUBLE_PARAMS,
@@ -35,7 +34,8 @@ from .geokeys import (
     georeference,
     nodata_value,
 )
-from .tiff_window import TiffRaster
+from ._tiff_window import TiffRaster
+from .crs import UserCrs, crs_text, user_geokeys
 from .transform import affine_inverse, as_affine, grid_bounds, pixel_size
 
 # ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
@@ -224,7 +224,7 @@ def read_georeference(path):
 
 def read_tiff(path, *, pixels=True):
     """(name, samples or None, tags) of a TIFF's first image: its georeference and GDAL_NODATA tags,
-    with ``"planar"``, ``"size"`` (rows, cols) and ``"samples"``; see :class:`cliff_terrain.io.tiff_window.TiffRaster`."""
+    with ``"planar"``, ``"size"`` (rows, cols) and ``"samples"``; see :class:`cliff_terrain.io.raster._tiff_window.TiffRaster`."""
     with TiffRaster(path) as tiff:
         tags = dict(tiff.tags, planar=tiff.planar, size=tiff.shape, samples=tiff.samples)
         return tiff.path, (tiff.read() if pixels else None), tags

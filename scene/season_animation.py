@@ -1,7 +1,7 @@
 """A season of flights as an animation: one relief per date in one scene, shown one date per frame.
 
 Reads what ``cliff-terrain season`` wrote (``season.json`` and the cached height grids, through
-:mod:`cliff_terrain.season.outputs`); it never runs Dask. Each date's relief is placed by its
+:mod:`cliff_terrain.season.reader`); it never runs Dask. Each date's relief is placed by its
 georeference (map coordinates less a common origin, so the dates line up), textured with its
 photo, and visible on its own frame only; the timeline has a marker per date, which Blender's
 render stamp writes into every frame as the date label. Plot outlines are optional. Used by the
@@ -59,10 +59,10 @@ def build_season_scene(
     Parameters
     ----------
     context : bpy.types.Context
-    season : cliff_terrain.season.outputs.SeasonOutputs
-    plots : cliff_terrain.io.plot_polygons.PlotSet, optional
+    season : cliff_terrain.season.reader.SeasonOutputs
+    plots : cliff_terrain.io.vector.plot_polygons.PlotSet, optional
         Plot outlines to draw (in the season's CRS).
-    colours : cliff_terrain.season.outputs.PlotColours, optional
+    colours : cliff_terrain.season.reader.PlotColours, optional
         Colour each date's relief inside each plot by its value (viridis, one scale for the season);
         outside the plots, and in a plot without a value, the photo stays. The scale is stamped on
         every frame.

@@ -11,7 +11,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from ..errors import CliffTerrainError
+from ...errors import CliffTerrainError
 
 
 @dataclass(frozen=True)

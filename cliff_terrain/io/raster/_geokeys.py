@@ -11,7 +11,7 @@ One parser of each, with one behaviour everywhere:
   survey foot told apart). A surface model or orthophoto whose map or height units are not metres is
   refused by :func:`georeference` (heights, areas and volumes are computed in metres, and a DSM's
   heights in feet cannot be told from its map units reliably); a photo's ground size
-  (:func:`cliff_terrain.io.camera.geotiff_pixel_size`) is a scale only, converted to metres by the
+  (:func:`cliff_terrain.io.photo._camera.geotiff_pixel_size`) is a scale only, converted to metres by the
   unit's own factor.
 * :func:`nodata_value` reads GDAL_NODATA: empty or "none" means no value; any other text that is not
   a number is refused (:class:`RasterReadError` naming the file and the text), by every reader
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import CliffTerrainError, GeoreferenceError, RasterReadError
+from ...errors import CliffTerrainError, GeoreferenceError, RasterReadError
 from .transform import as_affine
 
 # TIFF tags of the georeference and GDAL's no-data value.
@@ -103,7 +103,7 @@ def georeference(tags, name):
     """(3x3 transform, CRS) from the GeoTIFF tags (tag code -> value), refusing what is not a metric map.
 
     The CRS is the EPSG code of ProjectedCSTypeGeoKey, or for a user-defined projected CRS in metres
-    (code 32767, or none) a :class:`cliff_terrain.io.crs.UserCrs` from its keys and citation.
+    (code 32767, or none) a :class:`cliff_terrain.io.raster.crs.UserCrs` from its keys and citation.
     """
     keys = tag_geo_keys(tags)
     if MODEL_TIEPOINT in tags and MODEL_PIXEL_SCALE in tags:
