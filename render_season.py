@@ -95,11 +95,11 @@ def run(args):
     bpy, _, _ = start_blender(usage="blender -b -P render_season.py -- SEASON_DIR")
     from cliff_terrain_addon.cliff_terrain import errors
     from cliff_terrain_addon.cliff_terrain.io.vector import plot_polygons as plots_module
-    from cliff_terrain_addon.cliff_terrain.season import reader as outputs
+    from cliff_terrain_addon.cliff_terrain.season import reader as season_reader
     from cliff_terrain_addon.scene import season_animation as scene_season
 
     try:
-        season = outputs.read_season(season_dir)
+        season = season_reader.read_season(season_dir)
         plots = None
         if season.plots and not (args.no_plots and args.color_by is None):
             plots = plots_module.read_plots(season.plots)
@@ -107,7 +107,7 @@ def run(args):
         if args.color_by is not None:
             if plots is None:
                 raise errors.CliffTerrainError(f"`color_by` {args.color_by!r} needs the season's plots file")
-            colours = outputs.plot_colours(season, args.color_by, n_plots=len(plots.polygons))
+            colours = season_reader.plot_colours(season, args.color_by, n_plots=len(plots.polygons))
     except errors.CliffTerrainError as exc:
         raise InputError(str(exc)) from None
     if colours is not None:

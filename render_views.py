@@ -264,7 +264,7 @@ def run(args):
     log("starting Blender")
     bpy, _, core = _loader.start_blender(usage="blender -b -P render_views.py -- IMAGE")
     from cliff_terrain_addon.cliff_terrain.evaluate import views as evaluation
-    from cliff_terrain_addon.cliff_terrain.figures import writer as outputs
+    from cliff_terrain_addon.cliff_terrain.figures import writer
     from cliff_terrain_addon.scene import colour_by, render_settings, rig, views
     from cliff_terrain_addon.scene.relief_object import build_relief_object
 
@@ -346,7 +346,7 @@ def run(args):
     log("saving scene.blend")
     start = time.perf_counter()
     views.set_top_view(context, view_rig, engine, samples=args.samples)
-    blend = out / outputs.SCENE
+    blend = out / writer.SCENE
     if blend.exists():
         blend.unlink()  # no scene.blend1 backup beside it
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
@@ -360,7 +360,7 @@ def run(args):
             args.bands_read, indices.parse_indices(args.indices), shape=relief.mask.shape
         )
     try:
-        record = outputs.write_outputs(
+        record = writer.write_outputs(
             relief,
             out,
             side=view_rig.side,

@@ -4,11 +4,10 @@ plot grid and inspecting (Probe Height, the colour bar).
 What they put into the scene (mesh, materials, cameras, light, render settings) is in ``scene/``.
 """
 
-from . import build, inspect, mosaic, plots, properties, render, render_job
-from . import season_animation as season
+from . import build, inspect, mosaic, plots, properties, render, render_job, season_animation
 
 # The settings first: the build operator and the panel read them.
-_MODULES = (properties, build, render, render_job, season, mosaic, plots, inspect)
+_MODULES = (properties, build, render, render_job, season_animation, mosaic, plots, inspect)
 
 
 def register():

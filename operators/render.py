@@ -142,7 +142,7 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
         """What render_views.py writes beside the views (the maps, tables, annotated figures and
         metrics.json), from the relief rebuilt from its photo and settings (a core run without a
         mesh); only metrics.json, with a warning, when the photo has changed since the build."""
-        from ..cliff_terrain.figures import writer as outputs
+        from ..cliff_terrain.figures import writer
 
         metrics = dict(metrics)
         side, seconds = metrics.pop("side_view"), metrics.pop("timings_s")
@@ -162,9 +162,9 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
         relief, reason = relief_from_record(record)
         if relief is None:
             self.report({"WARNING"}, f"No annotated figures: {reason}")
-            outputs.write_metrics(out, metrics, side=side, render=render, timings=timings)
+            writer.write_metrics(out, metrics, side=side, render=render, timings=timings)
             return
-        outputs.write_outputs(relief, out, side=side, metrics=metrics, render=render, timings=timings)
+        writer.write_outputs(relief, out, side=side, metrics=metrics, render=render, timings=timings)
 
 
 def relief_from_record(record):

@@ -23,7 +23,7 @@ from ..cliff_terrain.evaluate.views import (
     resize_nearest,
     slope_degrees,
 )
-from ..cliff_terrain.figures import writer as outputs
+from ..cliff_terrain.figures import writer
 from .mesh_data import positions
 from .record import Record
 from .render_materials import add_height_colours, flat_material, height_material, make_matte, relief_image
@@ -31,7 +31,7 @@ from .render_settings import FLAT_SAMPLES, SAMPLES, configure, gpu_available
 
 # Views in the order they are rendered (Cycles keeps its scene data between them), and their files.
 RENDER_ORDER = ("xy_flat", "xy", "xz", "view3d", "mesh")
-VIEW_FILES = {view: outputs.VIEW_FILES[view] for view in RENDER_ORDER}
+VIEW_FILES = {view: writer.VIEW_FILES[view] for view in RENDER_ORDER}
 
 
 def render_to(scene, path, *, quiet=False):

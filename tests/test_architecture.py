@@ -109,6 +109,27 @@ def test_module_is_small(module):
     assert lines <= MAX_LINES, f"{MODULES[module].relative_to(CORE.parent)} has {lines} lines (> {MAX_LINES})"
 
 
+PACKAGES = sorted(m for m, path in MODULES.items() if path.name == "__init__.py")
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_every_package_names_its_public_api(package):
+    """`__all__` in every package: each name a public module of it, or a name it loads (`_EXPORTS`)."""
+    import importlib
+
+    module = importlib.import_module(package)
+    assert module.__all__, f"{package} has no __all__"
+    folder = MODULES[package].parent
+    for name in module.__all__:
+        assert not name.startswith("_") or name == "__version__", f"{package}.__all__ names {name}"
+        if (folder / f"{name}.py").is_file() or (folder / name / "__init__.py").is_file():
+            continue
+        value = getattr(module, name)  # a lazily loaded name: its module is imported
+        where = getattr(value, "__module__", None)
+        if where is not None and where.startswith(package + "."):
+            assert hasattr(importlib.import_module(where), name), (package, name, where)
+
+
 def test_core_knows_nothing_of_blenders_schedule():
     words = ("MeshSink", "before_watershed", "on_watershed", "mesh_sink")
     found = [

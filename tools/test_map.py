@@ -4,8 +4,8 @@
     python tools/test_map.py --write   # write tests/TEST_MAP.md
 
 A test file tests a module when it imports it (``from cliff_terrain.io.raster.bands import read_bands``;
-``from cliff_terrain import build_relief``, the package's public name, counts for the module that
-defines it; the Blender tests' ``cliff_terrain_addon.cliff_terrain...`` and
+``from cliff_terrain import build_relief`` or ``from cliff_terrain.io.photo import load_image``, a
+package's public name, counts for the module that defines it; the Blender tests' ``cliff_terrain_addon.cliff_terrain...`` and
 ``f"{ADDON}.cliff_terrain..."`` too). A module no test imports is reached through another entry point
 (the command line, ``build_relief``): :data:`REACHED_THROUGH` names the test files that exercise it
 and how. ``tests/test_test_map.py`` fails when the table is not this script's output, or when a core
@@ -69,7 +69,6 @@ REACHED_THROUGH = {
     "cliff_terrain.commands.traits": (("test_traits.py",), "`cliff-terrain traits`"),
     "cliff_terrain.io.photo._camera": (("test_image_io.py",), "a photo's metadata"),
     "cliff_terrain.io.raster._geokeys": (("test_measured_heights.py", "test_season.py"), "reading GeoTIFFs"),
-    "cliff_terrain.io.photo._metadata": (("test_image_io.py",), "a photo's metadata"),
     "cliff_terrain.io.photo._pillow_pixels": (("test_image_io.py",), "decoding photos"),
     "cliff_terrain.season.align": (("test_season.py",), "`cliff-terrain season`"),
     "cliff_terrain.season.charts": (("test_season.py",), "`cliff-terrain season` (growth.png)"),
@@ -95,21 +94,41 @@ def core_modules():
     return found
 
 
+def _lazy_exports(tree):
+    """A package ``__init__``'s ``_EXPORTS`` table (public name -> its module, relative), or {}."""
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "_EXPORTS" for t in node.targets):
+            return ast.literal_eval(node.value)
+    return {}
+
+
 def has_code(path):
-    """True unless the module is only a docstring and imports (a package's ``__init__`` mostly)."""
-    body = ast.parse(path.read_text()).body
-    return any(not isinstance(n, (ast.Import, ast.ImportFrom, ast.Expr)) for n in body)
+    """True unless the module is only a docstring, imports and ``__all__`` (a package's ``__init__``
+    mostly), or a package's table of lazily loaded public names (``_EXPORTS``, ``__getattr__``)."""
+    tree = ast.parse(path.read_text())
+    if path.name == "__init__.py" and path.parent != CORE and _lazy_exports(tree):
+        return False
+    return any(
+        not isinstance(n, (ast.Import, ast.ImportFrom, ast.Expr)) and not _names_all(n) for n in tree.body
+    )
+
+
+def _names_all(node):
+    return isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == ["__all__"]
 
 
 def public_names():
-    """{public name of ``cliff_terrain``: the module defining it} (the package loads them lazily)."""
-    tree = ast.parse((CORE / "__init__.py").read_text())
+    """{dotted public name of a package: the module defining it}, e.g. ``cliff_terrain.build_relief`` ->
+    ``cliff_terrain.build`` (the packages load their public names lazily, from ``_EXPORTS``)."""
     names = {}
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "_EXPORTS" for t in node.targets):
-            names.update({k: f"cliff_terrain.{v}" for k, v in ast.literal_eval(node.value).items()})
-        elif isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
-            names.update({alias.name: f"cliff_terrain.{node.module}" for alias in node.names})
+    for module, path in core_modules().items():
+        if path.name != "__init__.py":
+            continue
+        tree = ast.parse(path.read_text())
+        names.update({f"{module}.{k}": f"{module}.{v}" for k, v in _lazy_exports(tree).items()})
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
+                names.update({f"{module}.{a.name}": f"{module}.{node.module}" for a in node.names})
     return names
 
 
@@ -133,9 +152,7 @@ def test_map():
     importers = {m: set() for m in modules}
     for test in sorted(TESTS.glob("test_*.py")):
         for name in imported_names(test):
-            head, _, tail = name.partition("cliff_terrain.")
-            if not head and tail in public:
-                name = public[tail]
+            name = public.get(name, name)
             parts = name.split(".")
             while parts and ".".join(parts) not in modules:
                 parts.pop()

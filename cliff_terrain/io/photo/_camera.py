@@ -176,7 +176,7 @@ def geotiff_pixel_size(tags):
 
     Only projected coordinate systems in known linear units count (geographic degrees and Web
     Mercator's stretched metres do not); map units in feet are converted by the unit's own factor
-    (see :mod:`.geokeys`). The result is the mean of the column and row sizes.
+    (see :mod:`..raster._geokeys`). The result is the mean of the column and row sizes.
     """
     keys = geo_keys(tags.get(GEO_KEY_DIRECTORY))
     if keys.get(GT_MODEL_TYPE) != MODEL_PROJECTED or keys.get(PROJECTED_CS_TYPE) in _WEB_MERCATOR:

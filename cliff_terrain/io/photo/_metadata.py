@@ -1,6 +1,6 @@
 """What a photo's header tells: :class:`ImageMetadata`, EXIF and XMP, orientation, and the GSD chosen.
 
-Shared by the two photo readers (:mod:`.photo`'s Pillow one and :mod:`.tiff_photo`'s tifffile one).
+Shared by the two photo readers (:mod:`._open`'s Pillow one and :mod:`._tiff`'s tifffile one).
 """
 
 from __future__ import annotations

@@ -9,9 +9,9 @@ Decisions (each documented where it applies):
   colour is reduced by Pillow to its high byte (the two differ by at most 1). Colour profiles (ICC)
   are not applied.
 * **Two readers, one protocol** (:class:`~cliff_terrain.io.photo.PhotoReader`): :func:`open_image`
-  picks the reader by the file's header: tifffile's (:mod:`.tiff_photo`) for a TIFF of three or more
+  picks the reader by the file's header: tifffile's (:mod:`._tiff`) for a TIFF of three or more
   float or greyscale-tagged samples (OpenDroneMap's orthophoto), which Pillow cannot read; Pillow's
-  (:class:`OpenImage`, JPEG decoding in :mod:`.jpeg`, pixels in :mod:`.pillow_pixels`) for the rest.
+  (:class:`OpenImage`, JPEG decoding in :mod:`._jpeg`, pixels in :mod:`._pillow_pixels`) for the rest.
 * **Transparency marks no-data** (orthophotos use alpha = 0 outside the surveyed area): such pixels
   are filled with black, partially transparent ones are composited over black, and
   ``metadata.valid_mask`` / ``metadata.valid_fraction`` say which pixels hold data. GDAL often
@@ -37,7 +37,7 @@ Decisions (each documented where it applies):
 * **Ground scale** (metres per original pixel), first available of: the caller's `gsd`; a GeoTIFF's
   pixel scale in a projected system in metres or feet (not Web Mercator); the height above ground
   (the caller's, else DJI's XMP ``RelativeAltitude``) with the EXIF focal length and sensor width
-  (see :mod:`.camera`). GPS altitude is above sea level and is never used as a height.
+  (see :mod:`._camera`). GPS altitude is above sea level and is never used as a height.
 * **EXIF orientation** is applied, so the array is the photo as viewed; ``width``/``height`` are after
   orientation. Of a multi-page TIFF or multi-frame file only the first image is read.
 """

@@ -1,7 +1,7 @@
 """A Pillow image's pixels as RGB uint8 and alpha: modes converted, 16 bits scaled, bands copied out.
 
 Rows are copied out of Pillow in bands, so no full-size temporary copy exists next to the decoded
-image and the result (see :mod:`.photo`'s memory guard).
+image and the result (see :mod:`._open`'s memory guard).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
 
     Decided by the header: a TIFF whose first image has three or more samples per pixel that are
     floats, tagged greyscale, or neither 8 nor 16 bits; or a multispectral orthomosaic (more than
-    four bands, bands named other than red, green, blue (see :mod:`.bands`), or bands named by
+    four bands, bands named other than red, green, blue (see :mod:`..raster.bands`), or bands named by
     `bands`), shown in true colour.
     """
     try:

@@ -22,7 +22,7 @@ Why not pyproj: it is the field's library and ``pyproj.CRS.equals`` would do thi
 run inside Blender too (measured heights in the sidebar), where every dependency must come as
 wheels in the extension for 4 platforms x 2 Pythons, and pyproj's wheels carry PROJ and its
 database (tens of MB each). What is needed is the small WKT1 subset above and the GeoKeys already
-parsed by :mod:`.geokeys`; one parser (:func:`parse_wkt`) reads the bracket grammar of WKT1
+parsed by :mod:`._geokeys`; one parser (:func:`parse_wkt`) reads the bracket grammar of WKT1
 (OGC 01-009 section 7), the same for ESRI's dialect.
 """
 

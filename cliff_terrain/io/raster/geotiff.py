@@ -5,8 +5,8 @@ Photogrammetry tools (OpenDroneMap, Metashape, Pix4D) write float32 surface mode
 striped, with a GDAL_NODATA value (OpenDroneMap's -3.4e38 is not exactly a float32; tifffile warns).
 tifffile reads the pixels (with imagecodecs for LZW/Deflate); the georeference comes from the
 GeoTIFF tags: ModelPixelScale + ModelTiepoint or ModelTransformation, and the EPSG code of the
-GeoKeys, parsed by :mod:`.geokeys` (the package's one GeoKey and GDAL_NODATA parser); the pixels
-are read by :mod:`.tiff_window` (whole here, in windows for mosaics). Only projected CRSs in metres
+GeoKeys, parsed by :mod:`._geokeys` (the package's one GeoKey and GDAL_NODATA parser); the pixels
+are read by :mod:`._tiff_window` (whole here, in windows for mosaics). Only projected CRSs in metres
 are accepted: heights, areas and volumes are in metres.
 
 Transforms map pixel (col, row) to map (x, y) with (0, 0) the top-left corner of the top-left
