@@ -399,7 +399,7 @@ def summarise(rows, half):
 # The sets this script reads, where they come from and under which licence (none is in the repository).
 SOURCES = (
     (
-        "`cwfid` (12 photos)",
+        "`cwfid` (20 photos)",
         "carrot seedlings and weeds on dark, moist soil, nadir from a field robot (not a UAV); the colours "
         "look like a NIR-sensitive camera",
         "`cwfid/dataset`, `images/`, `masks/`",
@@ -407,7 +407,7 @@ SOURCES = (
         "the dataset's vegetation masks (crop and weeds are plant)",
     ),
     (
-        "`segveg_literal_wheat` (12)",
+        "`segveg_literal_wheat` (24)",
         "wheat plots from a handheld nadir camera: green, yellow and ripe canopy, hard shadows, some soil",
         "`mserouar/SegVeg`, `docs/DATA/Literal_wheat_dataset/` (older commit)",
         "none stated",
@@ -421,7 +421,31 @@ SOURCES = (
         "the dataset's hand-labelled colour maps (crop and weeds are plant)",
     ),
     (
-        "`uavbroccoli` (4)",
+        "`carrotweed` (39)",
+        "handheld nadir-ish photos of carrot seedlings and weeds on brown soil with clods; low sun, hard "
+        "shadows, overcast",
+        "`lameski/rgbweeddetection`, `Images/`, `Vegetation_Masks/`",
+        '"free for non-commercial applications", cite Lameski et al., ICT Innovations 2017 (README)',
+        "the dataset's hand-drawn vegetation masks (crop and weeds are plant)",
+    ),
+    (
+        "`ews_wheat` (48 of 166)",
+        "Eschikon Wheat Segmentation: 350 px patches of nadir photos of winter-wheat plots, emergence to "
+        "tillering, on pale dry to dark moist soil, hard shadows",
+        "`supervisely-ecosystem/EWS-Dataset-training-data`, `project/{train,validation}/`",
+        "CC BY-SA 4.0, cite Zenkl et al., Front. Plant Sci. 12:774068 (2022)",
+        "the dataset's hand annotations (class `Wheat`)",
+    ),
+    (
+        "`maize_rows_straw` (22)",
+        "oblique tractor-camera frames of young maize rows (about V3-V6) on straw-covered no-till soil; "
+        "overcast",
+        "`WoodratTradeCo/crop-rows-detection`, `mydata/images/`",
+        "GPL-3.0 (the repository's; no separate data licence)",
+        "none (its labels are row boxes): independent ExG/Otsu mask",
+    ),
+    (
+        "`uavbroccoli` (6)",
         "UAV orthomosaic tiles: pale, bluish broccoli on very dark soil",
         "`UTokyo-FieldPhenomics-Lab/UAVbroccoli`, `data/broccoli_data/images/train/` (older commit)",
         "MIT for the code; the data's is unclear",

@@ -138,6 +138,7 @@ def test_the_validation_page_is_written_from_its_record(validate, tmp_path):
                         "baseline": {"n": 4, "r": 0.95, "rmse_cm": 9.0, "bias_cm": 8.0},
                         "plantcv": {"n": 4, "r": 0.5, "rmse_cm": 20.0, "bias_cm": -19.0},
                         "coverage": 0.9,
+                        "difference": {"baseline": {"r": [-0.08, -0.01], "rmse_cm": [-7.5, -6.5]}},
                     },
                     "raw": {
                         "ours": {"n": 4, "r": 0.5, "rmse_cm": 20.0, "bias_cm": -19.0},
@@ -167,18 +168,42 @@ def test_the_validation_page_is_written_from_its_record(validate, tmp_path):
     assert "| wheat | a.png | holdout | annotation | 0.310 | 0.470 | 55.0 % | 0.100 (band) |" in text
     assert (
         "| trial | potato, closing | 60 | 4 | detailed (1.2 cm, colour and surface) | aligned two-flight "
-        "difference | 0.900 / 2.0 cm / −1.0 cm | 0.950 / 9.0 cm / +8.0 cm | 0.500 / 20.0 cm / −19.0 cm | 90.0 % |"
+        "difference | 0.900 / 2.0 cm / −1.0 cm | 0.950 / 9.0 cm / +8.0 cm | 0.500 / 20.0 cm / −19.0 cm | 90.0 % | "
+        "[−0.080, −0.010], [−7.5, −6.5] cm |"
     ) in text
     # Where we lose, found in the record: a peer's higher r, the uncovered plots, the weak image, the
     # set's worst volume.
     losses = text.split("## Where we lose\n", 1)[1]
     where = "trial 60 against the aligned two-flight difference"
-    assert f"{where}: the naive baseline's r is higher (0.950 against 0.900)." in losses
+    assert (
+        f"{where}: the naive baseline's r is higher (0.950 against 0.900), a loss: ours minus theirs in "
+        "[−0.080, −0.010] (95 % paired bootstrap)."
+    ) in losses
     assert "RMSE is lower" not in losses and "plantcv" not in losses
     assert "trial 60 against the raw two-flight difference: the uncertainty covers 50.0 %" in losses
     assert f"{where}: the uncertainty" not in losses
     assert "wheat/a.png (holdout): IoU 0.310 against annotation." in losses
     assert "wheat/holdout: the worst image's relief stands only 55.0 %" in losses
+
+
+def test_the_paired_bootstrap_tells_a_loss_from_a_tie(validate):
+    # Plots like potato day 90's: 140 plots of 0.2-0.5 m, an error of 2.5 cm both estimates share (the
+    # reference's, the field's) and 0.5 cm of each one's own.
+    rng = np.random.default_rng(7)
+    truth = rng.uniform(0.2, 0.5, 140)
+    shared = rng.normal(0, 0.025, 140)
+    a = truth + shared + rng.normal(0, 0.005, 140)
+    b = truth + shared + rng.normal(0, 0.005, 140)
+    tie = validate.paired_bootstrap(a, b, truth)
+    assert tie["r"][0] < 0 < tie["r"][1] and tie["rmse_cm"][0] < 0 < tie["rmse_cm"][1]
+    # Twice the error of its own: a loss in both, beyond the interval.
+    worse = truth + 2 * shared
+    loss = validate.paired_bootstrap(worse, a, truth)
+    assert loss["r"][1] < 0 and loss["rmse_cm"][0] > 0
+    # Paired: the same estimate against itself is exactly 0, and too few plots give no interval.
+    assert validate.paired_bootstrap(a, a, truth) == {"r": [0.0, 0.0], "rmse_cm": [0.0, 0.0]}
+    assert validate.paired_bootstrap(a[:9], b[:9], truth[:9]) is None
+    assert "a tie" in validate._verdict(tie, "r") and "a loss" in validate._verdict(loss, "rmse_cm")
 
 
 def test_the_committed_validation_page_is_its_record_written_out(validate):
