@@ -99,6 +99,19 @@ def configure(parser):
         metavar="GIB",
         help="refuse, before the work, a run estimated to need more memory than this (GiB; default 4)",
     )
+    parser.add_argument(
+        "--windowed",
+        action="store_true",
+        help="measure at full resolution window by window, in bounded memory (chm.tif and the plot "
+        "tables; no regions.csv); chosen by itself when the in-memory run would pass --max-memory",
+    )
+    parser.add_argument(
+        "--window",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="side of a window's core in pixels with --windowed (default 2048; the tables do not depend on it)",
+    )
     add_progress_argument(parser)
     add_index_arguments(parser)
 
@@ -174,6 +187,8 @@ def run(args):
             height_column=args.ruler_height,
             units=args.ruler_units,
         )
+    if _windowed(args):
+        return _run_windowed(args, outputs, plots, ruler)
     bands = requested_bands(args, args.ortho)  # and so does an index whose band the file lacks
     size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
     check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
@@ -259,6 +274,51 @@ def run(args):
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
+
+
+def _windowed(args):
+    """Whether to measure window by window: asked for, or the in-memory run would pass the cap at the
+    orthophoto's own resolution (a coarser grid asked for with --max-size or --resolution is measured
+    in memory, or refused there with what fits)."""
+    from ..errors import CliffTerrainError
+    from .memory_estimate import check_heights_memory
+
+    if args.window is not None and not args.windowed:
+        raise CliffTerrainError(f"--window {args.window} needs --windowed")
+    if args.windowed:
+        if args.max_size is not None or args.resolution is not None:
+            raise CliffTerrainError(
+                "--windowed measures at the orthophoto's own resolution; drop --max-size/--resolution"
+            )
+        return True
+    if args.max_size is not None or args.resolution is not None or args.indices or args.band_files:
+        return False
+    size = grid_size(args.ortho)
+    try:
+        check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
+    except CliffTerrainError:
+        return True
+    return False
+
+
+def _run_windowed(args, outputs, plots, ruler):
+    from .._validate import check_int
+    from ..io.geotiff import read_georeference
+    from ..measure.windowed import WINDOW_PX, window_halo
+    from .heights_windowed import run_windowed
+    from .memory_estimate import windowed_plan
+
+    window = check_int("--window", args.window if args.window is not None else WINDOW_PX, minimum=64)
+    args.window = window
+    transform, _ = read_georeference(args.ortho)
+    halo = window_halo(plots, transform)
+    budget, estimate = windowed_plan(
+        args.ortho, (args.dsm, args.dtm), window_px=window + 2 * halo, cap_gib=args.max_memory
+    )
+    outputs = [n for n in outputs if not n.startswith("regions.")]
+    return run_windowed(
+        args, outputs=outputs, plots=plots, ruler=ruler, ground_pixels=budget, estimate_gib=estimate
+    )
 
 
 def _ruler_chart(rows, record):

@@ -81,3 +81,45 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
         f"{what}; use --max-size {fit} or --resolution {math.ceil(metres * 1000) / 1000:g} (metres per pixel), "
         "or raise --max-memory"
     )
+
+
+# The windowed path (:mod:`cliff_terrain.measure.windowed`), measured with bench/bench_scale.py.
+GROUND_GIB_PER_MP = 0.45  # the ground grid: its photo, surface, soil and fit_ground (0.35 measured alone)
+WINDOW_GIB_PER_MP = 0.25  # one window read with its halo: photo, index, surface, ground, CHM, plots
+#: The ground grid's largest budget (pixels), whatever the cap.
+MAX_GROUND_PIXELS = 16_000_000
+MIN_GROUND_PIXELS = 250_000
+
+
+def striped_gib(path):
+    """GiB a file decodes whole because it is striped (0 when tiled: it is read in windows)."""
+    from ..io.tiff_window import TiffRaster
+
+    with TiffRaster(path) as tiff:
+        if tiff.tiled:
+            return 0.0
+        return tiff.shape[0] * tiff.shape[1] * tiff.samples * tiff.page.dtype.itemsize / 2**30
+
+
+def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB):
+    """(ground grid budget in pixels, estimated peak GiB) of a windowed heights run under `cap_gib`.
+
+    `window_px` is the side of a window read with its halo; `others` are the DSM (and DTM). The
+    ground grid gets what the cap leaves after the interpreter, one window and the striped files
+    decoded whole, up to :data:`MAX_GROUND_PIXELS`; below :data:`MIN_GROUND_PIXELS` the run is
+    refused, naming the orthophoto and what to change.
+    """
+    from .._validate import check_float
+
+    cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
+    files = [ortho, *(p for p in others if p is not None)]
+    fixed = BASE_GIB + WINDOW_GIB_PER_MP * window_px**2 / 1e6 + sum(striped_gib(p) for p in files)
+    budget = min(MAX_GROUND_PIXELS, int((cap_gib - fixed) / GROUND_GIB_PER_MP * 1e6))
+    if budget < MIN_GROUND_PIXELS:
+        raise CliffTerrainError(
+            f"measuring {str(ortho)!r} in windows needs about {fixed + GROUND_GIB_PER_MP * MIN_GROUND_PIXELS / 1e6:.1f} "
+            f"GiB (one {window_px}-pixel window, the files that are striped decoded whole, and the ground's grid), "
+            f"more than the {cap_gib:g} GiB cap; raise --max-memory, lower --window, or tile the striped files "
+            "(gdal_translate -co TILED=YES)"
+        )
+    return budget, fixed + GROUND_GIB_PER_MP * budget / 1e6

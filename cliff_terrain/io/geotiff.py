@@ -343,6 +343,29 @@ def _block_mean(data, factor):
         return (sums / counts).astype(np.float32)
 
 
+def geotiff_tags(transform, crs, *, nodata=None):
+    """tifffile ``extratags`` of a GeoTIFF's georeference (and GDAL_NODATA): what :func:`write_geotiff`
+    writes, and what :mod:`cliff_terrain.measure.windowed` writes window by window."""
+    t = as_affine(transform)
+    if t[0, 1] == 0.0 and t[1, 0] == 0.0 and t[0, 0] > 0 and t[1, 1] < 0:
+        geo = [
+            (MODEL_PIXEL_SCALE, 12, 3, (t[0, 0], -t[1, 1], 0.0), True),
+            (MODEL_TIEPOINT, 12, 6, (0.0, 0.0, 0.0, t[0, 2], t[1, 2], 0.0), True),
+        ]
+    else:
+        matrix = (t[0, 0], t[0, 1], 0.0, t[0, 2], t[1, 0], t[1, 1], 0.0, t[1, 2], 0, 0, 0, 0, 0, 0, 0, 1)
+        geo = [(MODEL_TRANSFORMATION, 12, 16, tuple(float(v) for v in matrix), True)]
+    if isinstance(crs, UserCrs):
+        keys, doubles, text = user_geokeys(crs)
+        geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
+    else:
+        keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
+    extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
+    if nodata is not None:
+        extratags.append((GDAL_NODATA, 2, 0, ("nan" if math.isnan(nodata) else repr(float(nodata))), True))
+    return extratags
+
+
 def write_geotiff(path, data, *, transform, crs, nodata=None, overviews=False):
     """Write a float32 (or other) single-band GeoTIFF with a georeference, atomically.
 
@@ -360,24 +383,8 @@ def write_geotiff(path, data, *, transform, crs, nodata=None, overviews=False):
     """
     import tifffile
 
-    t = as_affine(transform)
     data = np.asarray(data)
-    if t[0, 1] == 0.0 and t[1, 0] == 0.0 and t[0, 0] > 0 and t[1, 1] < 0:
-        geo = [
-            (MODEL_PIXEL_SCALE, 12, 3, (t[0, 0], -t[1, 1], 0.0), True),
-            (MODEL_TIEPOINT, 12, 6, (0.0, 0.0, 0.0, t[0, 2], t[1, 2], 0.0), True),
-        ]
-    else:
-        matrix = (t[0, 0], t[0, 1], 0.0, t[0, 2], t[1, 0], t[1, 1], 0.0, t[1, 2], 0, 0, 0, 0, 0, 0, 0, 1)
-        geo = [(MODEL_TRANSFORMATION, 12, 16, tuple(float(v) for v in matrix), True)]
-    if isinstance(crs, UserCrs):
-        keys, doubles, text = user_geokeys(crs)
-        geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
-    else:
-        keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
-    extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
-    if nodata is not None:
-        extratags.append((GDAL_NODATA, 2, 0, ("nan" if math.isnan(nodata) else repr(float(nodata))), True))
+    extratags = geotiff_tags(transform, crs, nodata=nodata)
     path = os.fspath(path)
     tmp = f"{path}.part-{os.getpid()}"
     try:
