@@ -296,7 +296,14 @@ def _windowed(args):
     size = grid_size(args.ortho)
     try:
         check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
-    except CliffTerrainError:
+    except CliffTerrainError as refused:
+        from ..measure.windowed import WINDOW_PX
+        from .memory_estimate import windowed_plan
+
+        try:  # without plots yet: their halo is added when the plan is made for the run
+            windowed_plan(args.ortho, (args.dsm, args.dtm), window_px=WINDOW_PX, cap_gib=args.max_memory)
+        except CliffTerrainError:
+            raise refused from None  # neither fits: the in-memory refusal says which grid would
         return True
     return False
 
@@ -313,7 +320,11 @@ def _run_windowed(args, outputs, plots, ruler):
     transform, _ = read_georeference(args.ortho)
     halo = window_halo(plots, transform)
     budget, estimate = windowed_plan(
-        args.ortho, (args.dsm, args.dtm), window_px=window + 2 * halo, cap_gib=args.max_memory
+        args.ortho,
+        (args.dsm, args.dtm),
+        window_px=window + 2 * halo,
+        cap_gib=args.max_memory,
+        plots=0 if plots is None else len(plots),
     )
     outputs = [n for n in outputs if not n.startswith("regions.")]
     return run_windowed(
