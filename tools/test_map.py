@@ -27,6 +27,10 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
+    "cliff_terrain.commands.heights_windowed": (
+        ("test_windowed_heights.py",),
+        "`cliff-terrain heights --windowed` (and past the memory cap)",
+    ),
     "cliff_terrain.figures.ruler_chart": (
         ("test_ground_check.py",),
         "`cliff-terrain heights --ruler`'s ruler.png",

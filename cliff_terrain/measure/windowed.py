@@ -6,20 +6,23 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
 
 1. **The ground, on a coarse grid.** The orthophoto and the DSM (resampled bilinearly onto the
    orthophoto's pixels, as :func:`cliff_terrain.io.geotiff.resample` does) are read window by window
-   and reduced by an integer `factor` (the mean of each `factor` x `factor` block over its pixels
-   with data) to a grid of at most `ground_pixels` pixels, and no finer than `GROUND_PIXEL_M`
-   (5 cm: the ground's finest detail is a Gaussian of 0.15 m). On that grid the photo's plant
-   threshold (:func:`cliff_terrain.relief.vegetation.photo_threshold`) and bare soil
-   (:func:`~cliff_terrain.relief.vegetation.bare_soil`) are taken as
-   :func:`cliff_terrain.measure.canopy.measure_orthophoto` takes them, and
+   and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, and no finer
+   than `GROUND_PIXEL_M` (5 cm: the ground's finest detail is a Gaussian of 0.15 m): each
+   `factor` x `factor` block gives the mean of its pixels with data or, when most of them are not
+   plants, of those only, so that the plants in a block lift neither the soil it shows nor tint its
+   colour. Plants are the blurred vegetation index above the photo's threshold
+   (:func:`cliff_terrain.relief.vegetation.photo_threshold`), taken on an overview of the whole
+   orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size). On the
+   coarse grid the bare soil (:func:`~cliff_terrain.relief.vegetation.bare_soil`, at that
+   threshold) is taken as :func:`cliff_terrain.measure.canopy.measure_orthophoto` takes it, and
    :func:`cliff_terrain.measure.ground.fit_ground` fits and checks the ground (its held-out check,
    standard error and support) unchanged.
 2. **The canopy, at full resolution.** Each window's DSM minus the ground bilinearly upsampled from
    the coarse grid (pixel centres aligned: full pixel ``i`` lies at coarse ``(i + 0.5) / factor -
    0.5``, held flat beyond the outer centres) is the CHM; it, the ground's standard error and its
    support are spooled window by window into tiled, Deflate GeoTIFFs with overviews
-   (:mod:`cliff_terrain.io.geotiff_stream`). Plants are the blurred vegetation index above the
-   coarse grid's threshold (the rule of :func:`~cliff_terrain.measure.canopy.plant_mask`).
+   (:mod:`cliff_terrain.io.geotiff_stream`). Plants are the blurred index above the same threshold
+   (the rule of :func:`~cliff_terrain.measure.canopy.plant_mask`).
 3. **Plots, exactly.** Each plot belongs to the window holding its centre; windows are read with a
    halo of half the largest plot's extent (plus the blur's reach), so every plot lies whole in its
    window and :func:`cliff_terrain.measure.field_plots.plot_table` takes all its pixels: the
@@ -246,18 +249,20 @@ def windows(shape, size):
 
 def _reduce(values, factor, weights):
     """Means of `factor` x `factor` blocks of `values` (rows, cols[, bands]) over `weights` (bool),
-    and each block's count of weighted pixels."""
+    and each block's count of weighted pixels (float32 sums: a block holds few pixels)."""
     rows, cols = weights.shape
     nr, nc = -(-rows // factor), -(-cols // factor)
-    pad_w = np.zeros((nr * factor, nc * factor), bool)
-    pad_w[:rows, :cols] = weights
-    counts = pad_w.reshape(nr, factor, nc, factor).sum(axis=(1, 3))
-    shape = (nr * factor, nc * factor, *values.shape[2:])
-    pad = np.zeros(shape, np.float64)
-    pad[:rows, :cols] = np.where(weights.reshape(rows, cols, *([1] * (values.ndim - 2))), values, 0)
-    sums = pad.reshape(nr, factor, nc, factor, *values.shape[2:]).sum(axis=(1, 3))
+    bands = values.shape[2:]
+    w = np.zeros((nr * factor, nc * factor), np.float32)
+    w[:rows, :cols] = weights
+    v = np.zeros((nr * factor, nc * factor, *bands), np.float32)
+    v[:rows, :cols] = values
+    v[~(w > 0)] = 0  # NaN where there is no weight must not reach the sums
+    v *= w.reshape(*w.shape, *([1] * len(bands)))
+    counts = w.reshape(nr, factor, nc, factor).sum(axis=(1, 3))
+    sums = v.reshape(nr, factor, nc, factor, *bands).sum(axis=(1, 3))
     with np.errstate(invalid="ignore", divide="ignore"):
-        means = sums / counts.reshape(nr, nc, *([1] * (values.ndim - 2)))
+        means = sums / counts.reshape(nr, nc, *([1] * len(bands)))
     return means, counts
 
 
@@ -310,6 +315,7 @@ def measure_windowed(
     window=WINDOW_PX,
     ground_pixels=GROUND_PIXELS,
     progress=None,
+    client=None,
 ):
     """Measure an orthophoto of any size window by window: ground, CHM rasters and plot table.
 
@@ -335,6 +341,9 @@ def measure_windowed(
         Budget of the ground grid (:func:`ground_factor`).
     progress : callable, optional
         ``progress(fraction, stage)``.
+    client : distributed.Client, optional
+        Spread the second pass's windows over a Dask cluster (:func:`measure_window` as tasks,
+        the coarse ground scattered to every worker once); the results are the same.
 
     Returns
     -------
@@ -354,12 +363,12 @@ def measure_windowed(
     step = progress or (lambda fraction, stage: None)
     sources = _Sources(ortho, dsm, dtm)
     try:
-        return _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step)
+        return _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, client)
     finally:
         sources.close()
 
 
-def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step):
+def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, client):
     from ..io.geotiff_stream import RasterSpool
     from ..relief.vegetation import bare_soil, blurred_index, photo_threshold
 
@@ -369,22 +378,49 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     name = sources.ortho.path
     factor = ground_factor(shape, pixel_size, ground_pixels=ground_pixels)
 
-    # 1. The coarse grid: photo, its valid pixels and the surface, reduced window by window.
+    # 0. The plant/soil threshold, on an overview of the whole photo (every step-th pixel, <= 4 MP).
+    overview, valid_o, _ = sources.ortho.overview()
+    vi_o, index = blurred_index(overview)
+    threshold = float(photo_threshold(vi_o, overview, index=index, valid=valid_o).threshold)
+    del overview, valid_o, vi_o
+
+    # 1. The coarse grid: photo, its valid pixels and the surface, reduced window by window. A block
+    # mostly not plants gives the mean of those pixels only: the plants in it must not lift the soil
+    # it shows (nor tint its colour), whatever the block's place against the rows.
     rows_c, cols_c = -(-shape[0] // factor), -(-shape[1] // factor)
     rgb_c = np.zeros((rows_c, cols_c, 3), np.uint8)
     valid_c = np.zeros((rows_c, cols_c), bool)
     dsm_c = np.full((rows_c, cols_c), np.nan, np.float32)
     side = max(factor, window // factor * factor)
     parts = windows(shape, side)
+    reach = _BLUR_REACH + 2
     for k, (r0, r1, c0, c1) in enumerate(parts):
-        rgb, valid = sources.photo(r0, r1, c0, c1)
         surface = sources.dsm.on_grid(transform, r0, r1, c0, c1)
         cr, cc = r0 // factor, c0 // factor
         if factor == 1:
+            rgb, valid = sources.photo(r0, r1, c0, c1)
             rgb_c[r0:r1, c0:c1], valid_c[r0:r1, c0:c1] = rgb, valid
             dsm_c[r0:r1, c0:c1] = np.where(valid, surface, np.nan)
         else:
+            R0, R1, C0, C1 = (
+                max(0, r0 - reach),
+                min(shape[0], r1 + reach),
+                max(0, c0 - reach),
+                min(shape[1], c1 + reach),
+            )
+            rgb, valid = sources.photo(R0, R1, C0, C1)
+            vi, _ = blurred_index(rgb, index=index)
+            core = (slice(r0 - R0, r1 - R0), slice(c0 - C0, c1 - C0))
+            rgb, valid, vi = rgb[core], valid[core], vi[core]
+            bare = valid & (vi <= threshold)
+            del vi
             colour, counts = _reduce(rgb, factor, valid)
+            colour_bare, n_bare = _reduce(rgb, factor, bare)
+            mostly_bare = n_bare * 2 > counts
+            colour = np.where(mostly_bare[..., None], colour_bare, colour)
+            heights, _ = _reduce(surface, factor, valid & np.isfinite(surface))
+            heights_bare, _ = _reduce(surface, factor, bare & np.isfinite(surface))
+            heights = np.where(mostly_bare & np.isfinite(heights_bare), heights_bare, heights)
             block = factor * factor
             n_r, n_c = counts.shape
             # A coarse pixel has data when most of its block has (the in-memory grid's nearest pixel).
@@ -392,20 +428,16 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
             rgb_c[cr : cr + n_r, cc : cc + n_c] = np.clip(np.nan_to_num(colour) + 0.5, 0, 255).astype(
                 np.uint8
             )
-            heights, _ = _reduce(surface, factor, valid & np.isfinite(surface))
             dsm_c[cr : cr + n_r, cc : cc + n_c] = heights
         step(0.4 * (k + 1) / len(parts), "ground grid")
     has_data = valid_c & np.isfinite(dsm_c)
     if not has_data.any():
         raise GeoreferenceError(f"{sources.dsm.path!r} has no data where it overlaps {name!r}")
-    vi_c, index = blurred_index(rgb_c)
-    threshold = float(photo_threshold(vi_c, rgb_c, index=index, valid=valid_c).threshold)
-    del vi_c
     plant_c = valid_c  # for the summary's cover, replaced by the full grid's below
     ground_c = support_c = sigma_c = None
     check = None
     if sources.dtm is None:
-        soil_c = bare_soil(rgb_c, valid=valid_c, index=index)
+        soil_c = bare_soil(rgb_c, valid=valid_c, index=index, threshold=threshold)
         del rgb_c
         step(0.45, "ground")
         fit = fit_ground(
@@ -428,7 +460,8 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     names = ["chm"] + (["chm_err", "ground_support"] if ground_c is not None else [])
     result.spools = {n: RasterSpool(folder, n, shape) for n in names}
     try:
-        _full_grid(sources, plots, window, result, ground_c, sigma_c, support_c, step)
+        ground = None if ground_c is None else (ground_c, sigma_c, support_c)
+        _full_grid(sources, plots, window, result, ground, step, client)
     except BaseException:
         result.close()
         raise
@@ -460,12 +493,108 @@ def window_halo(plots, transform):
     return halo + math.ceil(float(extent.max(initial=0.0)) / 2) + 1
 
 
-def _full_grid(sources, plots, window, result, ground_c, sigma_c, support_c, step):
+@dataclass
+class WindowTask:
+    """One window of the second pass: everything it needs but the coarse ground (picklable, so a
+    Dask worker can run it: :func:`measure_window`)."""
+
+    ortho: str
+    dsm: str
+    dtm: str | None
+    transform: np.ndarray
+    shape: tuple
+    factor: int
+    index: str
+    threshold: float
+    core: tuple  # (r0, r1, c0, c1)
+    read: tuple  # (R0, R1, C0, C1): the core and its halo, inside the grid
+    # The plots touching the window (file order), in pixels of the window read, and in map units.
+    plot_ids: np.ndarray | None = None
+    pixel_rings: list | None = None
+    polygons: list | None = None
+    attributes: list | None = None
+    fields: tuple = ()
+    plots_path: str = ""
+    mine: np.ndarray | None = None  # the plots whose centre the core holds
+
+
+def measure_window(task, ground=None, *, sources=None):
+    """The CHM, its error and support on `task`'s core, and the rows of the plots it owns.
+
+    `ground` is ``(ground, sigma, support)`` on the coarse grid, or None with a terrain model.
+    `sources` (open readers) default to opening `task`'s files. Returns a dict: ``core``, the
+    rasters ``chm``, ``chm_err``, ``ground_support`` (the latter two without a DTM) on the core,
+    ``rows`` {plot index: row}, ``valid_pixels``, ``plant_pixels`` and ``labelled`` (a plot
+    pixel was burnt).
+    """
     from ..io.plot_polygons import PlotSet
     from ..relief.vegetation import blurred_index
     from .field_plots import plot_table, rasterize_plots
 
-    transform, shape, factor = result.transform, result.shape, result.factor
+    own = sources is None
+    if own:
+        sources = _Sources(task.ortho, task.dsm, task.dtm)
+    try:
+        r0, r1, c0, c1 = task.core
+        R0, R1, C0, C1 = task.read
+        transform, factor = task.transform, task.factor
+        rgb, valid = sources.photo(R0, R1, C0, C1)
+        vi, _ = blurred_index(rgb, index=task.index)
+        del rgb
+        plants = (vi > task.threshold) & valid
+        del vi
+        surface = sources.dsm.on_grid(transform, R0, R1, C0, C1)
+        if ground is None:
+            heights = sources.dtm.on_grid(transform, R0, R1, C0, C1)
+            sigma = support = None
+        else:
+            heights = upsample(ground[0], factor, R0, R1, C0, C1)
+            sigma = upsample(ground[1], factor, R0, R1, C0, C1)
+            support = upsample(ground[2], factor, R0, R1, C0, C1)
+    finally:
+        if own:
+            sources.close()
+    chm = canopy_height(surface, heights)
+    del surface, heights
+    chm[~valid] = np.nan
+    core = (slice(r0 - R0, r1 - R0), slice(c0 - C0, c1 - C0))
+    core_valid = valid[core] & np.isfinite(chm[core])
+    out = {
+        "core": task.core,
+        "chm": chm[core].copy(),
+        "valid_pixels": int(np.count_nonzero(core_valid)),
+        "plant_pixels": int(np.count_nonzero(plants[core] & core_valid)),
+        "rows": {},
+        "labelled": False,
+    }
+    if sigma is not None:
+        out["chm_err"], out["ground_support"] = sigma[core].copy(), support[core].copy()
+    if task.mine is not None and task.mine.size:
+        n = len(task.plot_ids)
+        local = PlotSet(task.pixel_rings, [{}] * n, (), None, task.plots_path)
+        labels = rasterize_plots(local, transform=np.eye(3), shape=chm.shape)
+        out["labelled"] = bool(labels.any())
+        subset = PlotSet(task.polygons, task.attributes, task.fields, None, task.plots_path)
+        table = plot_table(
+            subset,
+            labels,
+            mask=plants,
+            heights=chm,
+            pixel_area_m2=float(abs(np.linalg.det(transform[:2, :2]))),
+            support=np.ones(chm.shape, np.float32) if support is None else support,
+            sigma=np.zeros(chm.shape, np.float32) if sigma is None else sigma,
+        )
+        wanted = set(task.mine.tolist())
+        for i, row in zip(task.plot_ids.tolist(), table, strict=True):
+            if i in wanted:
+                row["plot"] = i
+                out["rows"][i] = row
+    return out
+
+
+def window_tasks(sources, plots, window, result):
+    """The second pass's :class:`WindowTask` s, row-major."""
+    transform, shape = result.transform, result.shape
     rows, cols = shape
     halo = window_halo(plots, transform)
     if plots is not None:
@@ -476,37 +605,14 @@ def _full_grid(sources, plots, window, result, ground_c, sigma_c, support_c, ste
         centre_c = np.clip(np.nan_to_num((boxes[:, 0] + boxes[:, 2]) / 2), 0, cols - 1)
         across = -(-cols // window)
         owner = (centre_r // window).astype(np.int64) * across + (centre_c // window).astype(np.int64)
-        rows_out = [None] * len(plots)
-        area = float(abs(np.linalg.det(transform[:2, :2])))
-        any_label = False
-    parts = windows(shape, window)
-    for k, (r0, r1, c0, c1) in enumerate(parts):
+    dtm = None if sources.dtm is None else sources.dtm.path
+    for k, (r0, r1, c0, c1) in enumerate(windows(shape, window)):
         R0, R1 = max(0, r0 - halo), min(rows, r1 + halo)
         C0, C1 = max(0, c0 - halo), min(cols, c1 + halo)
-        rgb, valid = sources.photo(R0, R1, C0, C1)
-        vi, _ = blurred_index(rgb, index=result.index)
-        del rgb
-        plants = (vi > result.threshold) & valid
-        del vi
-        surface = sources.dsm.on_grid(transform, R0, R1, C0, C1)
-        if ground_c is None:
-            ground = sources.dtm.on_grid(transform, R0, R1, C0, C1)
-            sigma = support = None
-        else:
-            ground = upsample(ground_c, factor, R0, R1, C0, C1)
-            sigma = upsample(sigma_c, factor, R0, R1, C0, C1)
-            support = upsample(support_c, factor, R0, R1, C0, C1)
-        chm = canopy_height(surface, ground)
-        del surface, ground
-        chm[~valid] = np.nan
-        core = (slice(r0 - R0, r1 - R0), slice(c0 - C0, c1 - C0))
-        result.spools["chm"].put(r0, c0, chm[core])
-        if sigma is not None:
-            result.spools["chm_err"].put(r0, c0, sigma[core])
-            result.spools["ground_support"].put(r0, c0, support[core])
-        core_valid = valid[core] & np.isfinite(chm[core])
-        result.valid_pixels += int(np.count_nonzero(core_valid))
-        result.plant_pixels += int(np.count_nonzero(plants[core] & core_valid))
+        task = WindowTask(
+            sources.ortho.path, sources.dsm.path, dtm, transform, shape, result.factor, result.index,
+            result.threshold, (r0, r1, c0, c1), (R0, R1, C0, C1),
+        )  # fmt: skip
         if plots is not None:
             mine = np.flatnonzero(owner == k)
             if mine.size:
@@ -515,34 +621,41 @@ def _full_grid(sources, plots, window, result, ground_c, sigma_c, support_c, ste
                     (boxes[:, 2] >= C0) & (boxes[:, 0] <= C1) & (boxes[:, 3] >= R0) & (boxes[:, 1] <= R1)
                 )
                 touching = np.union1d(touching, mine)
-                local = PlotSet(
-                    [[ring - (C0, R0) for ring in pixel_rings[i]] for i in touching], [{}] * len(touching),
-                    (), None, plots.path,
-                )  # fmt: skip
-                labels = rasterize_plots(local, transform=np.eye(3), shape=chm.shape)
-                any_label = any_label or bool(labels.any())
-                subset = PlotSet(
-                    [plots.polygons[i] for i in touching], [plots.attributes[i] for i in touching],
-                    plots.fields, plots.crs, plots.path,
-                )  # fmt: skip
-                table = plot_table(
-                    subset,
-                    labels,
-                    mask=plants,
-                    heights=chm,
-                    pixel_area_m2=area,
-                    support=np.ones(chm.shape, np.float32) if support is None else support,
-                    sigma=np.zeros(chm.shape, np.float32) if sigma is None else sigma,
-                )
-                wanted = set(mine.tolist())
-                for i, row in zip(touching, table, strict=True):
-                    if i in wanted:
-                        row["plot"] = int(i)
-                        rows_out[i] = row
+                task.plot_ids, task.mine = touching, mine
+                task.pixel_rings = [[ring - (C0, R0) for ring in pixel_rings[i]] for i in touching]
+                task.polygons = [plots.polygons[i] for i in touching]
+                task.attributes = [plots.attributes[i] for i in touching]
+                task.fields, task.plots_path = plots.fields, plots.path
+        yield task
+
+
+def _full_grid(sources, plots, window, result, ground, step, client=None):
+    tasks = window_tasks(sources, plots, window, result)  # made as they are taken: plots stay single
+    count = len(windows(result.shape, window))
+    if client is None:
+        outputs = (measure_window(task, ground, sources=sources) for task in tasks)
+    else:
+        from .._dask import in_order
+
+        shared = None if ground is None else client.scatter(ground, broadcast=True)
+        ahead = max(2, len(client.scheduler_info().get("workers", {})) + 1)
+        outputs = in_order(client, measure_window, ((task, shared) for task in tasks), ahead=ahead)
+    rows_out = [None] * len(plots) if plots is not None else None
+    labelled = False
+    for k, out in enumerate(outputs):
+        r0, _, c0, _ = out["core"]
+        for name, spool in result.spools.items():
+            spool.put(r0, c0, out[name])
+        result.valid_pixels += out["valid_pixels"]
+        result.plant_pixels += out["plant_pixels"]
+        labelled = labelled or out["labelled"]
+        if rows_out is not None:
+            for i, row in out["rows"].items():
+                rows_out[i] = row
         result.windows += 1
-        step(0.45 + 0.5 * (k + 1) / len(parts), "canopy and plots")
+        step(0.45 + 0.5 * (k + 1) / count, "canopy and plots")
     if plots is not None:
-        if not any_label:
+        if not labelled:
             raise GeoreferenceError(
                 f"no plot of {plots.path!r} overlaps the orthophoto {sources.ortho.path!r}"
             )
