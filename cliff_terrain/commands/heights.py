@@ -29,6 +29,7 @@ from pathlib import Path
 from .. import settings
 from .._progress import add_progress_argument
 from ..params import add_option
+from .cluster_options import add_cluster_arguments
 from .index_options import add_index_arguments
 
 HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write the CHM and tables"
@@ -85,6 +86,24 @@ def configure(parser):
         metavar="GIB",
         help="refuse, before the work, a run estimated to need more memory than this (GiB; default 4)",
     )
+    parser.add_argument(
+        "--windowed",
+        action="store_true",
+        help="measure at full resolution window by window, in bounded memory (chm.tif and the plot "
+        "tables; no regions.csv); chosen by itself when the in-memory run would pass --max-memory",
+    )
+    parser.add_argument(
+        "--window",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="side of a window's core in pixels with --windowed (default 2048; the tables do not depend on it)",
+    )
+    add_cluster_arguments(
+        parser,
+        workers_help="with --windowed, spread the windows over a local Dask cluster of N worker "
+        "processes (default: this process; the tables do not depend on it)",
+    )
     add_progress_argument(parser)
     add_index_arguments(parser)
 
@@ -120,6 +139,7 @@ def run(args):
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..evaluate.views import json_safe
+    from ..figures.ruler_chart import plot_rows_ruler_figure
     from ..io.raster.geotiff import write_geotiff
     from ..io.vector.plot_polygons import read_plots
     from ..measure.canopy import relief_tables
@@ -160,6 +180,8 @@ def run(args):
             height_column=args.ruler_height,
             units=args.ruler_units,
         )
+    if _windowed(args):
+        return _run_windowed(args, outputs, plots, ruler)
     bands = requested_bands(args, args.ortho)  # and so does an index whose band the file lacks
     size = grid_size(args.ortho, resolution=args.resolution, max_size=args.max_size)
     check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
@@ -201,7 +223,9 @@ def run(args):
             tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs, overviews=True
         )
     if ruler_rows:
-        files[out / "ruler.png"] = lambda tmp: _ruler_chart(ruler_rows, ruler_record).save(tmp, format="PNG")
+        files[out / "ruler.png"] = lambda tmp: plot_rows_ruler_figure(ruler_rows, ruler_record).save(
+            tmp, format="PNG"
+        )
     figures = key_figures(relief)
     check = canopy.check or {}
     summary = {
@@ -247,21 +271,64 @@ def run(args):
     return 0
 
 
-def _ruler_chart(rows, record):
-    """ruler.png: the plots' DSM heights against the ruler's (:func:`~cliff_terrain.figures.ruler_chart.ruler_figure`)."""
-    import numpy as np
+def _windowed(args):
+    """Whether to measure window by window: asked for, or the in-memory run would pass the cap at the
+    orthophoto's own resolution (a coarser grid asked for with --max-size or --resolution is measured
+    in memory, or refused there with what fits)."""
+    from ..errors import CliffTerrainError
+    from .memory_estimate import check_heights_memory
 
-    from ..figures.ruler_chart import ruler_figure
+    if args.window is not None and not args.windowed:
+        raise CliffTerrainError(f"--window {args.window} needs --windowed")
+    if (args.workers or args.scheduler) and not args.windowed:
+        given = f"--workers {args.workers}" if args.workers else f"--scheduler {args.scheduler}"
+        raise CliffTerrainError(f"{given} spreads the windows of --windowed over a cluster: add --windowed")
+    if args.workers is not None and args.workers < 0:
+        raise CliffTerrainError(f"--workers must be 0 or more, got {args.workers}")
+    if args.windowed:
+        if args.max_size is not None or args.resolution is not None:
+            raise CliffTerrainError(
+                "--windowed measures at the orthophoto's own resolution; drop --max-size/--resolution"
+            )
+        return True
+    if args.max_size is not None or args.resolution is not None or args.indices or args.band_files:
+        return False
+    size = grid_size(args.ortho)
+    try:
+        check_heights_memory(args.ortho, (args.dsm, args.dtm), longest=size, cap_gib=args.max_memory)
+    except CliffTerrainError as refused:
+        from ..measure.windowed import WINDOW_PX
+        from .memory_estimate import windowed_plan
 
-    def column(name):
-        return np.array([float(r.get(name, "nan")) for r in rows])
+        try:  # without plots yet: their halo is added when the plan is made for the run
+            windowed_plan(args.ortho, (args.dsm, args.dtm), window_px=WINDOW_PX, cap_gib=args.max_memory)
+        except CliffTerrainError:
+            raise refused from None  # neither fits: the in-memory refusal says which grid would
+        return True
+    return False
 
-    calibrated = column("height_calibrated_m") if "calibration" in record else None
-    return ruler_figure(
-        column("height_p90_m"),
-        column("ruler_height_m"),
-        err=column("height_p90_err_m"),
-        agreement=record["height_p90_m"],
-        calibrated=calibrated,
-        calibration=record.get("calibration"),
+
+def _run_windowed(args, outputs, plots, ruler):
+    from .._validate import check_int
+    from ..io.raster.geotiff import read_georeference
+    from ..measure.window_tasks import window_halo
+    from ..measure.windowed import WINDOW_PX
+    from .heights_windowed import run_windowed
+    from .memory_estimate import windowed_plan
+
+    window = check_int("--window", args.window if args.window is not None else WINDOW_PX, minimum=64)
+    args.window = window
+    transform, _ = read_georeference(args.ortho)
+    halo = window_halo(plots, transform)
+    budget, estimate = windowed_plan(
+        args.ortho,
+        (args.dsm, args.dtm),
+        window_px=window + 2 * halo,
+        cap_gib=args.max_memory,
+        plots=0 if plots is None else len(plots),
+        workers=0 if args.scheduler else (args.workers or 0),
+    )
+    outputs = [n for n in outputs if not n.startswith("regions.")]
+    return run_windowed(
+        args, outputs=outputs, plots=plots, ruler=ruler, ground_pixels=budget, estimate_gib=estimate
     )

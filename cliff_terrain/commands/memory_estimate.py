@@ -81,3 +81,69 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
         f"{what}; use --max-size {fit} or --resolution {math.ceil(metres * 1000) / 1000:g} (metres per pixel), "
         "or raise --max-memory"
     )
+
+
+# The windowed path (:mod:`cliff_terrain.measure.windowed`), measured with bench/bench_scale.py. Its
+# two passes peak one after the other: the ground grid's (its photo, surface, soil and fit_ground;
+# fit_ground alone measured 0.35 GiB/MP), then one window's with its halo (photo, index, surface,
+# ground, CHM, plot labels) beside the coarse ground. The plots and their rows stay throughout.
+GROUND_GIB_PER_MP = 0.45
+WINDOW_GIB_PER_MP = 0.25
+PLOT_GIB = 4e-6  # per plot: its polygon, its pixel rings and its row (about 4 kB)
+#: The ground grid's largest budget (pixels), whatever the cap.
+MAX_GROUND_PIXELS = 16_000_000
+MIN_GROUND_PIXELS = 250_000
+
+
+def striped_gib(path):
+    """GiB a file decodes whole because it is striped (0 when tiled: it is read in windows)."""
+    from ..io.raster._tiff_window import TiffRaster
+
+    with TiffRaster(path) as tiff:
+        if tiff.tiled:
+            return 0.0
+        return tiff.shape[0] * tiff.shape[1] * tiff.samples * tiff.page.dtype.itemsize / 2**30
+
+
+def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0, workers=0):
+    """(ground grid budget in pixels, estimated peak GiB) of a windowed heights run under `cap_gib`.
+
+    `window_px` is the side of a window read with its halo; `others` are the DSM (and DTM);
+    `plots` the number of plots; `workers` the local Dask worker processes, each holding the
+    interpreter, the striped files, one window and its copy of the coarse ground (a remote
+    cluster's memory is its own: 0). The ground grid gets what the cap leaves after the interpreter,
+    the plots and the striped files decoded whole, up to :data:`MAX_GROUND_PIXELS`; below
+    :data:`MIN_GROUND_PIXELS` (or when one window does not fit) the run is refused, naming the
+    orthophoto and what to change.
+    """
+    from .._validate import check_float
+    from ..io.raster.geotiff import raster_size, read_georeference
+    from ..measure.windowed import ground_factor
+
+    cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
+    rows, cols = raster_size(ortho)
+    files = [ortho, *(p for p in others if p is not None)]
+    window_mp = min(window_px, rows) * min(window_px, cols) / 1e6
+    window_gib = WINDOW_GIB_PER_MP * window_mp
+    per_worker = BASE_GIB + sum(striped_gib(p) for p in files) + window_gib
+    fixed = BASE_GIB + PLOT_GIB * plots + sum(striped_gib(p) for p in files) + workers * per_worker
+    transform, _ = read_georeference(ortho)
+    pixel = math.hypot(*transform[:2, 0])
+    finest = ground_factor((rows, cols), pixel, ground_pixels=rows * cols)  # the 5 cm floor alone
+    needed = math.ceil(rows / finest) * math.ceil(cols / finest)
+    budget = max(10_000, min(MAX_GROUND_PIXELS, int((cap_gib - fixed) / GROUND_GIB_PER_MP * 1e6)))
+    if budget < min(MIN_GROUND_PIXELS, needed) or cap_gib <= fixed + window_gib:
+        least = fixed + max(window_gib, GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6)
+        raise CliffTerrainError(
+            f"measuring {str(ortho)!r} in windows needs about {least:.1f} GiB (one {window_px}-pixel window"
+            f"{f' here and in each of {workers} workers' if workers else ''}, the files that are striped "
+            f"decoded whole, and the ground's grid), more than the {cap_gib:g} GiB cap; raise --max-memory, "
+            f"lower --window{', use fewer --workers' if workers else ''}, or tile the striped files "
+            "(gdal_translate -co TILED=YES)"
+        )
+    factor = ground_factor((rows, cols), pixel, ground_pixels=budget)
+    grid = math.ceil(rows / factor) * math.ceil(cols / factor)
+    # The second pass keeps the coarse ground, its error and support (12 bytes a pixel), here and
+    # in each worker.
+    ground_copies = 12 * grid / 2**30 * workers
+    return budget, fixed + ground_copies + max(GROUND_GIB_PER_MP * grid / 1e6, window_gib + 12 * grid / 2**30)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from .._progress import add_progress_argument
 from ..params import add_option
+from .cluster_options import add_cluster_arguments
 from .index_options import add_index_arguments
 
 HELP = "per-plot growth over a season of dated orthophotos (cover, heights, volume), on Dask"
@@ -37,38 +38,10 @@ def configure(parser):
         help="surface models for measured heights: a folder (matched by date or name), "
         "a pattern with {stem}, or one file for one photo",
     )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="local Dask worker processes (default: this process for a small season, else one per "
-        "core); 0 runs serially in this process",
-    )
-    parser.add_argument(
-        "--scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="an existing Dask scheduler: tls://host:port with the --tls-* files, or tcp://host:port "
-        "on this machine (elsewhere only with --insecure)",
-    )
-    parser.add_argument(
-        "--tls-ca-file", default=None, metavar="PEM", help="CA that signed the cluster's certificates"
-    )
-    parser.add_argument("--tls-cert", default=None, metavar="PEM", help="this client's certificate")
-    parser.add_argument("--tls-key", default=None, metavar="PEM", help="this client's private key")
-    parser.add_argument(
-        "--insecure",
-        action="store_true",
-        help="join a plain-TCP scheduler on another machine (Dask unpickles what it receives: only on "
-        "a network you trust)",
-    )
-    parser.add_argument(
-        "--timeout", type=float, default=10.0, help="seconds to wait for --scheduler (default 10)"
-    )
-    parser.add_argument(
-        "--memory-limit",
-        default="auto",
-        help="memory per local worker, e.g. 2GiB (default: the machine's memory shared out)",
+    add_cluster_arguments(
+        parser,
+        workers_help="local Dask worker processes (default: this process for a small season, else one "
+        "per core); 0 runs serially in this process",
     )
     parser.add_argument(
         "--color-by", default=None, metavar="FIELD", help="plot attribute colouring the chart"
@@ -86,25 +59,13 @@ def configure(parser):
 
 
 def run(args):
-    from ..errors import CliffTerrainError
     from ..season.dates import parse_given_dates
     from ..season.plan import plan_season
     from ..season.runner import run_season
-    from ..season.security import scheduler_security
+    from .cluster_options import cluster_security
     from .out_folder import check_out_folder
 
-    security = None
-    if args.scheduler:  # checked before any work
-        security = scheduler_security(
-            args.scheduler,
-            ca_file=args.tls_ca_file,
-            cert=args.tls_cert,
-            key=args.tls_key,
-            insecure=args.insecure,
-        )
-    elif args.tls_ca_file or args.tls_cert or args.tls_key:
-        raise CliffTerrainError("--tls-ca-file, --tls-cert and --tls-key are for a tls:// --scheduler")
-
+    security = cluster_security(args)  # checked before any work
     check_out_folder(args.out)
     jobs, plot_set = plan_season(
         args.inputs,

@@ -111,3 +111,22 @@ def ruler_figure(ours, measured, *, err=None, agreement, calibrated=None, calibr
         draw.text((size * 0.04, size * 0.03 + font.size * 1.5), text, font=font, fill=CALIBRATED)
     draw.text((size * 0.04, size * 0.03 + font.size * 3.0), "black: 1:1", font=small, fill=INK)
     return image
+
+
+def plot_rows_ruler_figure(rows, record):
+    """ruler.png from a plot table's rows (``height_p90_m``, ``ruler_height_m``, ``height_p90_err_m``
+    and, calibrated, ``height_calibrated_m``) and the ruler's record
+    (:func:`cliff_terrain.measure.ruler.ruler_columns`): :func:`ruler_figure`."""
+
+    def column(name):
+        return np.array([float(r.get(name, "nan")) for r in rows])
+
+    calibrated = column("height_calibrated_m") if "calibration" in record else None
+    return ruler_figure(
+        column("height_p90_m"),
+        column("ruler_height_m"),
+        err=column("height_p90_err_m"),
+        agreement=record["height_p90_m"],
+        calibrated=calibrated,
+        calibration=record.get("calibration"),
+    )

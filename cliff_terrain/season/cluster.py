@@ -7,6 +7,7 @@ imported only when it is used.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from pathlib import Path
 
@@ -139,6 +140,27 @@ def run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, cl
 
     A given `client` is used as it is and left open (its owner closes it).
     """
+    if client is not None:
+        _submit(client, jobs, finished)
+        return
+    with dask_client(
+        workers=workers, scheduler=scheduler, timeout=timeout, memory_limit=memory_limit, security=security
+    ) as client:
+        _submit(client, jobs, finished)
+
+
+@contextlib.contextmanager
+def dask_client(*, workers=None, scheduler=None, timeout=10.0, memory_limit="auto", security=None):
+    """A ``distributed.Client`` of the scheduler at `scheduler` (with `security`), or of a local
+    cluster of `workers` processes (:func:`local_cluster`; default one per usable core), closed
+    with the cluster on leaving.
+
+    Raises
+    ------
+    CliffTerrainError
+        Dask is not installed, the scheduler cannot be reached within `timeout` seconds, or
+        `memory_limit` is not a size.
+    """
     try:
         from distributed import Client
     except ImportError:
@@ -147,9 +169,6 @@ def run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, cl
         ) from None
     cluster = None
     try:
-        if client is not None:
-            _submit(client, jobs, finished)
-            return
         if scheduler is not None:
             try:
                 client = Client(scheduler, timeout=timeout, set_as_default=False, security=security)
@@ -171,7 +190,7 @@ def run_on_dask(jobs, finished, *, workers, scheduler, timeout, memory_limit, cl
             cluster = local_cluster(n, memory_limit=memory_limit)
             client = Client(cluster, set_as_default=False)
         with client:
-            _submit(client, jobs, finished)
+            yield client
     finally:
         if cluster is not None:
             cluster.close()

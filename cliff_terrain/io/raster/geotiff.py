@@ -129,7 +129,7 @@ def read_surface(path):
     data = array.astype(np.float32, copy=True)
     invalid = ~np.isfinite(data)
     if nodata is not None:
-        invalid |= _is_nodata(array, nodata)
+        invalid |= is_nodata(array, nodata)
     data[invalid] = np.nan
     if invalid.all():
         raise RasterReadError(f"surface model {name!r} holds no data (every pixel is no-data)")
@@ -180,7 +180,7 @@ def photo_bands(array, name, *, nodata=None, planar=False):
         finite = np.all(np.isfinite(colour), axis=2)
         valid &= finite
         if nodata is not None:
-            valid &= ~np.all(_is_nodata(colour, nodata), axis=2)
+            valid &= ~np.all(is_nodata(colour, nodata), axis=2)
         # OpenDroneMap fills the area outside the flight with exact zeros in every band (no alpha).
         valid &= np.any(colour != 0, axis=2)
         values = colour[valid]
@@ -236,7 +236,7 @@ def raster_size(path):
     return tags["size"]
 
 
-def _is_nodata(array, nodata):
+def is_nodata(array, nodata):
     if math.isnan(nodata):
         return np.isnan(array)
     if array.dtype.kind == "f" and nodata < _FLOAT_NODATA_FLOOR:
@@ -314,7 +314,7 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
     if scale < 0.5:
         # The target is much coarser: average the source first so bilinear sampling does not alias.
         factor = max(1, int(1.0 / scale))
-        source = _block_mean(source, factor)
+        source = block_mean(source, factor)
         m = np.diag([1.0 / factor, 1.0 / factor, 1.0]) @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ m
         m[:2, 2] -= 0.5
     out = cv2.warpAffine(
@@ -328,7 +328,7 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
     return out
 
 
-def _block_mean(data, factor):
+def block_mean(data, factor):
     """Mean of factor x factor blocks, ignoring NaN (NaN where a block holds no data)."""
     rows, cols = data.shape
     pad = np.full(
@@ -341,6 +341,29 @@ def _block_mean(data, factor):
     counts = valid.sum(axis=(1, 3))
     with np.errstate(invalid="ignore", divide="ignore"):
         return (sums / counts).astype(np.float32)
+
+
+def geotiff_tags(transform, crs, *, nodata=None):
+    """tifffile ``extratags`` of a GeoTIFF's georeference (and GDAL_NODATA): what :func:`write_geotiff`
+    writes, and what :mod:`cliff_terrain.measure.windowed` writes window by window."""
+    t = as_affine(transform)
+    if t[0, 1] == 0.0 and t[1, 0] == 0.0 and t[0, 0] > 0 and t[1, 1] < 0:
+        geo = [
+            (MODEL_PIXEL_SCALE, 12, 3, (t[0, 0], -t[1, 1], 0.0), True),
+            (MODEL_TIEPOINT, 12, 6, (0.0, 0.0, 0.0, t[0, 2], t[1, 2], 0.0), True),
+        ]
+    else:
+        matrix = (t[0, 0], t[0, 1], 0.0, t[0, 2], t[1, 0], t[1, 1], 0.0, t[1, 2], 0, 0, 0, 0, 0, 0, 0, 1)
+        geo = [(MODEL_TRANSFORMATION, 12, 16, tuple(float(v) for v in matrix), True)]
+    if isinstance(crs, UserCrs):
+        keys, doubles, text = user_geokeys(crs)
+        geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
+    else:
+        keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
+    extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
+    if nodata is not None:
+        extratags.append((GDAL_NODATA, 2, 0, ("nan" if math.isnan(nodata) else repr(float(nodata))), True))
+    return extratags
 
 
 def write_geotiff(path, data, *, transform, crs, nodata=None, overviews=False):
@@ -360,24 +383,8 @@ def write_geotiff(path, data, *, transform, crs, nodata=None, overviews=False):
     """
     import tifffile
 
-    t = as_affine(transform)
     data = np.asarray(data)
-    if t[0, 1] == 0.0 and t[1, 0] == 0.0 and t[0, 0] > 0 and t[1, 1] < 0:
-        geo = [
-            (MODEL_PIXEL_SCALE, 12, 3, (t[0, 0], -t[1, 1], 0.0), True),
-            (MODEL_TIEPOINT, 12, 6, (0.0, 0.0, 0.0, t[0, 2], t[1, 2], 0.0), True),
-        ]
-    else:
-        matrix = (t[0, 0], t[0, 1], 0.0, t[0, 2], t[1, 0], t[1, 1], 0.0, t[1, 2], 0, 0, 0, 0, 0, 0, 0, 1)
-        geo = [(MODEL_TRANSFORMATION, 12, 16, tuple(float(v) for v in matrix), True)]
-    if isinstance(crs, UserCrs):
-        keys, doubles, text = user_geokeys(crs)
-        geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
-    else:
-        keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
-    extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
-    if nodata is not None:
-        extratags.append((GDAL_NODATA, 2, 0, ("nan" if math.isnan(nodata) else repr(float(nodata))), True))
+    extratags = geotiff_tags(transform, crs, nodata=nodata)
     path = os.fspath(path)
     tmp = f"{path}.part-{os.getpid()}"
     try:
@@ -405,7 +412,7 @@ def _write_tiled_with_overviews(path, data, extratags):
         level = data
         while max(level.shape[:2]) > COG_TILE:
             level = (
-                _block_mean(level.astype(np.float32), 2).astype(data.dtype)
+                block_mean(level.astype(np.float32), 2).astype(data.dtype)
                 if data.dtype.kind == "f"
                 else level[::2, ::2]
             )

@@ -1,0 +1,167 @@
+"""``cliff-terrain heights --windowed``: the heights of an orthophoto of any size, window by window.
+
+:func:`run_windowed` is what :mod:`.heights` runs with ``--windowed``, or by itself when the
+in-memory run would pass ``--max-memory`` and neither ``--max-size`` nor ``--resolution`` asks for
+a coarser grid (:mod:`cliff_terrain.measure.windowed`): full resolution, the ground on a grid that
+fits the cap, the plot table exact. It writes ``chm.tif``, ``chm_err.tif`` and
+``ground_support.tif`` (tiled, Deflate, overviews, written window by window), with ``--plots``
+``plots.csv`` and ``plots.geojson`` (the in-memory run's columns), with ``--ruler`` its columns and
+``ruler.png``, and ``summary.json`` (``"windowed"``: the window, the ground grid's pixel and
+factor). It writes no ``regions.csv``: the plants' regions come from the in-memory segmentation's
+watershed. ``--indices`` and ``--band-files`` are refused (they read the bands whole).
+"""
+
+from __future__ import annotations
+
+
+def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib):
+    import contextlib
+    import json
+    import shutil
+    import tempfile
+
+    from .._progress import stage_bar
+    from ..errors import CliffTerrainError
+    from ..evaluate.views import json_safe
+    from ..io.vector.geojson import polygon_geometries, table_geojson
+    from ..measure.field_plots import check_plot_crs, table_columns
+    from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, table_csv, write_files
+    from ..measure.windowed import WINDOW_PX, measure_windowed
+    from .cluster_options import cluster_security
+
+    if getattr(args, "indices", None) or getattr(args, "band_files", None):
+        raise CliffTerrainError(
+            f"--indices and --band-files read the bands of {str(args.ortho)!r} whole; measure them without "
+            "--windowed (with --max-size or --resolution)"
+        )
+    security = cluster_security(args)  # checked before any work
+    out = args.out
+    window = getattr(args, "window", None) or WINDOW_PX
+    if plots is not None:
+        from ..io.raster.geotiff import read_georeference
+
+        check_plot_crs(plots, read_georeference(args.ortho)[1], raster=str(args.ortho))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        spool = tempfile.mkdtemp(prefix=".windows-", dir=out)
+    except OSError as exc:
+        raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
+    cluster = None
+    if args.scheduler or args.workers:
+        from ..season.cluster import dask_client
+
+        cluster = dask_client(
+            workers=args.workers,
+            scheduler=args.scheduler,
+            timeout=args.timeout,
+            memory_limit=args.memory_limit,
+            security=security,
+        )
+    try:
+        with contextlib.ExitStack() as stack:
+            client = None if cluster is None else stack.enter_context(cluster)
+            progress = stack.enter_context(
+                stage_bar(f"heights {args.ortho.name} (windowed)", enabled=not args.no_progress)
+            )
+            result = measure_windowed(
+                args.ortho,
+                args.dsm,
+                dtm=args.dtm,
+                plots=plots,
+                folder=spool,
+                block_m=args.ground_block,
+                ground_method=args.ground_method,
+                window=window,
+                ground_pixels=ground_pixels,
+                progress=progress,
+                client=client,
+            )
+        try:
+            files, summary, ruler_columns, ruler_record = _files(args, result, ruler, window, estimate_gib)
+            rows = result.rows
+            if plots is not None:
+                columns = table_columns(plots, support=True, sigma=True)
+                columns[-1:-1] = ruler_columns
+                files[out / PLOTS_CSV] = table_csv(rows, columns)
+                files[out / PLOTS_GEOJSON] = table_geojson(rows, polygon_geometries(plots), crs=result.crs)
+            files[out / "summary.json"] = json.dumps(json_safe(summary), indent=2) + "\n"
+            order = {out / name: i for i, name in enumerate(outputs)}
+            files = dict(sorted(files.items(), key=lambda item: order.get(item[0], -1)))
+            write_files(files)
+        except OSError as exc:
+            raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
+        finally:
+            result.close()
+    finally:
+        shutil.rmtree(spool, ignore_errors=True)
+    check = result.check or {}
+    ground = result.ground_source
+    if check:
+        error = check["candidates"][check["method"]]["error_m"] * 100
+        ground += f" ({check['method']} on a {result.pixel_size * result.factor:.3g} m grid, held-out bare soil within {error:.1f} cm)"
+    measured = ""
+    if rows is not None:
+        import numpy as np
+
+        p90 = np.array([r["height_p90_m"] for r in rows], float)
+        ok = np.isfinite(p90)
+        if ok.any():
+            measured = f", {int(ok.sum())} of {len(rows)} plots with a height, median p90 {np.median(p90[ok]) * 100:.1f} cm"
+    against = ""
+    if ruler_record and ruler_record["height_p90_m"]["r"] is not None:
+        a = ruler_record["height_p90_m"]
+        against = f"; against the ruler ({a['n']} plots) r {a['r']:.2f}, RMSE {a['rmse_m'] * 100:.1f} cm"
+    print(
+        f"{args.ortho}: windowed ({result.windows} windows), ground {ground}, cover "
+        f"{result.plant_pixels / max(1, result.valid_pixels):.1%}{measured}{against}; wrote {', '.join(outputs)} into {out}"
+    )
+    return 0
+
+
+def _files(args, result, ruler, window, estimate_gib):
+    """({path: writer} of the rasters and ruler.png, the summary, the ruler's columns and record)."""
+    out = args.out
+    nan = float("nan")
+    files = {}
+    for name, spool in result.spools.items():
+        nodata = nan if name == "chm" else None
+
+        def write(tmp, spool=spool, nodata=nodata):
+            spool.write_geotiff(tmp, transform=result.transform, crs=result.crs, nodata=nodata)
+
+        files[out / f"{name}.tif"] = write
+    ruler_columns, ruler_record = [], {}
+    if ruler is not None and result.rows is not None:
+        from ..figures.ruler_chart import plot_rows_ruler_figure
+        from ..measure.ruler import ruler_columns as ruler_table
+
+        ruler_columns, ruler_record = ruler_table(result.rows, ruler, calibrate_heights=args.calibrate)
+        files[out / "ruler.png"] = lambda tmp: plot_rows_ruler_figure(result.rows, ruler_record).save(
+            tmp, format="PNG"
+        )
+    check = result.check or {}
+    rows, cols = result.shape
+    summary = {
+        "cover": result.plant_pixels / max(1, result.valid_pixels),
+        "plots": None if result.rows is None else len(result.rows),
+        "ground": result.ground_source,
+        "ground_method": check.get("method"),
+        "ground_support": check.get("support_where_guessed"),
+        "ground_check": check or None,
+        "ruler": ruler_record or None,
+        "threshold": {"index": result.index, "threshold": result.threshold, "source": "photo (ground grid)"},
+        "grid": {"rows": rows, "cols": cols, "pixel_size_m": result.pixel_size},
+        "windowed": {
+            "window_px": window,
+            "windows": result.windows,
+            "ground_grid_factor": result.factor,
+            "ground_grid_pixel_m": result.pixel_size * result.factor,
+            "memory_estimate_gib": estimate_gib,
+        },
+        "crs": result.crs if isinstance(result.crs, int) else None,
+        "crs_wkt": getattr(result.crs, "wkt", None),
+        "ortho": str(args.ortho),
+        "dsm": str(args.dsm),
+        "dtm": None if args.dtm is None else str(args.dtm),
+    }
+    return files, summary, ruler_columns, ruler_record

@@ -1,0 +1,278 @@
+"""The windows of :mod:`cliff_terrain.measure.windowed` as self-contained tasks: what one window
+needs, picklable, so that the same function runs in this process or on a Dask worker.
+
+- :class:`CoarseTask` / :func:`coarse_window`: the first pass, one window of the orthophoto and
+  its DSM reduced to the ground grid.
+- :class:`WindowTask` / :func:`measure_window`: the second pass, one window's CHM, its error and
+  support at full resolution, and the rows of the plots whose centre it holds.
+
+A task names its files by path: a cluster's workers must see them at the same paths (a shared
+disk), as a season's dates. Each worker thread keeps its readers open from one task to the next
+(:func:`worker_sources`): a striped DSM is decoded whole once per worker, not once per window.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..io.raster.transform import affine_inverse, apply_affine
+from .ground import canopy_height
+from .window_reading import BLUR_REACH, WindowSources, reduce_blocks, upsample, windows
+
+_LOCAL = threading.local()
+
+
+def worker_sources(ortho, dsm, dtm):
+    """This thread's open :class:`~cliff_terrain.measure.window_reading.WindowSources` of the three
+    files, reopened when a path, size or modification time changes (the previous ones closed)."""
+
+    def stamp(path):
+        if path is None:
+            return None
+        s = os.stat(path)
+        return (str(path), s.st_size, s.st_mtime_ns)
+
+    key = (stamp(ortho), stamp(dsm), stamp(dtm))
+    held = getattr(_LOCAL, "sources", None)
+    if held is None or held[0] != key:
+        if held is not None:
+            held[1].close()
+        _LOCAL.sources = None
+        _LOCAL.sources = (key, WindowSources(ortho, dsm, dtm))
+    return _LOCAL.sources[1]
+
+
+def close_worker_sources():
+    """Close this thread's readers (:func:`worker_sources`)."""
+    held = getattr(_LOCAL, "sources", None)
+    if held is not None:
+        held[1].close()
+        _LOCAL.sources = None
+
+
+@dataclass
+class CoarseTask:
+    """One window of the first pass (picklable: :func:`coarse_window`)."""
+
+    ortho: str
+    dsm: str
+    transform: np.ndarray
+    shape: tuple
+    factor: int
+    index: str
+    threshold: float
+    core: tuple  # (r0, r1, c0, c1), multiples of factor but at the grid's end
+
+
+def coarse_window(task, *, sources=None):
+    """`task`'s window reduced to the ground grid: ``{"at": (row, col), "rgb", "valid", "dsm"}``.
+
+    With ``factor`` 1 the grid is the orthophoto's own. Otherwise each ``factor`` x ``factor`` block
+    gives the mean of its pixels with data or, when most of them are not plants (the blurred index
+    at or below the threshold), of those only, so that the plants in a block lift neither the soil
+    it shows nor tint its colour; a block has data when most of its pixels have (the in-memory
+    grid's nearest pixel).
+    """
+    from ..photo_heights.vegetation import blurred_index
+
+    if sources is None:
+        sources = worker_sources(task.ortho, task.dsm, None)
+    factor, shape = task.factor, task.shape
+    r0, r1, c0, c1 = task.core
+    surface = sources.dsm.on_grid(task.transform, r0, r1, c0, c1)
+    at = (r0 // factor, c0 // factor)
+    if factor == 1:
+        rgb, valid = sources.photo(r0, r1, c0, c1)
+        return {"at": at, "rgb": rgb, "valid": valid, "dsm": np.where(valid, surface, np.float32(np.nan))}
+    reach = BLUR_REACH + 2
+    R0, R1 = max(0, r0 - reach), min(shape[0], r1 + reach)
+    C0, C1 = max(0, c0 - reach), min(shape[1], c1 + reach)
+    rgb, valid = sources.photo(R0, R1, C0, C1)
+    vi, _ = blurred_index(rgb, index=task.index)
+    core = (slice(r0 - R0, r1 - R0), slice(c0 - C0, c1 - C0))
+    rgb, valid, vi = rgb[core], valid[core], vi[core]
+    bare = valid & (vi <= task.threshold)
+    del vi
+    colour, counts = reduce_blocks(rgb, factor, valid)
+    colour_bare, n_bare = reduce_blocks(rgb, factor, bare)
+    mostly_bare = n_bare * 2 > counts
+    colour = np.where(mostly_bare[..., None], colour_bare, colour)
+    heights, _ = reduce_blocks(surface, factor, valid & np.isfinite(surface))
+    heights_bare, _ = reduce_blocks(surface, factor, bare & np.isfinite(surface))
+    heights = np.where(mostly_bare & np.isfinite(heights_bare), heights_bare, heights)
+    return {
+        "at": at,
+        "rgb": np.clip(np.nan_to_num(colour) + 0.5, 0, 255).astype(np.uint8),
+        "valid": counts * 2 > factor * factor,
+        "dsm": heights.astype(np.float32),
+    }
+
+
+def coarse_tasks(sources, shape, transform, factor, index, threshold, window):
+    """The first pass's :class:`CoarseTask` s, row-major, each about `window` pixels a side."""
+    side = max(factor, window // factor * factor)
+    return [
+        CoarseTask(sources.ortho.path, sources.dsm.path, transform, shape, factor, index, threshold, core)
+        for core in windows(shape, side)
+    ]
+
+
+def _plot_boxes(plots, transform):
+    """Each plot's rings in global pixel coordinates and its bounding box (c0, r0, c1, r1), pixels."""
+    inverse = affine_inverse(transform)
+    rings = [[apply_affine(inverse, ring) for ring in polygon] for polygon in plots.polygons]
+    boxes = np.array(
+        [
+            (*np.concatenate(r).min(axis=0), *np.concatenate(r).max(axis=0)) if r else (np.nan,) * 4
+            for r in rings
+        ],
+        np.float64,
+    ).reshape(-1, 4)
+    return rings, boxes
+
+
+def window_halo(plots, transform):
+    """Pixels a window is read beyond its core: the blur's reach, and half the largest plot's extent
+    (each plot belongs to the window holding its centre, so it lies whole in the window read)."""
+    halo = BLUR_REACH + 2
+    if plots is None or not len(plots):
+        return halo
+    _, boxes = _plot_boxes(plots, transform)
+    extent = np.nan_to_num(np.maximum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]))
+    return halo + math.ceil(float(extent.max(initial=0.0)) / 2) + 1
+
+
+@dataclass
+class WindowTask:
+    """One window of the second pass: everything it needs but the coarse ground (picklable, so a
+    Dask worker can run it: :func:`measure_window`)."""
+
+    ortho: str
+    dsm: str
+    dtm: str | None
+    transform: np.ndarray
+    shape: tuple
+    factor: int
+    index: str
+    threshold: float
+    core: tuple  # (r0, r1, c0, c1)
+    read: tuple  # (R0, R1, C0, C1): the core and its halo, inside the grid
+    # The plots touching the window (file order), in pixels of the window read, and in map units.
+    plot_ids: np.ndarray | None = None
+    pixel_rings: list | None = None
+    polygons: list | None = None
+    attributes: list | None = None
+    fields: tuple = ()
+    plots_path: str = ""
+    mine: np.ndarray | None = None  # the plots whose centre the core holds
+
+
+def measure_window(task, ground=None, *, sources=None):
+    """The CHM, its error and support on `task`'s core, and the rows of the plots it owns.
+
+    `ground` is ``(ground, sigma, support)`` on the coarse grid, or None with a terrain model.
+    `sources` (open readers) default to this thread's readers of `task`'s files (:func:`worker_sources`). Returns a dict: ``core``, the
+    rasters ``chm``, ``chm_err``, ``ground_support`` (the latter two without a DTM) on the core,
+    ``rows`` {plot index: row}, ``valid_pixels``, ``plant_pixels`` and ``labelled`` (a plot
+    pixel was burnt).
+    """
+    from ..io.vector.plot_polygons import PlotSet
+    from ..photo_heights.vegetation import blurred_index
+    from .field_plots import plot_table, rasterize_plots
+
+    if sources is None:
+        sources = worker_sources(task.ortho, task.dsm, task.dtm)
+    r0, r1, c0, c1 = task.core
+    R0, R1, C0, C1 = task.read
+    transform, factor = task.transform, task.factor
+    rgb, valid = sources.photo(R0, R1, C0, C1)
+    vi, _ = blurred_index(rgb, index=task.index)
+    del rgb
+    plants = (vi > task.threshold) & valid
+    del vi
+    surface = sources.dsm.on_grid(transform, R0, R1, C0, C1)
+    if ground is None:
+        heights = sources.dtm.on_grid(transform, R0, R1, C0, C1)
+        sigma = support = None
+    else:
+        heights = upsample(ground[0], factor, R0, R1, C0, C1)
+        sigma = upsample(ground[1], factor, R0, R1, C0, C1)
+        support = upsample(ground[2], factor, R0, R1, C0, C1)
+    chm = canopy_height(surface, heights)
+    del surface, heights
+    chm[~valid] = np.nan
+    core = (slice(r0 - R0, r1 - R0), slice(c0 - C0, c1 - C0))
+    core_valid = valid[core] & np.isfinite(chm[core])
+    out = {
+        "core": task.core,
+        "chm": chm[core].copy(),
+        "valid_pixels": int(np.count_nonzero(core_valid)),
+        "plant_pixels": int(np.count_nonzero(plants[core] & core_valid)),
+        "rows": {},
+        "labelled": False,
+    }
+    if sigma is not None:
+        out["chm_err"], out["ground_support"] = sigma[core].copy(), support[core].copy()
+    if task.mine is not None and task.mine.size:
+        n = len(task.plot_ids)
+        local = PlotSet(task.pixel_rings, [{}] * n, (), None, task.plots_path)
+        labels = rasterize_plots(local, transform=np.eye(3), shape=chm.shape)
+        out["labelled"] = bool(labels.any())
+        subset = PlotSet(task.polygons, task.attributes, task.fields, None, task.plots_path)
+        table = plot_table(
+            subset,
+            labels,
+            mask=plants,
+            heights=chm,
+            pixel_area_m2=float(abs(np.linalg.det(transform[:2, :2]))),
+            support=np.ones(chm.shape, np.float32) if support is None else support,
+            sigma=np.zeros(chm.shape, np.float32) if sigma is None else sigma,
+        )
+        wanted = set(task.mine.tolist())
+        for i, row in zip(task.plot_ids.tolist(), table, strict=True):
+            if i in wanted:
+                row["plot"] = i
+                out["rows"][i] = row
+    return out
+
+
+def window_tasks(sources, plots, window, result):
+    """The second pass's :class:`WindowTask` s, row-major."""
+    transform, shape = result.transform, result.shape
+    rows, cols = shape
+    halo = window_halo(plots, transform)
+    if plots is not None:
+        pixel_rings, boxes = _plot_boxes(plots, transform)
+        # Each plot to the window holding its centre (clipped to the grid: a plot outside it
+        # measures nothing, as on the whole grid).
+        centre_r = np.clip(np.nan_to_num((boxes[:, 1] + boxes[:, 3]) / 2), 0, rows - 1)
+        centre_c = np.clip(np.nan_to_num((boxes[:, 0] + boxes[:, 2]) / 2), 0, cols - 1)
+        across = -(-cols // window)
+        owner = (centre_r // window).astype(np.int64) * across + (centre_c // window).astype(np.int64)
+    dtm = None if sources.dtm is None else sources.dtm.path
+    for k, (r0, r1, c0, c1) in enumerate(windows(shape, window)):
+        R0, R1 = max(0, r0 - halo), min(rows, r1 + halo)
+        C0, C1 = max(0, c0 - halo), min(cols, c1 + halo)
+        task = WindowTask(
+            sources.ortho.path, sources.dsm.path, dtm, transform, shape, result.factor, result.index,
+            result.threshold, (r0, r1, c0, c1), (R0, R1, C0, C1),
+        )  # fmt: skip
+        if plots is not None:
+            mine = np.flatnonzero(owner == k)
+            if mine.size:
+                # Every plot touching the window, in file order: overlaps resolve as on the whole grid.
+                touching = np.flatnonzero(
+                    (boxes[:, 2] >= C0) & (boxes[:, 0] <= C1) & (boxes[:, 3] >= R0) & (boxes[:, 1] <= R1)
+                )
+                touching = np.union1d(touching, mine)
+                task.plot_ids, task.mine = touching, mine
+                task.pixel_rings = [[ring - (C0, R0) for ring in pixel_rings[i]] for i in touching]
+                task.polygons = [plots.polygons[i] for i in touching]
+                task.attributes = [plots.attributes[i] for i in touching]
+                task.fields, task.plots_path = plots.fields, plots.path
+        yield task

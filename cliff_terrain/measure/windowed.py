@@ -1,0 +1,300 @@
+"""Canopy height and plot tables of a whole trial in bounded memory: the orthophoto read in windows.
+
+A breeding trial's orthophoto has 100 MP to 1 GP and 100 000 plots; :func:`measure_canopy` on the
+whole grid needs about 0.4 GiB per megapixel. :func:`measure_windowed` needs the same per megapixel
+of a bounded *ground grid* plus one window, whatever the orthophoto's size:
+
+1. **The ground, on a coarse grid.** The orthophoto and the DSM (resampled bilinearly onto the
+   orthophoto's pixels, as :func:`cliff_terrain.io.raster.geotiff.resample` does) are read window by window
+   and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, and no finer
+   than `GROUND_PIXEL_M` (5 cm: the ground's finest detail is a Gaussian of 0.15 m): each
+   `factor` x `factor` block gives the mean of its pixels with data or, when most of them are not
+   plants, of those only, so that the plants in a block lift neither the soil it shows nor tint its
+   colour. Plants are the blurred vegetation index above the photo's threshold
+   (:func:`cliff_terrain.photo_heights.vegetation.photo_threshold`), taken on an overview of the whole
+   orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size). On the
+   coarse grid the bare soil (:func:`~cliff_terrain.photo_heights.vegetation.bare_soil`, at that
+   threshold) is taken as :func:`cliff_terrain.measure.canopy.measure_orthophoto` takes it, and
+   :func:`cliff_terrain.measure.ground.fit_ground` fits and checks the ground (its held-out check,
+   standard error and support) unchanged.
+2. **The canopy, at full resolution.** Each window's DSM minus the ground bilinearly upsampled from
+   the coarse grid (pixel centres aligned: full pixel ``i`` lies at coarse ``(i + 0.5) / factor -
+   0.5``, held flat beyond the outer centres) is the CHM; it, the ground's standard error and its
+   support are spooled window by window into tiled, Deflate GeoTIFFs with overviews
+   (:mod:`cliff_terrain.io.raster.geotiff_stream`). Plants are the blurred index above the same threshold
+   (the rule of :func:`~cliff_terrain.measure.canopy.plant_mask`).
+3. **Plots, exactly.** Each plot belongs to the window holding its centre; windows are read with a
+   halo of half the largest plot's extent (plus the blur's reach), so every plot lies whole in its
+   window and :func:`cliff_terrain.measure.field_plots.plot_table` takes all its pixels: the
+   percentiles are not approximated. Every plot that touches a window is burnt into it in file
+   order, so overlapping plots resolve as on the whole grid.
+
+Every pixel's value is computed from global pixel coordinates (bilinear weights, the index's blur
+inside the halo), so the tables and rasters do not depend on the window size: small windows give
+exactly what one window over the whole orthophoto gives (tested). They differ from the in-memory
+path's where the grids differ: the ground's grid (coarser on a big field), and the plants (the
+photo's threshold here, the segmentation's watershed there).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._dask import in_order
+from .._validate import check_float, check_int
+from ..errors import GeoreferenceError
+from .ground import DEFAULT_BLOCK_M, fit_ground
+from .window_reading import WindowSources, windows
+from .window_tasks import coarse_tasks, coarse_window, measure_window, window_tasks
+
+#: The ground grid's finest pixel (metres): the ground's finest detail is a Gaussian of 0.15 m.
+GROUND_PIXEL_M = 0.05
+#: Default side (pixels) of a window's core; a multiple of the output's 512-pixel tiles.
+WINDOW_PX = 2048
+#: Default budget of the ground grid (pixels); :mod:`cliff_terrain.commands.memory_estimate` sets
+#: it from ``--max-memory``.
+GROUND_PIXELS = 6_000_000
+
+
+@dataclass
+class WindowedCanopy:
+    """What :func:`measure_windowed` measured (the rasters are in ``spools``, on disk).
+
+    Attributes
+    ----------
+    transform : (3, 3) float64
+        The orthophoto's grid (pixel -> map).
+    crs : int or UserCrs
+    shape : (int, int)
+        (rows, cols) of the grid.
+    pixel_size : float
+        Metres per pixel (mean of x and y).
+    ground_source : {"dtm", "estimated"}
+    factor : int
+        Orthophoto pixels per ground-grid pixel (along each axis).
+    threshold : float
+        The plant/soil threshold of the vegetation index (``index``).
+    index : str
+    check : dict or None
+        The ground's held-out check (:func:`cliff_terrain.measure.ground.fit_ground`).
+    rows : list of dict or None
+        The plot table, as :func:`cliff_terrain.measure.field_plots.plot_table` gives it.
+    spools : dict
+        Raster name (``"chm"``, ``"chm_err"``, ``"ground_support"``) ->
+        :class:`~cliff_terrain.io.raster.geotiff_stream.RasterSpool`.
+    windows : int
+        Number of windows measured.
+    """
+
+    transform: np.ndarray
+    crs: object
+    shape: tuple
+    pixel_size: float
+    ground_source: str
+    factor: int
+    threshold: float
+    index: str
+    check: dict | None = None
+    rows: list | None = None
+    spools: dict = field(default_factory=dict)
+    windows: int = 0
+    plant_pixels: int = 0
+    valid_pixels: int = 0
+
+    def close(self):
+        """Remove the spooled rasters."""
+        for spool in self.spools.values():
+            spool.close()
+
+
+def ground_factor(shape, pixel_size, *, ground_pixels=GROUND_PIXELS):
+    """Orthophoto pixels per ground-grid pixel: the grid within `ground_pixels`, no finer than 5 cm.
+
+    Examples
+    --------
+    >>> ground_factor((20000, 20000), 0.01, ground_pixels=8_000_000)   # 400 MP at 1 cm: 8 cm
+    8
+    >>> ground_factor((535, 550), 0.2)                                 # a small field: its own grid
+    1
+    """
+    rows, cols = shape
+    by_detail = max(1, math.floor(GROUND_PIXEL_M / pixel_size + 1e-9))
+    by_budget = max(1, math.ceil(math.sqrt(rows * cols / ground_pixels)))
+    factor = max(by_detail, by_budget)
+    while math.ceil(rows / factor) * math.ceil(cols / factor) > ground_pixels:
+        factor += 1
+    return factor
+
+
+def measure_windowed(
+    ortho,
+    dsm,
+    *,
+    dtm=None,
+    plots=None,
+    folder,
+    block_m=DEFAULT_BLOCK_M,
+    ground_method="auto",
+    window=WINDOW_PX,
+    ground_pixels=GROUND_PIXELS,
+    progress=None,
+    client=None,
+):
+    """Measure an orthophoto of any size window by window: ground, CHM rasters and plot table.
+
+    Parameters
+    ----------
+    ortho : path
+        The orthophoto GeoTIFF (tiled, or striped up to
+        :data:`cliff_terrain.io.raster.mosaic.MAX_STRIPED_PIXELS`).
+    dsm : path
+        Its surface model GeoTIFF (same CRS, north-up; any grid).
+    dtm : path, optional
+        A terrain model: the ground, instead of estimating it.
+    plots : PlotSet, optional
+        Plot polygons in the orthophoto's CRS: adds :attr:`WindowedCanopy.rows`.
+    folder : path
+        Where the rasters are spooled (about 4 bytes per pixel each) until written.
+    block_m : float, optional
+        The ground's block (:func:`cliff_terrain.measure.ground.fit_ground`).
+    ground_method : {"auto", "baseline", "smooth", "detailed"}, optional
+    window : int, optional
+        Side of a window's core in pixels (the tables do not depend on it).
+    ground_pixels : int, optional
+        Budget of the ground grid (:func:`ground_factor`).
+    progress : callable, optional
+        ``progress(fraction, stage)``.
+    client : distributed.Client, optional
+        Spread the second pass's windows over a Dask cluster (:func:`measure_window` as tasks,
+        the coarse ground scattered to every worker once); the results are the same.
+
+    Returns
+    -------
+    WindowedCanopy
+        Its rasters stay spooled in `folder` until :meth:`WindowedCanopy.close`.
+
+    Raises
+    ------
+    GeoreferenceError
+        CRSs differ, a raster is rotated, or no plot overlaps the orthophoto.
+    GroundError
+        The ground cannot be estimated (:func:`~cliff_terrain.measure.ground.fit_ground`).
+    """
+    window = check_int("window", window, minimum=16)
+    ground_pixels = check_int("ground_pixels", ground_pixels, minimum=10_000)
+    block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
+    step = progress or (lambda fraction, stage: None)
+    sources = WindowSources(ortho, dsm, dtm)
+    try:
+        return _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, client)
+    finally:
+        sources.close()
+
+
+def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, client):
+    from ..io.raster.geotiff_stream import RasterSpool
+    from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold
+
+    transform = sources.ortho.transform
+    shape = sources.ortho.shape
+    pixel_size = float(np.mean([np.hypot(*transform[:2, 0]), np.hypot(*transform[:2, 1])]))
+    name = sources.ortho.path
+    factor = ground_factor(shape, pixel_size, ground_pixels=ground_pixels)
+
+    # 0. The plant/soil threshold, on an overview of the whole photo (every step-th pixel, <= 4 MP).
+    overview, valid_o, _ = sources.ortho.overview()
+    vi_o, index = blurred_index(overview)
+    threshold = float(photo_threshold(vi_o, overview, index=index, valid=valid_o).threshold)
+    del overview, valid_o, vi_o
+
+    # 1. The coarse grid: photo, its valid pixels and the surface, reduced window by window
+    # (:func:`~.window_tasks.coarse_window`, here or on the cluster's workers).
+    rows_c, cols_c = -(-shape[0] // factor), -(-shape[1] // factor)
+    rgb_c = np.zeros((rows_c, cols_c, 3), np.uint8)
+    valid_c = np.zeros((rows_c, cols_c), bool)
+    dsm_c = np.full((rows_c, cols_c), np.nan, np.float32)
+    parts = coarse_tasks(sources, shape, transform, factor, index, threshold, window)
+    if client is None:
+        blocks = (coarse_window(task, sources=sources) for task in parts)
+    else:
+        blocks = in_order(client, coarse_window, ((task,) for task in parts), ahead=_ahead(client))
+    for k, block in enumerate(blocks):
+        cr, cc = block["at"]
+        n_r, n_c = block["valid"].shape
+        where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
+        rgb_c[where], valid_c[where], dsm_c[where] = block["rgb"], block["valid"], block["dsm"]
+        step(0.4 * (k + 1) / len(parts), "ground grid")
+    has_data = valid_c & np.isfinite(dsm_c)
+    if not has_data.any():
+        raise GeoreferenceError(f"{sources.dsm.path!r} has no data where it overlaps {name!r}")
+    plant_c = valid_c  # for the summary's cover, replaced by the full grid's below
+    ground_c = support_c = sigma_c = None
+    check = None
+    if sources.dtm is None:
+        soil_c = bare_soil(rgb_c, valid=valid_c, index=index, threshold=threshold)
+        del rgb_c
+        step(0.45, "ground")
+        fit = fit_ground(
+            np.where(has_data, dsm_c, np.float32(np.nan)),
+            soil=soil_c & has_data,
+            pixel_size=pixel_size * factor,
+            block_m=block_m,
+            method=ground_method,
+            source=f"{sources.dsm.path!r} over {name!r}",
+        )
+        ground_c, support_c, sigma_c, check = fit.ground, fit.support, fit.sigma, fit.check
+        del fit, soil_c
+    del dsm_c, has_data, plant_c, valid_c
+
+    # 2. and 3. The full grid, window by window: CHM, its error and support, and the plots.
+    result = WindowedCanopy(
+        transform, sources.ortho.crs, shape, pixel_size, "dtm" if sources.dtm else "estimated",
+        factor, threshold, index, check,
+    )  # fmt: skip
+    names = ["chm"] + (["chm_err", "ground_support"] if ground_c is not None else [])
+    result.spools = {n: RasterSpool(folder, n, shape) for n in names}
+    try:
+        ground = None if ground_c is None else (ground_c, sigma_c, support_c)
+        _full_grid(sources, plots, window, result, ground, step, client)
+    except BaseException:
+        result.close()
+        raise
+    return result
+
+
+def _ahead(client):
+    """Tasks queued beyond the one being taken: one per worker and one more, so none waits."""
+    return max(2, len(client.scheduler_info().get("workers", {})) + 1)
+
+
+def _full_grid(sources, plots, window, result, ground, step, client=None):
+    tasks = window_tasks(sources, plots, window, result)  # made as they are taken: plots stay single
+    count = len(windows(result.shape, window))
+    if client is None:
+        outputs = (measure_window(task, ground, sources=sources) for task in tasks)
+    else:
+        shared = None if ground is None else client.scatter(ground, broadcast=True)
+        outputs = in_order(client, measure_window, ((task, shared) for task in tasks), ahead=_ahead(client))
+    rows_out = [None] * len(plots) if plots is not None else None
+    labelled = False
+    for k, out in enumerate(outputs):
+        r0, _, c0, _ = out["core"]
+        for name, spool in result.spools.items():
+            spool.put(r0, c0, out[name])
+        result.valid_pixels += out["valid_pixels"]
+        result.plant_pixels += out["plant_pixels"]
+        labelled = labelled or out["labelled"]
+        if rows_out is not None:
+            for i, row in out["rows"].items():
+                rows_out[i] = row
+        result.windows += 1
+        step(0.45 + 0.5 * (k + 1) / count, "canopy and plots")
+    if plots is not None:
+        if not labelled:
+            raise GeoreferenceError(
+                f"no plot of {plots.path!r} overlaps the orthophoto {sources.ortho.path!r}"
+            )
+        result.rows = rows_out
