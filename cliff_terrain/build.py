@@ -19,7 +19,7 @@ from .mesh.adaptive import adaptive_mesh, choose_mesh
 from .mesh.grid import MeshArrays, grid_topology, place_vertices
 from .mesh.tin import default_max_error
 from .params import ReliefParams
-from .photo_heights.indices import nir_index_map
+from .photo_heights.indices import nir_index_map, red_map
 from .photo_heights.inflate import inflate, resolve_profile
 from .photo_heights.quaternion import quaternion_filter
 from .photo_heights.resize import resize_longest, resized_shape
@@ -246,9 +246,13 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         "value": round(float(seg.threshold), 4),
         "source": seg.threshold_source,
         "valley": round(float(seg.valley), 3),  # NaN in paper mode
-        # Ashman's D of the chroma across Otsu's split: the colour test (NaN where not measured).
+        # Ashman's D of the chroma (of the red reflectance for NDVI) across Otsu's split: the colour
+        # test (NaN where not measured).
         "colour_separation": round(float(seg.separation), 3),
-        "colour_test": {"statistic": "ashman_d_chroma", "min": COLOUR_SEPARATION},
+        "colour_test": {
+            "statistic": "ashman_d_red_reflectance" if seg.index == "ndvi" else "ashman_d_chroma",
+            "min": COLOUR_SEPARATION,
+        },
     }
     if seg.threshold_note:
         threshold["note"] = seg.threshold_note
@@ -421,9 +425,15 @@ def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
         size = working.shape[1::-1]
         valid = cv2.resize(metadata.valid_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
     ndvi = nir_index_map(bands, shape=working.shape[:2]) if params.segmentation == "vegetation" else None
-    seg = segment(working, method=params.segmentation, filtered=filtered, valid=valid, index_map=ndvi)
+    # NDVI's colour test reads the red band: leaves absorb it, soil does not.
+    red = red_map(bands, shape=working.shape[:2]) if ndvi is not None else None
+    seg = segment(
+        working, method=params.segmentation, filtered=filtered, valid=valid, index_map=ndvi, red=red
+    )
     if surface is not None and seg.threshold_note.startswith("undecided"):
-        seg = decide_by_surface(seg, working, surface(working.shape[:2]), filtered=filtered, valid=valid)
+        seg = decide_by_surface(
+            seg, working, surface(working.shape[:2]), filtered=filtered, valid=valid, index_map=ndvi
+        )
 
     clock.start("heights", 0.6)
     distance = seg.region_distance  # distance_map(seg.labels), computed with the watershed

@@ -28,6 +28,7 @@ from cliff_terrain.measure.field_plots import plot_table, rasterize_plots, table
 from cliff_terrain.measure.index_figures import index_columns, index_figures
 from cliff_terrain.measure.tables import REGION_COLUMNS, region_columns, region_table
 from cliff_terrain.photo_heights.indices import INDICES, index_map, index_maps, parse_indices
+from cliff_terrain.photo_heights.segmentation import segment
 
 EX2 = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 PLOTS = REPO / "tests" / "data" / "odm_plots_by_hand.geojson"
@@ -436,3 +437,58 @@ def test_season_animation_colours_by_an_index_column(tmp_path, odm5):
         expected = [float(row["ndvi_plant_mean"]) for row in csv.DictReader(file)]
     np.testing.assert_allclose(colours.values[0], expected, rtol=1e-5)
     assert 0.1 < colours.low < colours.high < 1
+
+
+def _canopy_and_soil(rng, shape=(60, 80)):
+    """NDVI and red reflectance of a frame: a closed canopy in the left half (NDVI 0.35-0.75, its
+    denser patches no darker in red), soil in the right (NDVI about 0.15, bright in red), the two
+    blurred into each other over a 20-pixel transition as mixed pixels do."""
+    rows, cols = shape
+    leaf = np.clip((cols / 2 + 10 - np.arange(cols)) / 20.0, 0.0, 1.0)[None, :].repeat(rows, 0)
+    ndvi = 0.15 + leaf * (0.4 + 0.2 * rng.random(shape)) + rng.normal(0, 0.02, shape)
+    red = 0.16 - 0.12 * leaf + rng.normal(0, 0.004, shape)
+    return ndvi.astype(np.float32), red.astype(np.float32), leaf
+
+
+def test_a_closed_ndvi_canopy_rises_whole_where_otsu_would_cut_it():
+    """Only canopy (the issue's senescent wheat: Otsu's NDVI split called half of it soil): the red
+    band does not separate the halves NDVI would make, the prior band keeps the canopy whole."""
+    from cliff_terrain.photo_heights.vegetation import index_threshold, otsu_threshold
+
+    rng = np.random.default_rng(1)
+    ndvi, red, leaf = _canopy_and_soil(rng)
+    canopy, canopy_red = ndvi[:, :25], red[:, :25]
+    image = np.full(canopy.shape + (3,), 120, np.uint8)
+    seg = segment(image, index_map=canopy, red=canopy_red)
+    assert seg.threshold_source == "band" and seg.threshold == pytest.approx(0.2)
+    assert seg.mask.all() and seg.threshold_note.startswith("one class")
+    assert otsu_threshold(canopy) > 0.4  # last round's rule: Otsu's split, half the canopy soil
+    assert index_threshold(canopy, index="ndvi", red=canopy_red).separation < 2
+
+
+def test_ndvi_plants_over_soil_without_a_valley_are_split_by_the_red_band():
+    from cliff_terrain.photo_heights.vegetation import index_threshold
+
+    rng = np.random.default_rng(2)
+    ndvi, red, leaf = _canopy_and_soil(rng)
+    without_red = index_threshold(ndvi, index="ndvi")
+    rule = index_threshold(ndvi, index="ndvi", red=red)
+    assert without_red.valley > 0.5 and without_red.source == "band"
+    assert rule.source == "photo (red)" and rule.separation >= 2
+    image = np.full(ndvi.shape + (3,), 120, np.uint8)
+    seg = segment(image, index_map=ndvi, red=red)
+    assert seg.threshold_source == "photo (red)"
+    assert seg.mask[leaf > 0.9].mean() > 0.95 and seg.mask[leaf == 0].mean() < 0.05
+
+
+def test_ndvi_degenerate_maps_keep_their_cases():
+    from cliff_terrain.photo_heights.vegetation import NDVI_FLOOR, index_threshold
+
+    flat = np.full(400, 0.6, np.float32)
+    rule = index_threshold(flat, index="ndvi", red=np.full(400, 0.05, np.float32))
+    assert rule.source == "uniform" and rule.threshold == NDVI_FLOOR and rule.note.startswith("uniform")
+    with pytest.raises(CliffTerrainError, match="`red` must have 400 values"):
+        index_threshold(flat, index="ndvi", red=np.zeros(3))
+    image = np.full((10, 10, 3), 120, np.uint8)
+    with pytest.raises(CliffTerrainError, match="`red` needs `index_map`"):
+        segment(image, red=np.zeros((10, 10)))

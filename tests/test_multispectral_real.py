@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import tifffile
@@ -111,3 +112,31 @@ def test_build_relief_names_the_bands_of_an_unnamed_clip():
     np.testing.assert_array_equal(relief.metadata.valid_mask, valid)
     with pytest.raises(CliffTerrainError, match="unknown band 'X'"):
         build_relief(CLIP, bands="B,G,R,X,NIR")
+
+
+def test_the_real_clips_ndvi_threshold_is_its_own_by_the_red_bands_separation():
+    """Seedling rows over soil: no empty NDVI valley, but the leaves are plainly darker in red. The
+    record's D is checked against Ashman's D computed here from the raw bands (numpy, scikit-image's
+    Otsu), and the plants it raises are the pixels above the photo's own NDVI split."""
+    from skimage.filters import threshold_otsu
+
+    from cliff_terrain import build_relief
+
+    relief = build_relief(CLIP, bands="B,G,R,RE,NIR", mesh=None)
+    rule = relief.params["threshold"]
+    assert rule["index"] == "ndvi" and rule["source"] == "photo (red)"
+    assert rule["colour_test"] == {"statistic": "ashman_d_red_reflectance", "min": 2.0}
+    bands, valid = reference_bands()
+    ndvi = (bands["nir"] - bands["red"]) / (bands["nir"] + bands["red"])
+    blurred = cv2.GaussianBlur(np.where(valid, ndvi, -1.0).astype(np.float32), (0, 0), 1.0)[valid]
+    split = threshold_otsu(blurred.astype(np.float64))
+    red = bands["red"][valid]
+    leaves, soil = red[blurred > split], red[blurred <= split]
+
+    def spread(x):
+        return 1.4826 * np.median(np.abs(x - np.median(x)))
+
+    d = np.sqrt(2) * (np.median(soil) - np.median(leaves)) / np.hypot(spread(soil), spread(leaves))
+    assert d > 2 and rule["colour_separation"] == pytest.approx(d, rel=0.02)
+    assert rule["value"] == pytest.approx(split, abs=0.01)
+    assert rule["valley"] > 0.5  # the valley test alone would not have taken the photo's own split

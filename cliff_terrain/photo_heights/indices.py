@@ -191,3 +191,11 @@ def nir_index_map(bands, *, shape):
     if bands is None or "nir" not in bands.names or "red" not in bands.names:
         return None
     return index_maps(bands, ("NDVI",), shape=shape)["NDVI"]
+
+
+def red_map(bands, *, shape):
+    """The red reflectance on a grid of `shape` (the NDVI threshold's colour test), or None."""
+    if bands is None or "red" not in bands.names:
+        return None
+    red = bands.band("red")
+    return red if tuple(shape) == red.shape else resample_mean(red, shape)

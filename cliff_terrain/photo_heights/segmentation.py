@@ -113,6 +113,7 @@ def segment(
     edge_scale=None,
     soil=None,
     index_map=None,
+    red=None,
     mask=None,
 ):
     """Find the regions that rise: binarize, label, fill holes, trace boundaries, split by watershed.
@@ -148,6 +149,9 @@ def segment(
         NDVI of a multispectral orthomosaic on the image's grid (NaN = no data), used by
         ``"vegetation"`` instead of the colour index; its threshold is the photo's own (see
         :func:`index_threshold`). ``Segmentation.index`` is then ``"ndvi"``.
+    red : (rows, cols) float array, optional
+        The orthomosaic's red reflectance on the same grid, with `index_map`: the colour test of its
+        threshold (see :func:`index_threshold`).
     mask : (rows, cols) bool array, optional
         The plants' mask as :func:`vegetation_mask` makes it (``"vegetation"``, with `threshold`
         given): only the watershed and what follows run (a mosaic's tile, whose mask comes from its
@@ -216,6 +220,7 @@ def segment(
             min_region=min_region,
             soil=soil,
             index_map=index_map,
+            red=red,
         )
     threshold, index_name, source, valley = rule.threshold, rule.index, rule.source, rule.valley
     if method == "paper":
@@ -243,7 +248,7 @@ def segment(
     )
 
 
-def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
+def decide_by_surface(seg, image, surface, *, filtered=None, valid=None, index_map=None):
     """A :func:`segment` result whose threshold was undecided, decided by a surface model.
 
     The photo's own split (Otsu's threshold, below the index floor) is used when the pixels above
@@ -260,8 +265,8 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
     image : (rows, cols, 3) uint8 array
     surface : (rows, cols) float array
         Heights on the image's grid (a DSM; NaN where there is none).
-    filtered, valid : optional
-        As :func:`segment`'s.
+    filtered, valid, index_map : optional
+        As :func:`segment`'s (`index_map`: the NDVI map `seg` was made from, when it was).
 
     Returns
     -------
@@ -270,14 +275,25 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
     """
     import dataclasses
 
-    vi, _ = blurred_index(image, index=seg.index)
+    if seg.index == "ndvi":
+        if index_map is None:
+            raise CliffTerrainError("`index_map` is required when `seg` was made from an NDVI map, got None")
+        vi, valid = _blurred_ndvi(np.asarray(index_map, dtype=np.float32), valid)
+    else:
+        vi, _ = blurred_index(image, index=seg.index)
     split = otsu_threshold(vi if valid is None else vi[valid])
     d = surface_separation(surface, vi > split, valid=valid)
     if not d >= COLOUR_SEPARATION:
         note = seg.threshold_note + f"; the DSM does not show it standing above the rest either (D {d:.2f})"
         return dataclasses.replace(seg, threshold_note=note)
     decided = segment(
-        image, method="vegetation", filtered=filtered, valid=valid, threshold=split, index=seg.index
+        image,
+        method="vegetation",
+        filtered=filtered,
+        valid=valid,
+        threshold=split,
+        index=seg.index,
+        index_map=index_map if seg.index == "ndvi" else None,
     )
     note = f"decided by the DSM: the class above the photo's own split stands above the rest (D {d:.2f})"
     return dataclasses.replace(
@@ -290,7 +306,7 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None):
 
 
 def vegetation_mask(
-    image, *, index="auto", valid=None, threshold=None, min_region=0, soil=None, index_map=None
+    image, *, index="auto", valid=None, threshold=None, min_region=0, soil=None, index_map=None, red=None
 ):
     """The plants' mask of :func:`segment`'s ``"vegetation"`` mode, before the watershed.
 
@@ -306,7 +322,14 @@ def vegetation_mask(
         index_map = np.asarray(index_map, dtype=np.float32)
         if index_map.shape != image.shape[:2]:
             raise CliffTerrainError(f"`index_map` must have shape {image.shape[:2]}, got {index_map.shape}")
-    mask, rule, vi = _vegetation_mask(image, index, valid, threshold, index_map)
+    if red is not None:
+        red = np.asarray(red, dtype=np.float32)
+        if index_map is None or red.shape != image.shape[:2]:
+            raise CliffTerrainError(
+                f"`red` needs `index_map` and shape {image.shape[:2]}, got shape {red.shape}"
+                + ("" if index_map is not None else " without `index_map`")
+            )
+    mask, rule, vi = _vegetation_mask(image, index, valid, threshold, index_map, red)
     if valid is not None:
         mask &= valid
     # Vegetation mode fills only the holes plausibly inside a plant.
@@ -325,16 +348,22 @@ def _paper_mask(filtered, valid, threshold=None):
     return grey > rule.threshold, rule
 
 
-def _vegetation_mask(image, index, valid, threshold=None, index_map=None):
+def _blurred_ndvi(index_map, valid):
+    """NDVI blurred as the colour index is (no data lies below any plant), and its valid pixels."""
+    finite = np.isfinite(index_map)
+    valid = finite if valid is None else valid & finite
+    return cv2.GaussianBlur(np.where(finite, index_map, np.float32(-1.0)), (0, 0), 1.0), valid
+
+
+def _vegetation_mask(image, index, valid, threshold=None, index_map=None, red=None):
     """``(mask, ThresholdRule, blurred index)`` of the vegetation mode (at `threshold` if given)."""
     if index_map is None:
         vi, name = blurred_index(image, index=index)
-    else:  # NDVI, blurred as the colour index is; no data lies below any plant
-        finite = np.isfinite(index_map)
-        valid = finite if valid is None else valid & finite
-        vi, name = cv2.GaussianBlur(np.where(finite, index_map, np.float32(-1.0)), (0, 0), 1.0), "ndvi"
+    else:
+        vi, valid = _blurred_ndvi(index_map, valid)
+        name = "ndvi"
     if threshold is None:
-        rule = photo_threshold(vi, image, index=name, valid=valid)
+        rule = photo_threshold(vi, image, index=name, valid=valid, red=red)
     else:
         rule = ThresholdRule(threshold, name, "given", float("nan"))
     return vi > rule.threshold, rule, vi

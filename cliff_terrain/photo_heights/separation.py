@@ -2,9 +2,9 @@
 
 Ashman's D, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2), with medians and robust spreads (1.4826 times
 the median absolute deviation): 2 or more is Ashman, Bird and Zepf's (1994) bound for two cleanly
-separated classes. :func:`cliff_terrain.photo_heights.vegetation.index_threshold` reads the chroma's to
-take the photo's own split without a valley; ``build_relief`` the surface's to decide a class that
-colour cannot (senescent canopy or straw?).
+separated classes. :func:`cliff_terrain.photo_heights.vegetation.index_threshold` reads the chroma's
+(colour photos) or the red reflectance's (multispectral NDVI) to take the photo's own split without a
+valley; ``build_relief`` the surface's to decide a class that colour cannot (senescent canopy or straw?).
 """
 
 from __future__ import annotations
@@ -50,14 +50,36 @@ def colour_separation(chroma, upper):
     >>> round(colour_separation(c, np.arange(100) >= 50), 1)
     70.0
     """
-    chroma = np.asarray(chroma, dtype=np.float64).ravel()
+    return _ashman_d(chroma, upper, min_spread=0.5)
+
+
+def red_separation(red, upper):
+    """Ashman's D of the red reflectance between the pixels where `upper` is False and the others.
+
+    As :func:`colour_separation`, signed: positive when the `upper` side (the higher NDVI) is the
+    darker in red, as chlorophyll makes leaves (red reflectance of a few percent over soil's 10-30 %).
+    NDVI can split any class in two (its halves differ in NIR: sunlit and shaded leaves, dense and
+    thin canopy); plants and soil differ in red too. Spreads of at least 1/512, half an 8-bit step of
+    reflectance, the coarsest an orthomosaic stores. NaN when a side is empty.
+
+    Examples
+    --------
+    >>> red = np.r_[np.full(50, 0.15), np.full(50, 0.04)]   # soil, then leaves
+    >>> bool(red_separation(red, np.arange(100) >= 50) > 2)
+    True
+    """
+    return _ashman_d(red, ~np.asarray(upper, dtype=bool), min_spread=1.0 / 512.0)
+
+
+def _ashman_d(values, upper, *, min_spread):
+    values = np.asarray(values, dtype=np.float64).ravel()
     upper = np.asarray(upper, dtype=bool).ravel()
-    hi, lo = chroma[upper], chroma[~upper]
+    hi, lo = values[upper], values[~upper]
     if hi.size == 0 or lo.size == 0:
         return float("nan")
     m_hi, m_lo = float(np.median(hi)), float(np.median(lo))
-    s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), 0.5)
-    s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), 0.5)
+    s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), min_spread)
+    s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), min_spread)
     return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from .._threads import map_row_bands
 from .._validate import check_choice, check_rgb
 from ..errors import CliffTerrainError
-from .separation import chroma_map, colour_separation
+from .separation import chroma_map, colour_separation, red_separation
 
 INDICES = ("auto", "green", "nir")
 
@@ -24,15 +24,18 @@ INDICES = ("auto", "green", "nir")
 # above about 0.15. The lower end is a floor in every case.
 _GREEN_BAND = (0.06, 0.14)
 _NIR_BAND = (0.12, 0.3)
-# NDVI of a multispectral orthomosaic (reflectance): its threshold is the photo's own (Otsu's), never
-# below this floor, where bare soil, water and shade lie.
+# NDVI of a multispectral orthomosaic (reflectance): the same rule on the published NDVI ranges
+# (USGS, "NDVI, the foundation for remote sensing phenology"): barren ground, water and shade at 0.1
+# or less, sparse vegetation and senescing crops from about 0.2. The floor is a floor in every case.
 NDVI_FLOOR = 0.1
+_NDVI_BAND = (NDVI_FLOOR, 0.2)
 # A photo is clearly two-class when the histogram at Otsu's threshold is at most this fraction of
 # its mean between the two class means (0: an empty valley; about 1: no valley at all). On real
 # annotated photos (README, "Validation on real fields") dark-soil fields whose own threshold is
 # right measured 0.09-0.38, closed canopies that Otsu splits in two 0.75-1.11.
 TWO_CLASS_VALLEY = 0.5
-# ...or when its two sides differ plainly in colour: Ashman's D of the CIELAB chroma C* of the pixels
+# ...or when its two sides differ plainly in colour (for NDVI: in red reflectance, see
+# separation.red_separation): Ashman's D of the CIELAB chroma C* of the pixels
 # on either side of Otsu's split, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2) (medians, robust
 # spreads), is at least this much. 2 is Ashman et al.'s (1994) own bound for two cleanly separated
 # classes, not a fitted number; leave-one-source-out on the annotated sets picks it from every
@@ -179,7 +182,7 @@ class ThresholdRule:
     note: str = ""
 
 
-def index_threshold(values, *, index="green", chroma=None):
+def index_threshold(values, *, index="green", chroma=None, red=None):
     """The plant/soil threshold of a vegetation index: the photo's own when clearly two-class.
 
     Otsu's threshold is the photo's own. The prior is Otsu's threshold kept within the band of
@@ -196,6 +199,16 @@ def index_threshold(values, *, index="green", chroma=None):
       grey-brown soil pass however dark and wet the soil and however much JPEG blur and mixed
       pixels fill the valley; the sunlit and shaded halves of a closed canopy, both green, do not.
 
+    NDVI (``index="ndvi"``) follows the same rule with the band ``(NDVI_FLOOR, 0.2)`` (0.1: barren
+    ground, water, shade; 0.2: sparse or senescing vegetation, the published NDVI ranges), the colour
+    test read in the red band: Ashman's D of the red reflectance (`red`) on either side of Otsu's
+    split, the upper side the darker (``"photo (red)"``, see
+    :func:`~cliff_terrain.photo_heights.separation.red_separation`). Leaves absorb red, soil does
+    not; the sunlit and shaded halves, or the dense and thin parts, of a closed canopy that NDVI
+    tells apart absorb it alike. Either test passes wherever Otsu's threshold lies: a soil's NDVI
+    may lie above the band (moist or weedy soil between rows, 0.2-0.4), so that the band is no
+    fallback for a clearly two-class NDVI map.
+
     Otherwise the prior stands: one class (bare soil, or a closed canopy that Otsu would split into
     sunlit and shaded leaves), or two classes whose valley holds the prior too (then either
     threshold gives the same mask but for the blurred rims, and the prior keeps every figure
@@ -209,20 +222,23 @@ def index_threshold(values, *, index="green", chroma=None):
     values : array of float
         Index values of the pixels with data (any shape; a sample is taken from large arrays).
     index : {"green", "nir", "ndvi"}, optional
-        Which index, for its prior band. ``"ndvi"`` (a multispectral orthomosaic's NDVI, see
-        :func:`cliff_terrain.photo_heights.indices.nir_index_map`) has none: its threshold is the photo's
-        own, Otsu's, never below ``NDVI_FLOOR`` (0.1).
+        Which index, for its prior band. ``"ndvi"``: a multispectral orthomosaic's NDVI (see
+        :func:`cliff_terrain.photo_heights.indices.nir_index_map`), band ``(NDVI_FLOOR, 0.2)``.
     chroma : array of float, optional
         CIELAB chroma of the same pixels, in the same order (see :func:`~cliff_terrain.photo_heights.separation.chroma_map`); without it
         (false-colour and NDVI frames) only the valley test applies.
+    red : array of float, optional
+        Red reflectance of the same pixels, in the same order (``index="ndvi"``): the colour test of
+        an NDVI map. Without it only the valley test applies.
 
     Returns
     -------
     ThresholdRule
-        ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"band"``, or
-        ``"uniform"`` when the index has no spread: the band's threshold then decides alone),
-        ``valley`` (the density ratio; NaN when there is no spread), ``separation`` (the chroma's
-        Ashman D; NaN without `chroma`) and ``note`` (empty, or why the photo could not decide).
+        ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"photo (red)"``,
+        ``"band"``, or ``"uniform"`` when the index has no spread: the band's threshold then decides
+        alone; for NDVI the floor), ``valley`` (the density ratio; NaN when there is no spread),
+        ``separation`` (the chroma's Ashman D, for NDVI the red reflectance's; NaN without `chroma`
+        or `red`) and ``note`` (empty, or why the photo could not decide).
 
     Examples
     --------
@@ -246,26 +262,39 @@ def index_threshold(values, *, index="green", chroma=None):
     >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000), chroma=rng.normal(40, 8, 10000))
     >>> rule.source, rule.threshold
     ('band', 0.14)
+
+    NDVI: plants and soil blurred into each other, the leaves dark in red and the soil not, then a
+    closed canopy whose denser half NDVI would call plant (alike in red):
+
+    >>> ndvi = np.concatenate([rng.normal(0.25, 0.12, 5500), rng.normal(0.65, 0.15, 4500)])
+    >>> red = np.concatenate([rng.normal(0.14, 0.03, 5500), rng.normal(0.04, 0.01, 4500)])
+    >>> index_threshold(ndvi, index="ndvi", red=red).source
+    'photo (red)'
+    >>> rule = index_threshold(rng.normal(0.55, 0.1, 10000), index="ndvi", red=rng.normal(0.1, 0.02, 10000))
+    >>> rule.source, rule.threshold
+    ('band', 0.2)
     """
     check_choice("index", index, ("green", "nir", "ndvi"))
     flat = np.asarray(values, dtype=np.float32).ravel()
-    if chroma is not None:
-        chroma = np.asarray(chroma, dtype=np.float32).ravel()
-        if chroma.shape != flat.shape:
+    # The colour test's values: the chroma of a colour photo, the red reflectance of an NDVI map.
+    colour, colour_name = (red, "red") if index == "ndvi" else (chroma, "chroma")
+    if colour is not None:
+        colour = np.asarray(colour, dtype=np.float32).ravel()
+        if colour.shape != flat.shape:
             raise CliffTerrainError(
-                f"`chroma` must have {flat.size} values (one per index value), got {chroma.size}"
+                f"`{colour_name}` must have {flat.size} values (one per index value), got {colour.size}"
             )
-    keep = np.isfinite(flat)
+    keep = np.isfinite(flat) if colour is None else np.isfinite(flat) & np.isfinite(colour)
     flat = flat[keep]
-    if chroma is not None:
-        chroma = chroma[keep]
+    if colour is not None:
+        colour = colour[keep]
     if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
         step = flat.size // 400_000
         flat = flat[::step]
-        chroma = None if chroma is None else chroma[::step]
+        colour = None if colour is None else colour[::step]
     # float64: numpy 2 refuses 128 histogram bins over a float32 range of a few ulps.
     flat = flat.astype(np.float64)
-    low, high = _GREEN_BAND if index == "green" else _NIR_BAND
+    low, high = {"green": _GREEN_BAND, "nir": _NIR_BAND, "ndvi": _NDVI_BAND}[index]
     otsu = otsu_threshold(flat)
     if flat.size == 0 or float(np.subtract(*np.percentile(flat, (99.5, 0.5)))) < UNIFORM_SPREAD:
         # Nothing to tell apart: the prior alone decides (a green frame is canopy seen close, a
@@ -276,12 +305,19 @@ def index_threshold(values, *, index="green", chroma=None):
             "(green rises whole, soil and grey stay flat)"
         )
         return ThresholdRule(value, index, "uniform", float("nan"), float("nan"), note)
-    if index == "ndvi":
-        valley = _valley(flat, otsu, (otsu,))[0]
-        return ThresholdRule(max(otsu, NDVI_FLOOR), index, "photo", valley)
     banded = float(np.clip(otsu, low, high))
     valley, at_band = _valley(flat, otsu, (otsu, banded))
-    separation = float("nan") if chroma is None else colour_separation(chroma, flat > otsu)
+    if index == "ndvi":
+        separation = float("nan") if colour is None else red_separation(colour, flat > otsu)
+        # Clearly two-class wherever Otsu's threshold lies: an NDVI map's soil may lie above the band
+        # (moist or weedy soil), where the band would raise it.
+        if valley <= TWO_CLASS_VALLEY:
+            return ThresholdRule(max(otsu, low), index, "photo", valley, separation)
+        if separation >= COLOUR_SEPARATION:
+            return ThresholdRule(max(otsu, low), index, "photo (red)", valley, separation)
+        at_band = float("inf")  # the band's threshold is the prior here, not a second valley
+    else:
+        separation = float("nan") if colour is None else colour_separation(colour, flat > otsu)
     # Two classes whose valley the band misses (it cuts into one of them): the photo's own.
     if otsu > high and not at_band <= TWO_CLASS_VALLEY:
         if valley <= TWO_CLASS_VALLEY:
@@ -305,6 +341,12 @@ def index_threshold(values, *, index="green", chroma=None):
             "one class: neither an empty valley nor a colour difference splits the photo; the "
             "prior band decides (a closed canopy rises whole, bare soil stays flat)"
         )
+        if index == "ndvi":
+            note = (
+                "one class: neither an empty valley nor a difference in red reflectance splits the "
+                f"NDVI map; the prior band decides (NDVI above {high} rises: a closed or senescent "
+                "canopy rises whole; bare soil with NDVI above it would rise too)"
+            )
     else:
         note = ""
     return ThresholdRule(banded, index, "band", valley, separation, note)
@@ -333,14 +375,21 @@ def _valley(values, split, thresholds):
     return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
 
 
-def photo_threshold(vi, image, *, index, valid=None):
+def photo_threshold(vi, image, *, index, valid=None, red=None):
     """:func:`index_threshold` of a photo's index map `vi` over its `valid` pixels, with the colour
-    test on the photo's chroma (not for false-colour NIR or NDVI maps, whose colours are not the
-    plants'); the one place the segmentation, the bare soil and the orthophoto's plant mask take it."""
+    test on the photo's chroma (not for false-colour NIR frames, whose colours are not the plants'),
+    or for an NDVI map on its `red` reflectance (same grid); the one place the segmentation, the bare
+    soil and the orthophoto's plant mask take it."""
     chroma = chroma_map(image) if index == "green" else None
+    red = None if red is None or index != "ndvi" else np.asarray(red, dtype=np.float32)
     if valid is None:
-        return index_threshold(vi, index=index, chroma=chroma)
-    return index_threshold(vi[valid], index=index, chroma=None if chroma is None else chroma[valid])
+        return index_threshold(vi, index=index, chroma=chroma, red=red)
+    return index_threshold(
+        vi[valid],
+        index=index,
+        chroma=None if chroma is None else chroma[valid],
+        red=None if red is None else red[valid],
+    )
 
 
 def bare_soil(image, *, valid=None, index="auto", threshold=None):
