@@ -168,8 +168,9 @@ def measure_windowed(
     progress : callable, optional
         ``progress(fraction, stage)``.
     client : distributed.Client, optional
-        Spread the second pass's windows over a Dask cluster (:func:`measure_window` as tasks,
-        the coarse ground scattered to every worker once); the results are the same.
+        Spread both passes' windows over a Dask cluster (:func:`~.window_tasks.coarse_window`
+        and :func:`~.window_tasks.measure_window` as tasks, the coarse ground scattered to every
+        worker once); the results are the same.
 
     Returns
     -------
