@@ -55,10 +55,6 @@ REACHED_THROUGH = {
         ("test_interrupted_outputs.py", "test_bad_input_table.py"),
         "an interrupted run's outputs replaced, a finished run's kept",
     ),
-    "cliff_terrain.measure.ground_detail": (
-        ("test_ground_check.py", "test_measured_heights.py"),
-        "`fit_ground`'s detailed candidate",
-    ),
     "cliff_terrain.__main__": (("test_cli.py",), "`python -m cliff_terrain`"),
     "cliff_terrain._dask": (
         ("test_mosaic.py", "test_season.py"),

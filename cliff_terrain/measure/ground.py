@@ -47,6 +47,7 @@ from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
 from .ground_check import check_ground, ground_sigma
 from .ground_detail import DETAIL_CONFIDENCE, blur, detail_above
+from .percentiles import nan_percentile
 
 DEFAULT_BLOCK_M = 5.0
 DEFAULT_DETAIL_M = 0.15
@@ -479,8 +480,6 @@ def naive_block_ground(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, percentile=5
 
 def _block_levels(dsm, *, pixel_size, block_m, percentile):
     """(levels, block px): the `percentile` of `dsm` in each block (NaN-free: empty blocks take the median)."""
-    import warnings
-
     dsm = np.asarray(dsm, dtype=np.float32)
     block = max(2, round(block_m / pixel_size))
     rows, cols = dsm.shape
@@ -488,9 +487,7 @@ def _block_levels(dsm, *, pixel_size, block_m, percentile):
     pad = np.full((nb_r * block, nb_c * block), np.nan, np.float32)
     pad[:rows, :cols] = dsm
     blocks = pad.reshape(nb_r, block, nb_c, block).transpose(0, 2, 1, 3).reshape(nb_r, nb_c, -1)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        levels = np.nanpercentile(blocks, percentile, axis=2).astype(np.float32)
+    levels = nan_percentile(blocks, percentile).astype(np.float32)  # nanpercentile's, vectorized
     if np.isnan(levels).any():
         fill = np.nanmedian(levels) if np.isfinite(levels).any() else 0.0
         levels = np.where(np.isnan(levels), fill, levels).astype(np.float32)

@@ -77,6 +77,8 @@ def detail_above(dsm, trend, exposed, sigma, block):
 _QUADRATIC_DAMPING = 0.05
 QUADRATIC_UP_TO = 3.5  # scales up to this times the finest are fitted by quadratics
 _QUADRATIC_BASIS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
+# Pixels of a band of the solve: its 36 + 6 float32 planes (about 2.7 MB) fit in a core's cache.
+_BAND_PIXELS = 16_384
 
 
 def _local_quadratic(values, weight, sigma):
@@ -109,25 +111,40 @@ def _local_quadratic(values, weight, sigma):
             )
         return moments[key, a, b]
 
-    n = len(_QUADRATIC_BASIS)
-    # (n, n, rows, cols): each step of the elimination is then a whole-image operation.
-    normal = np.empty((n, n, *w.shape), dtype=np.float32)
-    right = np.empty((n, *w.shape), dtype=np.float32)
-    for i, (a1, b1) in enumerate(_QUADRATIC_BASIS):
-        right[i] = moment(wz, a1, b1, "z")
-        for j, (a2, b2) in enumerate(_QUADRATIC_BASIS):
-            normal[i, j] = moment(w, a1 + a2, b1 + b2, "w")
-    m00 = normal[0, 0].copy()
-    damping = _QUADRATIC_DAMPING * np.maximum(m00, 1e-6)
-    for i in range(1, n):
-        normal[i, i] += damping
-    normal[0, 0] += 1e-9
-    estimate = _solve_first(normal, right).astype(np.float32)
+    for a1, b1 in _QUADRATIC_BASIS:
+        moment(wz, a1, b1, "z")
+        for a2, b2 in _QUADRATIC_BASIS:
+            moment(w, a1 + a2, b1 + b2, "w")
+    m00 = moments["w", 0, 0]
+    estimate = np.empty(w.shape, np.float32)
+    # The systems are solved a band of rows at a time: the same arithmetic per pixel as on the
+    # whole grid, but its (n, n, rows, cols) normal equations stay in the cache, not in 1 GB.
+    band = max(1, _BAND_PIXELS // max(1, w.shape[1]))
+    for r0 in range(0, w.shape[0], band):
+        rows_band = slice(r0, r0 + band)
+        estimate[rows_band] = _solve_band(moments, rows_band)
     fraction = (m00 / gauss.sum() ** 2).astype(np.float32)
     if factor > 1:
         estimate = cv2.resize(estimate, (cols, rows), interpolation=cv2.INTER_LINEAR)
         fraction = cv2.resize(fraction, (cols, rows), interpolation=cv2.INTER_LINEAR)
     return estimate, fraction
+
+
+def _solve_band(moments, rows):
+    """The local quadratic's value at rows `rows` from its `moments` (see :func:`_local_quadratic`)."""
+    n = len(_QUADRATIC_BASIS)
+    m00 = moments["w", 0, 0][rows]
+    normal = np.empty((n, n, *m00.shape), dtype=np.float32)
+    right = np.empty((n, *m00.shape), dtype=np.float32)
+    for i, (a1, b1) in enumerate(_QUADRATIC_BASIS):
+        right[i] = moments["z", a1, b1][rows]
+        for j, (a2, b2) in enumerate(_QUADRATIC_BASIS):
+            normal[i, j] = moments["w", a1 + a2, b1 + b2][rows]
+    damping = _QUADRATIC_DAMPING * np.maximum(m00, 1e-6)
+    for i in range(1, n):
+        normal[i, i] += damping
+    normal[0, 0] += 1e-9
+    return _solve_first(normal, right).astype(np.float32)
 
 
 def _solve_first(normal, right):

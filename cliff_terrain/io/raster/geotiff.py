@@ -401,12 +401,23 @@ def write_geotiff(path, data, *, transform, crs, nodata=None, overviews=False):
 
 # GDAL's COG driver's default block size.
 COG_TILE = 512
+# Deflate's fastest level (GDAL's ZLEVEL=1): on a CHM with the floating-point predictor it writes
+# files 6 % larger than level 6 in half the time, and writing was a third of a windowed run.
+DEFLATE_LEVEL = 1
+#: How the CHM-like rasters are written: tiled, Deflate with the floating-point predictor.
+COG_OPTIONS = dict(
+    tile=(COG_TILE, COG_TILE),
+    compression="zlib",
+    compressionargs={"level": DEFLATE_LEVEL},
+    predictor=True,
+    photometric="minisblack",
+)
 
 
 def _write_tiled_with_overviews(path, data, extratags):
     import tifffile
 
-    options = dict(tile=(COG_TILE, COG_TILE), compression="zlib", predictor=True, photometric="minisblack")
+    options = COG_OPTIONS
     with tifffile.TiffWriter(path, bigtiff=data.nbytes > 2**31) as tif:
         tif.write(data, extratags=extratags, **options)
         level = data

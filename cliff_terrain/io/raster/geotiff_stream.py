@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from .geotiff import COG_TILE, block_mean, geotiff_tags
+from .geotiff import COG_OPTIONS, COG_TILE, block_mean, geotiff_tags
 
 _DTYPE = np.dtype(np.float32)
 
@@ -68,9 +68,7 @@ class RasterSpool:
         import tifffile
 
         rows, cols = self.shape
-        options = dict(
-            tile=(COG_TILE, COG_TILE), compression="zlib", predictor=True, photometric="minisblack"
-        )
+        options = COG_OPTIONS
         levels = []
         try:
             with tifffile.TiffWriter(os.fspath(path), bigtiff=rows * cols * _DTYPE.itemsize > 2**31) as tif:

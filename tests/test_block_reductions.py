@@ -1,0 +1,146 @@
+"""The vectorized reductions the ground and the windowed measure run on, against plain references.
+
+Each replaced a slower formulation (numpy's per-group ``nanpercentile``, a reduction over reshaped
+short axes, gathers for a surface already on the orthophoto's grid, the whole grid's normal
+equations at once): the numbers must be the references' own.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from cliff_terrain.errors import CliffTerrainError
+from cliff_terrain.io.raster.geotiff import geotiff_tags
+from cliff_terrain.measure.ground_detail import _local_quadratic
+from cliff_terrain.measure.percentiles import nan_percentile
+from cliff_terrain.measure.window_reading import SurfaceWindows, _bilinear, reduce_blocks
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("q", [0.0, 2.0, 25.0, 50.0, 97.5, 100.0])
+def test_nan_percentile_is_numpys_nanpercentile(dtype, q):
+    rng = np.random.default_rng(3)
+    values = (100 + 10 * rng.normal(size=(400, 169))).astype(dtype)
+    values[rng.random(values.shape) < 0.3] = np.nan
+    values[:7] = np.nan  # all-NaN groups
+    values[7:9, 1:] = np.nan  # one value left
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nanpercentile(values, q, axis=-1)
+    got = nan_percentile(values, q)
+    np.testing.assert_array_equal(got.astype(np.float32), expected.astype(np.float32))
+    assert np.isnan(got[:7]).all()
+
+
+def test_nan_percentile_refuses_a_percentile_outside_0_100():
+    with pytest.raises(CliffTerrainError, match=r"`q` must be in \[0, 100\], got 101.0"):
+        nan_percentile(np.zeros((2, 3)), 101)
+
+
+def block_means_by_loop(values, factor, weights):
+    """Each block's weighted mean and count, one block at a time (float64)."""
+    rows, cols = weights.shape
+    nr, nc = -(-rows // factor), -(-cols // factor)
+    means = np.full((nr, nc, *values.shape[2:]), np.nan)
+    counts = np.zeros((nr, nc))
+    for i in range(nr):
+        for j in range(nc):
+            block = (slice(i * factor, (i + 1) * factor), slice(j * factor, (j + 1) * factor))
+            w = weights[block]
+            counts[i, j] = w.sum()
+            if w.any():
+                means[i, j] = values[block][w].astype(np.float64).mean(axis=0)
+    return means, counts
+
+
+@pytest.mark.parametrize("factor", [2, 3, 7])
+def test_block_means_of_a_photo_are_exact_and_of_heights_within_float_rounding(factor):
+    rng = np.random.default_rng(factor)
+    shape = (61, 45)  # not whole blocks: the last ones are padded
+    rgb = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    weights = rng.random(shape) < 0.6
+    heights = (250 + rng.random(shape)).astype(np.float32)
+    heights[rng.random(shape) < 0.1] = np.nan
+    means, counts = reduce_blocks(rgb, factor, weights)
+    ref_means, ref_counts = block_means_by_loop(rgb, factor, weights)
+    np.testing.assert_array_equal(counts, ref_counts)
+    # Integer sums are exact in float32: the means are the float32 of the exact means' quotient.
+    sums = np.nan_to_num(ref_means) * ref_counts[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        exact = (np.rint(sums).astype(np.float32) / ref_counts[..., None].astype(np.float32)).astype(
+            np.float32
+        )
+    np.testing.assert_array_equal(means, exact)
+    usable = weights & np.isfinite(heights)
+    means, counts = reduce_blocks(heights, factor, usable)
+    ref_means, ref_counts = block_means_by_loop(heights, factor, usable)
+    np.testing.assert_array_equal(counts, ref_counts)
+    np.testing.assert_allclose(means, ref_means, rtol=0, atol=1e-4)  # float32 sums of ~250 m
+
+
+def general_bilinear(source, y, x):
+    """The separable bilinear written out with its gathers (NaN in any neighbour gives NaN)."""
+    rows, cols = source.shape
+    y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
+    fy, fx = (y - y0).astype(np.float32)[:, None], (x - x0).astype(np.float32)[None, :]
+    y1, x1 = np.minimum(y0 + 1, rows - 1), np.minimum(x0 + 1, cols - 1)
+    top, bottom = source[y0], source[y1]
+    upper = top[:, x0] * (1 - fx) + top[:, x1] * fx
+    lower = bottom[:, x0] * (1 - fx) + bottom[:, x1] * fx
+    return (upper * (1 - fy) + lower * fy).astype(np.float32)
+
+
+@pytest.mark.parametrize("window", [(0, 40, 0, 50), (5, 39, 7, 49), (39, 40, 49, 50), (10, 20, 0, 1)])
+def test_a_surface_on_the_orthophotos_own_grid_is_read_as_the_bilinear_reads_it(tmp_path, window):
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    dsm = (200 + rng.random((40, 50))).astype(np.float32)
+    dsm[rng.random(dsm.shape) < 0.05] = np.nan
+    transform = np.array([[0.1, 0.0, 500000.0], [0.0, -0.1, 4000000.0], [0.0, 0.0, 1.0]])
+    path = tmp_path / "dsm.tif"
+    tifffile.imwrite(path, dsm, extratags=geotiff_tags(transform, 32616, nodata=float("nan")))
+    surface = SurfaceWindows(path)
+    try:
+        r0, r1, c0, c1 = window
+        got = surface.on_grid(transform, r0, r1, c0, c1)
+    finally:
+        surface.close()
+    expected = general_bilinear(dsm, np.arange(r0, r1, dtype=float), np.arange(c0, c1, dtype=float))
+    np.testing.assert_array_equal(got, expected)
+    # Fractional coordinates still take the general path.
+    y, x = np.arange(0, 20) * 0.5 + 0.25, np.arange(0, 30) * 0.75
+    np.testing.assert_array_equal(_bilinear(dsm, y, x), general_bilinear(dsm, y, x))
+
+
+def test_the_local_quadratic_solved_band_by_band_is_the_weighted_least_squares_fit():
+    # Several bands (rows x cols > the band's pixels); the reference solves the damped normal
+    # equations of a few pixels directly, from the Gaussian-weighted sums over the evidence.
+    from cliff_terrain.measure import ground_detail
+
+    rng = np.random.default_rng(1)
+    rows, cols = 300, 200
+    rr, cc = np.mgrid[:rows, :cols].astype(np.float64)
+    values = (0.002 * (rr - 150) ** 2 / 10 + 0.01 * cc + 0.02 * rng.normal(size=(rows, cols))).astype(
+        np.float32
+    )
+    weight = (rng.random((rows, cols)) < 0.4).astype(np.float32)
+    sigma = 1.2
+    assert rows * cols > ground_detail._BAND_PIXELS
+    estimate, _ = _local_quadratic(values, weight, sigma)
+    radius = int(np.ceil(3 * sigma))
+    for r, c in [(0, 0), (150, 100), (299, 57), (81, 199), (222, 13)]:
+        dy, dx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+        inside = (r + dy >= 0) & (r + dy < rows) & (c + dx >= 0) & (c + dx < cols)
+        dy, dx = dy[inside], dx[inside]
+        g = np.exp(-0.5 * ((dy / sigma) ** 2 + (dx / sigma) ** 2)) * weight[r + dy, c + dx]
+        u, v = -dx / sigma, -dy / sigma  # the filters' offsets in sigmas (correlation: minus)
+        basis = np.stack([u**a * v**b for a, b in ground_detail._QUADRATIC_BASIS])
+        normal = (basis * g) @ basis.T
+        right = (basis * g) @ values[r + dy, c + dx].astype(np.float64)
+        normal[np.arange(1, 6), np.arange(1, 6)] += ground_detail._QUADRATIC_DAMPING * max(normal[0, 0], 1e-6)
+        normal[0, 0] += 1e-9
+        assert estimate[r, c] == pytest.approx(np.linalg.solve(normal, right)[0], abs=2e-4)
