@@ -285,6 +285,26 @@ def test_the_windowed_options_refuse_what_they_cannot_do_in_one_line(tmp_path):
         assert not (tmp_path / "x" / "summary.json").exists()
 
 
+def test_an_unreachable_scheduler_exits_in_one_line_and_leaves_no_empty_out_folder(tmp_path):
+    pytest.importorskip("distributed")
+    out = tmp_path / "new" / "out"
+    command = [
+        sys.executable,
+        "-m",
+        "cliff_terrain",
+        "heights",
+        str(ORTHO),
+        "--dsm",
+        str(DSM),
+        "--no-progress",
+    ]
+    command += ["--out", str(out), "--windowed", "--scheduler", "tcp://127.0.0.1:9", "--timeout", "1"]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "127.0.0.1:9" in done.stderr
+    assert not out.exists() and (tmp_path / "new").is_dir()  # the parent stays: only what was empty goes
+
+
 def test_a_dask_cluster_gives_exactly_what_this_process_gives(tmp_path):
     """Both passes' windows as tasks on two worker processes (the readers opened in the workers, the
     coarse ground scattered to them): every plot column and raster pixel equal to the in-process run,

@@ -41,6 +41,7 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib):
         from ..io.raster.geotiff import read_georeference
 
         check_plot_crs(plots, read_georeference(args.ortho)[1], raster=str(args.ortho))
+    created = not out.exists()  # a folder made here and left empty by a failure is removed
     try:
         out.mkdir(parents=True, exist_ok=True)
         spool = tempfile.mkdtemp(prefix=".windows-", dir=out)
@@ -94,6 +95,9 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib):
             result.close()
     finally:
         shutil.rmtree(spool, ignore_errors=True)
+        if created:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if empty: an unreachable scheduler leaves no empty --out behind
     check = result.check or {}
     ground = result.ground_source
     if check:
