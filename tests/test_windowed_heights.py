@@ -223,6 +223,9 @@ def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_pa
     in_memory = heights_estimate([rows * cols / 1e6] * 2, rows * cols / 1e6)
     _, needs = windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=4.0)
     assert needs < in_memory  # at 1 cm the ground's grid (5 cm) is 25 times smaller
+    # A second thread holds its own window and readers: counted.
+    _, needs_two = windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=4.0, threads=2)
+    assert needs_two > needs
     # A cap between the two: measured in windows, not refused.
     cap = round((needs + in_memory) / 2, 3)
     out, table, stdout = run_heights(
@@ -283,6 +286,15 @@ def test_the_windowed_options_refuse_what_they_cannot_do_in_one_line(tmp_path):
             done.stderr,
         )
         assert not (tmp_path / "x" / "summary.json").exists()
+
+
+def test_windows_on_three_threads_give_exactly_what_one_gives(tmp_path):
+    need_plots()
+    plots = read_plots(PAIR_PLOTS)
+    one = windowed(tmp_path, "one", ORTHO, DSM, plots, window=128, ground_pixels=100_000)
+    three = windowed(tmp_path, "three", ORTHO, DSM, plots, window=128, ground_pixels=100_000, threads=3)
+    assert one[0].windows == three[0].windows == 25
+    assert_same(one, three)
 
 
 def test_an_unreachable_scheduler_exits_in_one_line_and_leaves_no_empty_out_folder(tmp_path):

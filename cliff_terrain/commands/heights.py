@@ -33,6 +33,8 @@ from .cluster_options import add_cluster_arguments
 from .index_options import add_index_arguments
 
 HELP = "measure canopy height from an orthophoto and its DSM (and DTM); write the CHM and tables"
+# Windows measured at once in this process without a cluster (one per core, up to this many).
+MAX_THREADS = 4
 
 
 def configure(parser):
@@ -309,7 +311,11 @@ def _windowed(args):
 
 
 def _run_windowed(args, outputs, plots, ruler):
+    import functools
+    import os
+
     from .._validate import check_int
+    from ..errors import CliffTerrainError
     from ..io.raster.geotiff import read_georeference
     from ..measure.window_tasks import window_halo
     from ..measure.windowed import WINDOW_PX
@@ -320,7 +326,8 @@ def _run_windowed(args, outputs, plots, ruler):
     args.window = window
     transform, _ = read_georeference(args.ortho)
     halo = window_halo(plots, transform)
-    budget, estimate = windowed_plan(
+    plan = functools.partial(
+        windowed_plan,
         args.ortho,
         (args.dsm, args.dtm),
         window_px=window + 2 * halo,
@@ -328,7 +335,23 @@ def _run_windowed(args, outputs, plots, ruler):
         plots=0 if plots is None else len(plots),
         workers=0 if args.scheduler else (args.workers or 0),
     )
+    # Without a cluster, one window per core at once, as many as the cap allows (one at the least).
+    threads = 1 if (args.scheduler or args.workers) else min(MAX_THREADS, os.cpu_count() or 1)
+    while True:
+        try:
+            budget, estimate = plan(threads=threads)
+            break
+        except CliffTerrainError:
+            if threads == 1:
+                raise
+            threads -= 1
     outputs = [n for n in outputs if not n.startswith("regions.")]
     return run_windowed(
-        args, outputs=outputs, plots=plots, ruler=ruler, ground_pixels=budget, estimate_gib=estimate
+        args,
+        outputs=outputs,
+        plots=plots,
+        ruler=ruler,
+        ground_pixels=budget,
+        estimate_gib=estimate,
+        threads=threads,
     )

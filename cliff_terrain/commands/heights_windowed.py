@@ -14,7 +14,7 @@ watershed. ``--indices`` and ``--band-files`` are refused (they read the bands w
 from __future__ import annotations
 
 
-def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib):
+def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, threads=1):
     import contextlib
     import json
     import shutil
@@ -76,6 +76,7 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib):
                 ground_pixels=ground_pixels,
                 progress=progress,
                 client=client,
+                threads=threads,
             )
         try:
             files, summary, ruler_columns, ruler_record = _files(args, result, ruler, window, estimate_gib)

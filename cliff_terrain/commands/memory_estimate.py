@@ -105,13 +105,14 @@ def striped_gib(path):
         return tiff.shape[0] * tiff.shape[1] * tiff.samples * tiff.page.dtype.itemsize / 2**30
 
 
-def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0, workers=0):
+def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0, workers=0, threads=1):
     """(ground grid budget in pixels, estimated peak GiB) of a windowed heights run under `cap_gib`.
 
     `window_px` is the side of a window read with its halo; `others` are the DSM (and DTM);
     `plots` the number of plots; `workers` the local Dask worker processes, each holding the
     interpreter, the striped files, one window and its copy of the coarse ground (a remote
-    cluster's memory is its own: 0). The ground grid gets what the cap leaves after the interpreter,
+    cluster's memory is its own: 0); `threads` the windows measured at once in this process, each
+    thread beyond the first holding its own readers and window. The ground grid gets what the cap leaves after the interpreter,
     the plots and the striped files decoded whole, up to :data:`MAX_GROUND_PIXELS`; below
     :data:`MIN_GROUND_PIXELS` (or when one window does not fit) the run is refused, naming the
     orthophoto and what to change.
@@ -127,6 +128,7 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     window_gib = WINDOW_GIB_PER_MP * window_mp
     per_worker = BASE_GIB + sum(striped_gib(p) for p in files) + window_gib
     fixed = BASE_GIB + PLOT_GIB * plots + sum(striped_gib(p) for p in files) + workers * per_worker
+    fixed += (max(1, threads) - 1) * (per_worker - BASE_GIB)
     transform, _ = read_georeference(ortho)
     pixel = math.hypot(*transform[:2, 0])
     finest = ground_factor((rows, cols), pixel, ground_pixels=rows * cols)  # the 5 cm floor alone

@@ -142,6 +142,7 @@ def measure_windowed(
     ground_pixels=GROUND_PIXELS,
     progress=None,
     client=None,
+    threads=1,
 ):
     """Measure an orthophoto of any size window by window: ground, CHM rasters and plot table.
 
@@ -171,6 +172,9 @@ def measure_windowed(
         Spread both passes' windows over a Dask cluster (:func:`~.window_tasks.coarse_window`
         and :func:`~.window_tasks.measure_window` as tasks, the coarse ground scattered to every
         worker once); the results are the same.
+    threads : int, optional
+        Without `client`, windows measured at once in this process, each thread with its own
+        readers (numpy, OpenCV and the TIFF codecs release the GIL); the results are the same.
 
     Returns
     -------
@@ -185,17 +189,73 @@ def measure_windowed(
         The ground cannot be estimated (:func:`~cliff_terrain.measure.ground.fit_ground`).
     """
     window = check_int("window", window, minimum=16)
+    threads = check_int("threads", threads, minimum=1)
     ground_pixels = check_int("ground_pixels", ground_pixels, minimum=10_000)
     block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
     step = progress or (lambda fraction, stage: None)
     sources = WindowSources(ortho, dsm, dtm)
+    readers = [sources]
     try:
-        return _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, client)
+        if client is None:
+            readers += [WindowSources(ortho, dsm, dtm) for _ in range(threads - 1)]
+        run = _runner(client, readers)
+        return _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run)
     finally:
-        sources.close()
+        for reader in readers:
+            reader.close()
 
 
-def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, client):
+def _runner(client, readers):
+    """``run(function, argument tuples, shared)``: the calls' results in order, on `client`'s
+    workers (`shared` scattered to them once), on one thread per reader, or here."""
+    if client is not None:
+
+        def on_cluster(function, arguments, shared=None):
+            if shared is not None:
+                shared = client.scatter(shared, broadcast=True)
+            calls = ((*args, shared) if shared is not None else args for args in arguments)
+            return in_order(client, function, calls, ahead=_ahead(client))
+
+        return on_cluster
+    if len(readers) == 1:
+        return lambda function, arguments, shared=None: (
+            function(*args, *(() if shared is None else (shared,)), sources=readers[0]) for args in arguments
+        )
+    return lambda function, arguments, shared=None: _on_threads(function, arguments, shared, readers)
+
+
+def _on_threads(function, arguments, shared, readers):
+    """The calls on one thread per reader, each call with a free reader; results in order, at
+    most one waiting per thread beyond those running (memory stays a few windows)."""
+    import queue
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    free = queue.SimpleQueue()
+    for reader in readers:
+        free.put(reader)
+
+    def call(args):
+        reader = free.get()
+        try:
+            return function(*args, *(() if shared is None else (shared,)), sources=reader)
+        finally:
+            free.put(reader)
+
+    pool = ThreadPoolExecutor(len(readers), thread_name_prefix="cliff-window")
+    pending = deque()
+    try:
+        for args in arguments:
+            pending.append(pool.submit(call, args))
+            if len(pending) > 2 * len(readers):
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run):
     from ..io.raster.geotiff_stream import RasterSpool
     from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold
 
@@ -218,11 +278,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     valid_c = np.zeros((rows_c, cols_c), bool)
     dsm_c = np.full((rows_c, cols_c), np.nan, np.float32)
     parts = coarse_tasks(sources, shape, transform, factor, index, threshold, window)
-    if client is None:
-        blocks = (coarse_window(task, sources=sources) for task in parts)
-    else:
-        blocks = in_order(client, coarse_window, ((task,) for task in parts), ahead=_ahead(client))
-    for k, block in enumerate(blocks):
+    for k, block in enumerate(run(coarse_window, ((task,) for task in parts))):
         cr, cc = block["at"]
         n_r, n_c = block["valid"].shape
         where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
@@ -259,7 +315,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     result.spools = {n: RasterSpool(folder, n, shape) for n in names}
     try:
         ground = None if ground_c is None else (ground_c, sigma_c, support_c)
-        _full_grid(sources, plots, window, result, ground, step, client)
+        _full_grid(sources, plots, window, result, ground, step, run)
     except BaseException:
         result.close()
         raise
@@ -271,14 +327,13 @@ def _ahead(client):
     return max(2, len(client.scheduler_info().get("workers", {})) + 1)
 
 
-def _full_grid(sources, plots, window, result, ground, step, client=None):
+def _full_grid(sources, plots, window, result, ground, step, run):
     tasks = window_tasks(sources, plots, window, result)  # made as they are taken: plots stay single
     count = len(windows(result.shape, window))
-    if client is None:
-        outputs = (measure_window(task, ground, sources=sources) for task in tasks)
+    if ground is None:
+        outputs = run(measure_window, ((task, None) for task in tasks))
     else:
-        shared = None if ground is None else client.scatter(ground, broadcast=True)
-        outputs = in_order(client, measure_window, ((task, shared) for task in tasks), ahead=_ahead(client))
+        outputs = run(measure_window, ((task,) for task in tasks), ground)
     rows_out = [None] * len(plots) if plots is not None else None
     labelled = False
     for k, out in enumerate(outputs):
