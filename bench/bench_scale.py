@@ -3,8 +3,9 @@
 The field is the shared OpenDroneMap pair (``../shared/data/dsm/fieldimager_ex2``: a 535 x 550
 orthophoto at 0.2 m and its DSM) tiled n x n times: the orthophoto as tiled RGBA uint8, the DSM
 resampled once onto the orthophoto's grid and tiled the same way (tiled float32, NaN no-data), and
-the 36 hand-drawn plots of ``tests/data/odm_plots_by_hand.geojson`` copied onto every `stride`-th
-copy so the field carries about ``--plots`` plots (at most 36 a copy). Everything is written tile by tile into a temporary
+the 36 hand-drawn plots of ``tests/data/odm_plots_by_hand.geojson``, each cut into ``--split`` plots
+along its long side (default 4: 144 a copy, 3.7 m x 4.8 m), copied onto every `stride`-th copy so
+the field carries about ``--plots`` plots. Everything is written tile by tile into a temporary
 folder (``--folder``, never the repository).
 
 Ours: ``cliff-terrain heights --plots`` (by itself windowed: the in-memory run would pass the 4 GiB
@@ -12,9 +13,9 @@ cap), in a fresh process whose peak resident set (VmHWM) it reports. The peer, i
 naive baseline, itself windowed (the DSM's 2nd percentile in 5 m blocks, bilinear between the block
 centres, then each plot's p90 of DSM minus that ground over the window holding the plot). Reported:
 peak RSS, wall time, MP/s, ours/peer, and how far the copies of each plot agree (the median over
-the 36 plots of the interquartile range of their copies' p90: the field repeats, so should they).
+the plots of the interquartile range of their copies' p90: the field repeats, so should they).
 
-    python bench/bench_scale.py [--tiles 13] [--plots 100000] [--folder DIR] [--keep]
+    python bench/bench_scale.py [--tiles 30] [--plots 130000] [--split 4] [--workers 1 2] [--folder DIR]
 
 `main(argv=None)` returns the rows as a list of dicts.
 """
@@ -56,7 +57,23 @@ PEER = (
 )
 
 
-def build_field(n, folder, *, target_plots):
+def split_plots(plots, parts):
+    """([ring], [uid]): each hand-drawn plot (a quadrilateral) cut across its long side into `parts`
+    plots of equal length (uid ``"<plot>-<part>"``), as a trial's single-row plots lie in a range."""
+    rings, uids = [], []
+    for polygon, attrs in zip(plots.polygons, plots.attributes, strict=True):
+        p0, p1, p2, p3 = polygon[0][:4]
+        if np.hypot(*(p1 - p0)) > np.hypot(*(p3 - p0)):  # walk along the long side
+            p1, p3 = p3, p1
+        for k in range(parts):
+            a, b = k / parts, (k + 1) / parts
+            corners = [p0 + a * (p3 - p0), p1 + a * (p2 - p1), p1 + b * (p2 - p1), p0 + b * (p3 - p0)]
+            rings.append(np.array([*corners, corners[0]]))
+            uids.append(f"{attrs['plot']}-{k}")
+    return rings, uids
+
+
+def build_field(n, folder, *, target_plots, split=1):
     """The pair tiled n x n into `folder` (ortho.tif, dsm.tif, plots.geojson); returns its figures."""
     import tifffile
 
@@ -87,16 +104,16 @@ def build_field(n, folder, *, target_plots):
                 compression="zlib", photometric="rgb" if base.ndim == 3 else "minisblack",
                 extratags=geotiff_tags(ortho.transform, ortho.crs, nodata=nodata), **extra,
             )  # fmt: skip
-    plots = read_plots(PLOTS)
+    plots = split_plots(read_plots(PLOTS), split)
     copies = n * n
-    stride = max(1, round(copies * len(plots) / target_plots))
+    stride = max(1, round(copies * len(plots[0]) / target_plots))
     polygons, attributes = [], []
     for k in range(0, copies, stride):
         i, j = divmod(k, n)
         shift = ortho.transform[:2, :2] @ np.array([j * w, i * h], float)
-        for rings, attrs in zip(plots.polygons, plots.attributes, strict=True):
-            polygons.append([ring + shift for ring in rings])
-            attributes.append({"plot_uid": attrs["plot"], "copy": k})
+        for ring, uid in zip(*plots, strict=True):
+            polygons.append([ring + shift])
+            attributes.append({"plot_uid": uid, "copy": k})
     field = PlotSet(polygons, attributes, ("plot_uid", "copy"), ortho.crs, "")
     write_plots(field, folder / "plots.geojson", crs=ortho.crs)
     return {
@@ -198,10 +215,13 @@ def _run(code, args, cwd):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tiles", type=int, nargs="+", default=[13], help="copies along each side")
-    parser.add_argument("--plots", type=int, default=100_000, help="about this many plots on the field")
+    parser.add_argument("--tiles", type=int, nargs="+", default=[30], help="copies along each side")
+    parser.add_argument("--plots", type=int, default=130_000, help="about this many plots on the field")
     parser.add_argument(
         "--folder", type=Path, default=None, help="where the field is built (default: a tmp dir)"
+    )
+    parser.add_argument(
+        "--split", type=int, default=4, help="plots cut from each hand-drawn plot (default 4)"
     )
     parser.add_argument("--keep", action="store_true", help="keep the field and outputs")
     parser.add_argument(
@@ -226,7 +246,7 @@ def main(argv=None):
             folder = base / f"t{n}"
             folder.mkdir()
             t = time.perf_counter()
-            field = build_field(n, folder, target_plots=args.plots)
+            field = build_field(n, folder, target_plots=args.plots, split=args.split)
             print(f"field {n}x{n}: {field} built in {time.perf_counter() - t:.0f} s", flush=True)
             ortho, dsm, plots = (str(folder / f) for f in ("ortho.tif", "dsm.tif", "plots.geojson"))
             command = [
