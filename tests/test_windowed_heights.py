@@ -27,6 +27,7 @@ import tifffile
 from conftest import REPO
 
 from cliff_terrain.build import build_relief
+from cliff_terrain.errors import CliffTerrainError
 from cliff_terrain.io.raster.geotiff import geotiff_tags, write_geotiff
 from cliff_terrain.io.raster.geotiff_stream import RasterSpool
 from cliff_terrain.io.vector.plot_files import write_plots
@@ -226,6 +227,16 @@ def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_pa
     # A second thread holds its own window and readers: counted.
     _, needs_two = windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=4.0, threads=2)
     assert needs_two > needs
+    # The ground grid is the files' and the cap's alone: threads, workers and the window change
+    # what is held at once, never the ground, so every way of running gives the same tables.
+    budgets = {
+        windowed_plan(ortho, (dsm,), window_px=w, cap_gib=4.0, threads=t, workers=k)[0]
+        for w, t, k in [(2100, 1, 0), (600, 1, 0), (2100, 3, 0), (2100, 1, 1), (2100, 1, 2)]
+    }
+    assert len(budgets) == 1
+    # Parallelism that does not fit beside that ground is refused, naming what to change.
+    with pytest.raises(CliffTerrainError, match="use fewer --workers"):
+        windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=needs + 0.05, workers=8)
     # A cap between the two: measured in windows, not refused.
     cap = round((needs + in_memory) / 2, 3)
     out, table, stdout = run_heights(

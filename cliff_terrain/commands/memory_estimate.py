@@ -112,10 +112,14 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     `plots` the number of plots; `workers` the local Dask worker processes, each holding the
     interpreter, the striped files, one window and its copy of the coarse ground (a remote
     cluster's memory is its own: 0); `threads` the windows measured at once in this process, each
-    thread beyond the first holding its own readers and window. The ground grid gets what the cap leaves after the interpreter,
-    the plots and the striped files decoded whole, up to :data:`MAX_GROUND_PIXELS`; below
-    :data:`MIN_GROUND_PIXELS` (or when one window does not fit) the run is refused, naming the
-    orthophoto and what to change.
+    thread beyond the first holding its own readers and window.
+
+    The ground grid's budget is what one process fits under the cap beside the interpreter, the
+    plots and the striped files decoded whole (up to :data:`MAX_GROUND_PIXELS`): it depends on the
+    files and the cap only, never on the window, the threads or the workers, so that every way of
+    running gives the same ground and the same tables. The parallelism must then fit beside it:
+    when it does not (or the budget is below :data:`MIN_GROUND_PIXELS`), the run is refused,
+    naming the orthophoto and what to change (the command takes fewer threads first).
     """
     from .._validate import check_float
     from ..io.raster.geotiff import raster_size, read_georeference
@@ -123,19 +127,27 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
 
     cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
     rows, cols = raster_size(ortho)
-    files = [ortho, *(p for p in others if p is not None)]
+    striped = sum(striped_gib(p) for p in (ortho, *(p for p in others if p is not None)))
     window_mp = min(window_px, rows) * min(window_px, cols) / 1e6
     window_gib = WINDOW_GIB_PER_MP * window_mp
-    per_worker = BASE_GIB + sum(striped_gib(p) for p in files) + window_gib
-    fixed = BASE_GIB + PLOT_GIB * plots + sum(striped_gib(p) for p in files) + workers * per_worker
-    fixed += (max(1, threads) - 1) * (per_worker - BASE_GIB)
+    resident = BASE_GIB + PLOT_GIB * plots + striped  # this process, throughout
     transform, _ = read_georeference(ortho)
     pixel = math.hypot(*transform[:2, 0])
     finest = ground_factor((rows, cols), pixel, ground_pixels=rows * cols)  # the 5 cm floor alone
     needed = math.ceil(rows / finest) * math.ceil(cols / finest)
-    budget = max(10_000, min(MAX_GROUND_PIXELS, int((cap_gib - fixed) / GROUND_GIB_PER_MP * 1e6)))
-    if budget < min(MIN_GROUND_PIXELS, needed) or cap_gib <= fixed + window_gib:
-        least = fixed + max(window_gib, GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6)
+    budget = max(10_000, min(MAX_GROUND_PIXELS, int((cap_gib - resident) / GROUND_GIB_PER_MP * 1e6)))
+    factor = ground_factor((rows, cols), pixel, ground_pixels=budget)
+    grid = math.ceil(rows / factor) * math.ceil(cols / factor)
+    ground_gib = 12 * grid / 2**30  # the coarse ground, its error and support (12 bytes a pixel)
+    # Pass 1 fits the ground here while each worker idles with its interpreter and striped files;
+    # pass 2 holds the coarse ground here and in each worker, and one window per thread or worker.
+    fit_pass = resident + GROUND_GIB_PER_MP * grid / 1e6 + workers * (BASE_GIB + striped)
+    window_pass = resident + ground_gib + workers * (BASE_GIB + striped + ground_gib + window_gib)
+    window_pass += (window_gib if workers == 0 else 0) + (max(1, threads) - 1) * (striped + window_gib)
+    estimate = max(fit_pass, window_pass)
+    if budget < min(MIN_GROUND_PIXELS, needed) or estimate > cap_gib:
+        smallest = GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6
+        least = max(estimate, resident + window_gib + smallest)
         raise CliffTerrainError(
             f"measuring {str(ortho)!r} in windows needs about {least:.1f} GiB (one {window_px}-pixel window"
             f"{f' here and in each of {workers} workers' if workers else ''}, the files that are striped "
@@ -143,9 +155,4 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
             f"lower --window{', use fewer --workers' if workers else ''}, or tile the striped files "
             "(gdal_translate -co TILED=YES)"
         )
-    factor = ground_factor((rows, cols), pixel, ground_pixels=budget)
-    grid = math.ceil(rows / factor) * math.ceil(cols / factor)
-    # The second pass keeps the coarse ground, its error and support (12 bytes a pixel), here and
-    # in each worker.
-    ground_copies = 12 * grid / 2**30 * workers
-    return budget, fixed + ground_copies + max(GROUND_GIB_PER_MP * grid / 1e6, window_gib + 12 * grid / 2**30)
+    return budget, estimate
