@@ -213,20 +213,26 @@ def _runner(client, readers):
         def on_cluster(function, arguments, shared=None):
             if shared is not None:
                 shared = client.scatter(shared, broadcast=True)
-            calls = ((*args, shared) if shared is not None else args for args in arguments)
+            calls = ((*args, *_extra(shared)) for args in arguments)
             return in_order(client, function, calls, ahead=_ahead(client))
 
         return on_cluster
     if len(readers) == 1:
         return lambda function, arguments, shared=None: (
-            function(*args, *(() if shared is None else (shared,)), sources=readers[0]) for args in arguments
+            function(*args, *_extra(shared), sources=readers[0]) for args in arguments
         )
     return lambda function, arguments, shared=None: _on_threads(function, arguments, shared, readers)
 
 
+def _extra(shared):
+    """The trailing argument every call gets: `shared`, when there is one."""
+    return () if shared is None else (shared,)
+
+
 def _on_threads(function, arguments, shared, readers):
-    """The calls on one thread per reader, each call with a free reader; results in order, at
-    most one waiting per thread beyond those running (memory stays a few windows)."""
+    """The calls on one thread per reader, each call with a free reader; results in order, with
+    at most two calls per thread submitted ahead of the one being returned (so memory stays a
+    few windows while every thread has its next window ready)."""
     import queue
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
@@ -238,7 +244,7 @@ def _on_threads(function, arguments, shared, readers):
     def call(args):
         reader = free.get()
         try:
-            return function(*args, *(() if shared is None else (shared,)), sources=reader)
+            return function(*args, *_extra(shared), sources=reader)
         finally:
             free.put(reader)
 

@@ -417,9 +417,8 @@ COG_OPTIONS = dict(
 def _write_tiled_with_overviews(path, data, extratags):
     import tifffile
 
-    options = COG_OPTIONS
     with tifffile.TiffWriter(path, bigtiff=data.nbytes > 2**31) as tif:
-        tif.write(data, extratags=extratags, **options)
+        tif.write(data, extratags=extratags, **COG_OPTIONS)
         level = data
         while max(level.shape[:2]) > COG_TILE:
             level = (
@@ -427,4 +426,4 @@ def _write_tiled_with_overviews(path, data, extratags):
                 if data.dtype.kind == "f"
                 else level[::2, ::2]
             )
-            tif.write(level, subfiletype=1, **options)
+            tif.write(level, subfiletype=1, **COG_OPTIONS)

@@ -68,7 +68,6 @@ class RasterSpool:
         import tifffile
 
         rows, cols = self.shape
-        options = COG_OPTIONS
         levels = []
         try:
             with tifffile.TiffWriter(os.fspath(path), bigtiff=rows * cols * _DTYPE.itemsize > 2**31) as tif:
@@ -88,7 +87,7 @@ class RasterSpool:
                         dtype=_DTYPE,
                         extratags=extratags,
                         subfiletype=0 if level is self else 1,
-                        **options,
+                        **COG_OPTIONS,
                     )
                     extratags = ()
                     if below is None:
