@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from cliff_terrain.errors import CliffTerrainError
+from cliff_terrain.io.raster.blocks import reduce_blocks
 from cliff_terrain.io.raster.geotiff import geotiff_tags
 from cliff_terrain.measure.ground_detail import _local_quadratic
 from cliff_terrain.measure.percentiles import nan_percentile
-from cliff_terrain.measure.window_reading import SurfaceWindows, _bilinear, reduce_blocks
+from cliff_terrain.measure.window_reading import SurfaceWindows, _bilinear
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

@@ -123,3 +123,32 @@ def test_a_killed_runs_leftovers_are_replaced_and_a_finished_run_is_kept(pair, t
     )
     assert again.returncode == 2 and again.stderr.count("\n") == 1 and "--overwrite" in again.stderr
     assert {p.name: p.read_bytes() for p in Path(out).iterdir()} == before
+
+
+def test_writers_run_at_once_all_or_nothing_and_the_first_error_is_raised(tmp_path):
+    # The windowed rasters are written on threads: the writers overlap, and a failing one leaves
+    # none of the files (not even the text written before), raising its own error.
+    import threading
+
+    from cliff_terrain.measure.tables import write_files
+
+    both = threading.Barrier(2, timeout=10)  # each writer waits for the other: only at once can they pass
+
+    def writer(tmp):
+        both.wait()
+        Path(tmp).write_bytes(b"tiff")
+
+    write_files(
+        {tmp_path / "a.tif": writer, tmp_path / "b.tif": writer, tmp_path / "s.json": "{}"}, threads=2
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.tif", "b.tif", "s.json"]
+
+    def broken(tmp):
+        Path(tmp).write_bytes(b"half")
+        raise OSError("disk full")
+
+    out = tmp_path / "again"
+    out.mkdir()
+    with pytest.raises(OSError, match="disk full"):
+        write_files({out / "s.json": "{}", out / "a.tif": broken, out / "b.tif": lambda tmp: None}, threads=2)
+    assert list(out.iterdir()) == []

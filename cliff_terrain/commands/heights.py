@@ -312,8 +312,8 @@ def _windowed(args):
 
 def _run_windowed(args, outputs, plots, ruler):
     import functools
-    import os
 
+    from .._threads import usable_cores
     from .._validate import check_int
     from ..errors import CliffTerrainError
     from ..io.raster.geotiff import read_georeference
@@ -336,7 +336,7 @@ def _run_windowed(args, outputs, plots, ruler):
         workers=0 if args.scheduler else (args.workers or 0),
     )
     # Without a cluster, one window per core at once, as many as the cap allows (one at the least).
-    threads = 1 if (args.scheduler or args.workers) else min(MAX_THREADS, os.cpu_count() or 1)
+    threads = 1 if (args.scheduler or args.workers) else min(MAX_THREADS, usable_cores())
     while True:
         try:
             budget, estimate = plan(threads=threads)

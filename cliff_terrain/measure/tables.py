@@ -133,21 +133,31 @@ def table_csv(rows, columns=None):
     return out.getvalue()
 
 
-def write_files(files):
+def write_files(files, *, threads=1):
     """Write {path: text or bytes-writer} all or nothing: each to a temporary name, then all renamed.
 
-    Values are ``str`` (written as UTF-8 text) or callables ``write(tmp_path)``.
+    Values are ``str`` (written as UTF-8 text) or callables ``write(tmp_path)``. With `threads`
+    above 1 the callables run that many at once (they must be thread-safe: the windowed rasters,
+    whose compression and reading release the GIL); the first error is raised once all stopped.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     temporary = []
     try:
-        for path, content in files.items():
-            tmp = f"{os.fspath(path)}.part-{os.getpid()}"
-            temporary.append((tmp, path))
-            if callable(content):
-                content(tmp)
-            else:
-                with open(tmp, "w", encoding="utf-8", newline="") as file:
-                    file.write(content)
+        with ThreadPoolExecutor(max(1, int(threads))) as pool:
+            jobs = []
+            for path, content in files.items():
+                tmp = f"{os.fspath(path)}.part-{os.getpid()}"
+                temporary.append((tmp, path))
+                if not callable(content):
+                    with open(tmp, "w", encoding="utf-8", newline="") as file:
+                        file.write(content)
+                elif threads > 1:
+                    jobs.append(pool.submit(content, tmp))
+                else:
+                    content(tmp)
+            for job in jobs:
+                job.result()
         for tmp, path in temporary:
             os.replace(tmp, path)
     finally:

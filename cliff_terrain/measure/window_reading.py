@@ -164,41 +164,6 @@ def windows(shape, size):
     ]
 
 
-def reduce_blocks(values, factor, weights):
-    """Means of `factor` x `factor` blocks of `values` (rows, cols[, bands]) over `weights` (bool),
-    and each block's count of weighted pixels.
-
-    The sums are float32, taken as `factor`² strided additions (numpy's reduction over a short
-    axis of a reshaped array is three times slower): exact for photos (integers below 2^24), and a
-    block's order of summation is the same in every window.
-    """
-    rows, cols = weights.shape
-    nr, nc = -(-rows // factor), -(-cols // factor)
-    bands = values.shape[2:]
-    if (rows, cols) != (nr * factor, nc * factor):  # pad to whole blocks; padding has no weight
-        padded_w = np.zeros((nr * factor, nc * factor), bool)
-        padded_w[:rows, :cols] = weights
-        padded_v = np.zeros((nr * factor, nc * factor, *bands), values.dtype)
-        padded_v[:rows, :cols] = values
-        weights, values = padded_w, padded_v
-    spread = weights.reshape(*weights.shape, *([1] * len(bands)))
-    if np.issubdtype(values.dtype, np.integer):
-        v = values.astype(np.float32)
-        v *= spread
-    else:  # NaN where there is no weight must not reach the sums
-        v = np.where(spread, values, np.float32(0)).astype(np.float32, copy=False)
-    w = weights.astype(np.float32)
-    sums = np.zeros((nr, nc, *bands), np.float32)
-    counts = np.zeros((nr, nc), np.float32)
-    for i in range(factor):
-        for j in range(factor):
-            sums += v[i::factor, j::factor]
-            counts += w[i::factor, j::factor]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        means = sums / counts.reshape(nr, nc, *([1] * len(bands)))
-    return means, counts
-
-
 class WindowSources:
     """The orthophoto (in windows, :class:`cliff_terrain.io.raster.mosaic.MosaicReader`), DSM and DTM."""
 

@@ -20,9 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io.raster.blocks import reduce_blocks
 from ..io.raster.transform import affine_inverse, apply_affine
 from .ground import canopy_height
-from .window_reading import BLUR_REACH, WindowSources, reduce_blocks, upsample, windows
+from .window_reading import BLUR_REACH, WindowSources, upsample, windows
 
 _LOCAL = threading.local()
 
@@ -139,10 +140,13 @@ def _plot_boxes(plots, transform):
 def window_halo(plots, transform):
     """Pixels a window is read beyond its core: the blur's reach, and half the largest plot's extent
     (each plot belongs to the window holding its centre, so it lies whole in the window read)."""
-    halo = BLUR_REACH + 2
     if plots is None or not len(plots):
-        return halo
-    _, boxes = _plot_boxes(plots, transform)
+        return BLUR_REACH + 2
+    return _halo(_plot_boxes(plots, transform)[1])
+
+
+def _halo(boxes):
+    halo = BLUR_REACH + 2
     extent = np.nan_to_num(np.maximum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]))
     return halo + math.ceil(float(extent.max(initial=0.0)) / 2) + 1
 
@@ -245,9 +249,11 @@ def window_tasks(sources, plots, window, result):
     """The second pass's :class:`WindowTask` s, row-major."""
     transform, shape = result.transform, result.shape
     rows, cols = shape
-    halo = window_halo(plots, transform)
+    halo = window_halo(None, transform)
     if plots is not None:
         pixel_rings, boxes = _plot_boxes(plots, transform)
+        if len(plots):
+            halo = _halo(boxes)  # window_halo's, from the boxes made once
         # Each plot to the window holding its centre (clipped to the grid: a plot outside it
         # measures nothing, as on the whole grid).
         centre_r = np.clip(np.nan_to_num((boxes[:, 1] + boxes[:, 3]) / 2), 0, rows - 1)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..._threads import usable_cores
 from ...errors import GeoreferenceError, RasterReadError
 from ._geokeys import (
     GDAL_NODATA,
@@ -35,6 +36,7 @@ from ._geokeys import (
     nodata_value,
 )
 from ._tiff_window import TiffRaster
+from .blocks import block_mean
 from .crs import UserCrs, crs_text, user_geokeys
 from .transform import affine_inverse, as_affine, grid_bounds, pixel_size
 
@@ -328,21 +330,6 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
     return out
 
 
-def block_mean(data, factor):
-    """Mean of factor x factor blocks, ignoring NaN (NaN where a block holds no data)."""
-    rows, cols = data.shape
-    pad = np.full(
-        ((rows + factor - 1) // factor * factor, (cols + factor - 1) // factor * factor), np.nan, np.float32
-    )
-    pad[:rows, :cols] = data
-    blocks = pad.reshape(pad.shape[0] // factor, factor, pad.shape[1] // factor, factor)
-    valid = np.isfinite(blocks)
-    sums = np.where(valid, blocks, 0.0).sum(axis=(1, 3))
-    counts = valid.sum(axis=(1, 3))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return (sums / counts).astype(np.float32)
-
-
 def geotiff_tags(transform, crs, *, nodata=None):
     """tifffile ``extratags`` of a GeoTIFF's georeference (and GDAL_NODATA): what :func:`write_geotiff`
     writes, and what :mod:`cliff_terrain.measure.windowed` writes window by window."""
@@ -412,13 +399,25 @@ COG_OPTIONS = dict(
     predictor=True,
     photometric="minisblack",
 )
+# What tifffile holds of tiles waiting for the compressing threads (its default, 512 MiB, would be
+# the biggest thing a windowed run holds while writing).
+WRITE_BUFFER = 64 * 2**20
+
+
+def cog_options():
+    """:data:`COG_OPTIONS`, the tiles compressed on every usable core.
+
+    tifffile compresses on half the cores by default: on one of two, where writing the rasters
+    was a third of a windowed run. Each tile is compressed by itself, so the bytes are the same.
+    """
+    return dict(COG_OPTIONS, maxworkers=usable_cores(), buffersize=WRITE_BUFFER)
 
 
 def _write_tiled_with_overviews(path, data, extratags):
     import tifffile
 
     with tifffile.TiffWriter(path, bigtiff=data.nbytes > 2**31) as tif:
-        tif.write(data, extratags=extratags, **COG_OPTIONS)
+        tif.write(data, extratags=extratags, **cog_options())
         level = data
         while max(level.shape[:2]) > COG_TILE:
             level = (
@@ -426,4 +425,4 @@ def _write_tiled_with_overviews(path, data, extratags):
                 if data.dtype.kind == "f"
                 else level[::2, ::2]
             )
-            tif.write(level, subfiletype=1, **COG_OPTIONS)
+            tif.write(level, subfiletype=1, **cog_options())

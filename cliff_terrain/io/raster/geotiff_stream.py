@@ -16,7 +16,8 @@ import os
 
 import numpy as np
 
-from .geotiff import COG_OPTIONS, COG_TILE, block_mean, geotiff_tags
+from .blocks import block_mean
+from .geotiff import COG_TILE, cog_options, geotiff_tags
 
 _DTYPE = np.dtype(np.float32)
 
@@ -45,9 +46,16 @@ class RasterSpool:
         """Write `block` (float32) with its top-left pixel at (r0, c0)."""
         block = np.ascontiguousarray(block, dtype=_DTYPE)
         cols = self.shape[1]
-        for i in range(block.shape[0]):
-            self._file.seek(((r0 + i) * cols + c0) * _DTYPE.itemsize)
-            self._file.write(block[i].tobytes())
+        at = [((r0 + i) * cols + c0) * _DTYPE.itemsize for i in range(block.shape[0])]
+        if hasattr(os, "pwrite"):  # positioned writes: no seek, no copy into Python's buffer
+            self._file.flush()
+            fd = self._file.fileno()
+            for offset, row in zip(at, block, strict=True):
+                os.pwrite(fd, row, offset)
+            return
+        for offset, row in zip(at, block, strict=True):  # Windows has no pwrite
+            self._file.seek(offset)
+            self._file.write(row.tobytes())
 
     def read_rows(self, r0, r1):
         """Rows [r0:r1] of the raster."""
@@ -69,6 +77,7 @@ class RasterSpool:
 
         rows, cols = self.shape
         levels = []
+        options = cog_options()
         try:
             with tifffile.TiffWriter(os.fspath(path), bigtiff=rows * cols * _DTYPE.itemsize > 2**31) as tif:
                 level = self
@@ -87,7 +96,7 @@ class RasterSpool:
                         dtype=_DTYPE,
                         extratags=extratags,
                         subfiletype=0 if level is self else 1,
-                        **COG_OPTIONS,
+                        **options,
                     )
                     extratags = ()
                     if below is None:
