@@ -122,7 +122,7 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     naming the orthophoto and what to change (the command takes fewer threads first).
     """
     from .._validate import check_float
-    from ..io.raster.geotiff import COG_TILE, WRITE_BUFFER, raster_size, read_georeference
+    from ..io.raster.geotiff import COG_TILE, raster_size, read_georeference, write_buffer_bytes
     from ..measure.windowed import ground_factor
 
     cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
@@ -145,8 +145,9 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     window_pass = resident + ground_gib + workers * (BASE_GIB + striped + ground_gib + window_gib)
     window_pass += (window_gib if workers == 0 else 0) + (max(1, threads) - 1) * (striped + window_gib)
     # Pass 3 writes the three rasters at once, each a band of 512-pixel tiles, its overview's and
-    # tifffile's buffer of tiles waiting for compression.
-    write_pass = resident + 3 * (2 * COG_TILE * cols * 4 + WRITE_BUFFER) / 2**30
+    # tifffile's buffer of tiles waiting for compression (never more than the raster's own tiles).
+    tiles_bytes = math.ceil(rows / COG_TILE) * math.ceil(cols / COG_TILE) * COG_TILE**2 * 4
+    write_pass = resident + 3 * (2 * COG_TILE * cols * 4 + min(write_buffer_bytes(), tiles_bytes)) / 2**30
     estimate = max(fit_pass, window_pass, write_pass)
     if budget < min(MIN_GROUND_PIXELS, needed) or estimate > cap_gib:
         smallest = GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6

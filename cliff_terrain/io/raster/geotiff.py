@@ -15,6 +15,7 @@ pixel, as 3x3 arrays (see :mod:`cliff_terrain.io.raster.transform`).
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass
@@ -399,9 +400,29 @@ COG_OPTIONS = dict(
     predictor=True,
     photometric="minisblack",
 )
-# What tifffile holds of tiles waiting for the compressing threads (its default, 512 MiB, would be
+# What tifffile holds of tiles waiting for the compressing threads (its default, 256 MiB, would be
 # the biggest thing a windowed run holds while writing).
 WRITE_BUFFER = 64 * 2**20
+
+
+@functools.cache
+def _writer_takes_buffersize():
+    # TiffWriter.write takes `buffersize` since tifffile 2024; the oldest supported (2023.7.10, the
+    # bpy 4.2 pins) has the same buffer but no parameter for it.
+    import inspect
+
+    import tifffile
+
+    return "buffersize" in inspect.signature(tifffile.TiffWriter.write).parameters
+
+
+def write_buffer_bytes():
+    """The bytes tifffile holds of tiles waiting to be compressed, with :func:`cog_options`."""
+    if _writer_takes_buffersize():
+        return WRITE_BUFFER
+    import tifffile
+
+    return int(tifffile.TIFF.BUFFERSIZE)
 
 
 def cog_options():
@@ -409,8 +430,13 @@ def cog_options():
 
     tifffile compresses on half the cores by default: on one of two, where writing the rasters
     was a third of a windowed run. Each tile is compressed by itself, so the bytes are the same.
+    The tiles waiting for the threads are capped at :data:`WRITE_BUFFER` where tifffile lets us
+    (see :func:`write_buffer_bytes`).
     """
-    return dict(COG_OPTIONS, maxworkers=usable_cores(), buffersize=WRITE_BUFFER)
+    options = dict(COG_OPTIONS, maxworkers=usable_cores())
+    if _writer_takes_buffersize():
+        options["buffersize"] = WRITE_BUFFER
+    return options
 
 
 def _write_tiled_with_overviews(path, data, extratags):
