@@ -15,6 +15,7 @@ from cliff_terrain.io.raster.geotiff import read_surface
 from cliff_terrain.io.vector.plot_polygons import PlotSet
 from cliff_terrain.measure.ground import fit_ground, naive_block_ground
 from cliff_terrain.measure.ground_check import robust_error, spatial_folds
+from cliff_terrain.measure.ground_detail import canopy_level
 from cliff_terrain.measure.ruler import agreement, calibrate, read_ruler
 
 
@@ -62,6 +63,30 @@ def test_auto_beats_the_baseline_on_held_out_soil_and_under_the_canopy():
     baseline = naive_block_ground(dsm, pixel_size=0.05, percentile=2.0)
     ours_error = np.abs(fit.ground - ground)[bed].mean()
     assert ours_error < 0.02 and ours_error < 0.5 * np.abs(baseline - ground)[bed].mean()
+
+
+def test_the_detailed_ground_keeps_its_broad_detail_and_one_level_of_the_fine_under_the_canopy():
+    # The beds' 5 cm undulation (15 m period) is broad: the detailed ground follows it closer than the
+    # smooth one. The field has no ridges: the finer detail's level under the beds is about 0.
+    dsm, ground, bed = beds()
+    detailed = fit_ground(dsm, soil=~bed, pixel_size=0.05, method="detailed")
+    smooth = fit_ground(dsm, soil=~bed, pixel_size=0.05, method="smooth")
+    assert abs(detailed.check["detail_under_canopy_m"]) < 0.01
+    error = {fit.method: np.abs(fit.ground - ground)[bed].mean() for fit in (detailed, smooth)}
+    assert error["detailed"] < 0.8 * error["smooth"], error
+
+
+def test_the_finer_detail_under_a_canopy_is_one_level_whatever_its_noise():
+    rng = np.random.default_rng(3)
+    rows, cols = np.mgrid[:200, :200]
+    canopy = (rows % 40) < 30
+    dsm = np.where(canopy, 0.5 + rng.uniform(0, 0.2, canopy.shape), 0.0).astype(np.float32)
+    smooth = np.zeros_like(dsm)
+    # Extrapolated crests: 4 cm on average under the canopy, +-3 cm from place to place.
+    detailed = np.where(canopy, 0.04 + rng.uniform(-0.03, 0.03, canopy.shape), 0.0).astype(np.float32)
+    ground, level = canopy_level(dsm, smooth, detailed, ~canopy)
+    assert level == pytest.approx(0.04, abs=0.002)
+    assert np.ptp(ground) == 0.0 and ground[0, 0] == np.float32(level)
 
 
 def test_a_senescent_canopy_the_colour_calls_soil_is_overruled_by_the_surface():

@@ -279,12 +279,16 @@ def plant_p99_errors(gsd, seed, **kw):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_per_plant_p99_within_2cm_at_1cm_per_pixel(seed):
-    # Tilted, undulating ground with 3 cm ridges under the rows, shadowed flanks, noise, holes.
+def test_per_plant_p99_about_1cm_on_average_at_1cm_per_pixel(seed):
+    # Tilted, undulating ground with 3 cm ridges under the rows, shadowed flanks, noise, holes, on a
+    # 6 m x 9 m patch. Ridge crests finer than a fifth of a block get their field-wide level under
+    # the canopy, not each plant's own (on real potato trials the per-plant crests were noise), so
+    # a plant off its crest is off by up to the ridge's 3 cm (measured 2.5 and 3.0 cm; 1.2 cm when
+    # each plant took its own crest); on average the errors stay about 1 cm.
     ours, peer = plant_p99_errors(0.01, seed)
     assert len(ours) > 10
-    assert ours.max() < 0.02, ours.max()
-    assert peer.mean() > 5 * ours.mean()  # the naive block percentile on the DSM alone
+    assert ours.max() < 0.035 and ours.mean() < 0.012, (ours.max(), ours.mean())
+    assert peer.mean() > 10 * ours.mean()  # the naive block percentile on the DSM alone
 
 
 @pytest.mark.parametrize("gsd", [0.03, 0.05])

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import check_float
+
 FOLDS = 5
 # A ground that misses held-out bare soil by more than this cannot measure crops (metres).
 CHECK_TOLERANCE_M = 0.10
@@ -229,3 +231,43 @@ def ground_sigma(residual, evidence, *, pixel_size):
         "bins": [{"distance_m": b[0], "error_m": b[1], "pixels": b[2]} for b in bins],
     }
     return GroundSigma(raster, model)
+
+
+def ground_support(soil, *, pixel_size, block_m):
+    """How much bare soil carried the ground at each pixel: its share in a block around the pixel.
+
+    The share of `soil` pixels in the `block_m` x `block_m` window centred on each pixel, the
+    scale at which :func:`cliff_terrain.measure.ground.fit_ground` fits its trend. 0 means that no soil lies within
+    half a block: the ground there is interpolated from farther blocks. A block needs at least
+    0.2 % of its pixels as soil (and 30 points) to fit a plane of its own.
+
+    Parameters
+    ----------
+    soil : (rows, cols) bool array
+        The soil the ground was estimated from.
+    pixel_size : float
+        Metres per pixel (> 0).
+    block_m : float
+        Block side in metres.
+
+    Returns
+    -------
+    (rows, cols) float32 array in [0, 1]
+
+    Examples
+    --------
+    >>> soil = np.zeros((100, 100), bool); soil[:, :10] = True
+    >>> support = ground_support(soil, pixel_size=0.1, block_m=2.0)
+    >>> float(support[50, 9]), float(support[50, 50])
+    (0.5, 0.0)
+    """
+    import cv2
+
+    soil = np.asarray(soil, dtype=bool)
+    pixel_size = check_float("pixel_size", pixel_size, minimum=0.0, strict_minimum=True)
+    block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
+    size = max(1, round(block_m / pixel_size)) | 1  # odd: centred on the pixel
+    share = cv2.blur(soil.astype(np.float32), (size, size), borderType=cv2.BORDER_CONSTANT)
+    # The window's part inside the raster: the border's missing pixels are not missing soil.
+    inside = cv2.blur(np.ones(soil.shape, np.float32), (size, size), borderType=cv2.BORDER_CONSTANT)
+    return np.clip(share / np.maximum(inside, 1e-6), 0.0, 1.0).astype(np.float32)

@@ -3,7 +3,8 @@
 Ridges, beds and furrows are interpolated by normalized convolution (Knutsson and Westin 1993),
 with local quadratic fits at the finest scales so that soil on both flanks of a ridge gives its
 crest under the plants between them. Used by :func:`cliff_terrain.measure.ground.fit_ground`'s
-``"detailed"`` candidate.
+``"detailed"`` candidate, which keeps the detail's broad part and, under the canopy, the finer
+part's level (:func:`canopy_level`).
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ _TRIM_ABOVE = 2.5
 _TRIM_BELOW = 5.0
 
 
-def detail_above(dsm, trend, exposed, sigma, block):
+def detail_above(dsm, trend, exposed, sigma, block, *, smallest=None):
     """Exposed soil's height above the trend, interpolated from fine to coarse (normalized convolution).
 
     Everything runs on a grid `factor` times coarser (a third of the finest sigma per cell: the
-    detail is smooth at that scale), then is enlarged once.
+    detail is smooth at that scale), then is enlarged once. With `smallest` (pixels), only the
+    scales from `smallest` up, by normalized convolution alone: the broad part of the detail.
     """
     import cv2
 
@@ -52,8 +54,10 @@ def detail_above(dsm, trend, exposed, sigma, block):
     numerator = residual * weight
     estimate = np.zeros_like(residual)
     scales = [sigma * 3.0**k for k in range(6) if sigma * 3.0**k < block / 2] or [sigma]
+    if smallest is not None:
+        scales = [s for s in scales if s * factor >= smallest]
     for s in reversed(scales):  # coarse to fine: each finer scale overrides where it has soil
-        if s <= QUADRATIC_UP_TO * scales[0]:
+        if smallest is None and s <= QUADRATIC_UP_TO * scales[0]:
             # The finest scales fit a local quadratic: soil on both flanks of a ridge then gives
             # the crest under the plants between them, which a weighted mean would put too low.
             local, den = _local_quadratic(residual, weight, s)
@@ -177,3 +181,35 @@ def blur(image, sigma):
         small = cv2.GaussianBlur(small, (0, 0), sigma / factor, borderType=cv2.BORDER_REFLECT)
         return cv2.resize(small, (cols, rows), interpolation=cv2.INTER_LINEAR)
     return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+
+
+def canopy_level(dsm, smooth, detailed, evidence):
+    """`smooth` lifted by the finer detail's level under the canopy: ``(ground, level in metres)``.
+
+    The finer detail (`detailed` - `smooth`, where `smooth` holds the broad detail) is measured
+    where there is soil; under a canopy it is extrapolated from the soil beside the plants, and on
+    a real potato trial it varied from plot to plot more than the smooth ground's own errors did
+    (standard deviation of its effect on the plots' p90 2.0-2.2 cm on two dates, against 1.2-1.7
+    cm, correlated with them at 0.17-0.57): noise more than ridges. What holds is its level: the
+    median detail beneath the upper half of the canopy (the pixels that are not evidence, above
+    their median height over `smooth`), where the heights users read (p90, a plant's top) are
+    taken. `smooth` plus that one number is the ground everywhere: a constant cannot put a group
+    of plots too high.
+
+    Examples
+    --------
+    >>> dsm = np.array([[0.0, 0.0, 0.5, 0.6]], np.float32)
+    >>> smooth = np.zeros_like(dsm)
+    >>> detailed = np.array([[0.0, 0.0, 0.01, 0.03]], np.float32)
+    >>> ground, level = canopy_level(dsm, smooth, detailed, np.array([[True, True, False, False]]))
+    >>> round(level, 3), ground.tolist() == [[level] * 4]
+    (0.03, True)
+    """
+    above = dsm - smooth
+    canopy = np.isfinite(above) & ~evidence
+    level = 0.0
+    if canopy.any():
+        upper = canopy & (above > np.median(above[canopy]))
+        if upper.any():
+            level = float(np.median((detailed - smooth)[upper]))
+    return (smooth + np.float32(level)).astype(np.float32), level
