@@ -10,6 +10,7 @@ import pytest
 from scipy import stats
 from test_measured_heights import run_cli, write_synthetic_pair
 
+from cliff_terrain.data.synthetic_surface import synthetic_surface
 from cliff_terrain.errors import CliffTerrainError, GroundError, RulerError
 from cliff_terrain.io.raster.geotiff import read_surface
 from cliff_terrain.io.vector.plot_polygons import PlotSet
@@ -74,6 +75,19 @@ def test_the_detailed_ground_keeps_its_broad_detail_and_one_level_of_the_fine_un
     assert abs(detailed.check["detail_under_canopy_m"]) < 0.01
     error = {fit.method: np.abs(fit.ground - ground)[bed].mean() for fit in (detailed, smooth)}
     assert error["detailed"] < 0.8 * error["smooth"], error
+
+
+def test_the_level_under_the_canopy_counts_in_full_in_the_uncertainty():
+    # The synthetic field's ridges stand under its rows: the level lifts the ground under the plants, and
+    # no held-out soil checks it, so every pixel's standard error holds it.
+    img, dsm, truth = synthetic_surface(gsd=0.03, seed=3)
+    fit = fit_ground(dsm, soil=~truth.chm.astype(bool), pixel_size=0.03, method="detailed")
+    level = fit.check["detail_under_canopy_m"]
+    assert fit.check["sigma_model"]["canopy_level_m"] == level and abs(level) > 0.005
+    floor = fit.check["sigma_model"]["floor_m"]
+    assert np.all(fit.sigma >= np.float32(np.hypot(floor, level)) * (1 - 1e-6))
+    smooth = fit_ground(dsm, soil=~truth.chm.astype(bool), pixel_size=0.03, method="smooth")
+    assert smooth.check["sigma_model"]["canopy_level_m"] == 0.0 and smooth.sigma.min() == pytest.approx(floor)
 
 
 def test_the_finer_detail_under_a_canopy_is_one_level_whatever_its_noise():
