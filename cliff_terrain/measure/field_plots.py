@@ -161,7 +161,7 @@ def plot_table(
     height_units : {"m", "cm", "mm"}, optional
         Units of `heights`; the table is in metres.
     support : (rows, cols) float array, optional
-        The ground's support (:func:`cliff_terrain.measure.ground.ground_support`); adds the column
+        The ground's support (:func:`cliff_terrain.measure.ground_check.ground_support`); adds the column
         ``ground_support``, its mean over the plot's pixels (0: the ground under the plot was
         interpolated from soil elsewhere; 1 with a terrain model).
     sigma : (rows, cols) float array, optional

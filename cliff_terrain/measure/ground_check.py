@@ -237,9 +237,8 @@ def ground_support(soil, *, pixel_size, block_m):
     """How much bare soil carried the ground at each pixel: its share in a block around the pixel.
 
     The share of `soil` pixels in the `block_m` x `block_m` window centred on each pixel, the
-    scale at which :func:`cliff_terrain.measure.ground.fit_ground` fits its trend. 0 means that no soil lies within
-    half a block: the ground there is interpolated from farther blocks. A block needs at least
-    0.2 % of its pixels as soil (and 30 points) to fit a plane of its own.
+    scale at which :func:`cliff_terrain.measure.ground.fit_ground` fits its trend. 0 means that
+    no soil lies within half a block: the ground there is interpolated from farther blocks.
 
     Parameters
     ----------

@@ -1,14 +1,13 @@
 """A float32 GeoTIFF larger than memory, written window by window: tiled, Deflate, with overviews.
 
-:class:`RasterSpool` collects a raster's windows in any order in a raw file on disk (row-major
-float32, one seek per window row), then :meth:`RasterSpool.write_geotiff` streams it into the
-layout :func:`cliff_terrain.io.raster.geotiff.write_geotiff` gives with ``overviews=True`` (512 x 512
+:class:`RasterSpool` collects a raster's windows in any order in a raw file on disk (float32, in
+the output's 512 x 512 tiles), then :meth:`RasterSpool.write_geotiff` streams it into the layout
+:func:`cliff_terrain.io.raster.geotiff.write_geotiff` gives with ``overviews=True`` (512 x 512
 tiles, Deflate with the floating-point predictor, reduced-resolution images halving the size until
-one tile holds it, each the NaN-aware mean of 2 x 2 pixels of the level above). The spool holds the
-raster in those tiles; tifffile takes them from an iterator, a band of 512 rows at a time, and each
-level is spooled to disk while the level above is written, so memory follows one band of 512 rows,
-not the raster. The pixels and the overviews
-are those of ``write_geotiff(..., overviews=True)`` on the whole array (tested).
+one tile holds it, each the NaN-aware mean of 2 x 2 pixels of the level above). tifffile takes the
+tiles from an iterator, a band of 512 rows at a time, and each level is spooled to disk while the
+level above is written, so memory follows one band of 512 rows, not the raster. The pixels and the
+overviews are those of ``write_geotiff(..., overviews=True)`` on the whole array (tested).
 """
 
 from __future__ import annotations
