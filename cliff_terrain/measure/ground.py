@@ -64,7 +64,7 @@ GROUND_METHODS = settings.ids(settings.GROUND_METHODS)
 CANDIDATES = GROUND_METHODS[1:]
 # The detailed ground's broad part starts at this fraction of a block (1 m in 5 m blocks); finer
 # detail is kept under the canopy as one level. Chosen on the potato trial's dates with either
-# field left out (1 m against 0.4 m and all scales; docs/validation.md).
+# field left out (1 m against 0.4 m, every scale and none; docs/validation.md).
 BROAD_DETAIL = 0.2
 # The smooth offset's Gaussian sigma, in blocks (0.5 and 0.25 measured worse on a real potato
 # trial's day 100: RMSE 2.2 -> 2.5 and 2.6 cm).
@@ -240,7 +240,9 @@ def fit_ground(
     support = ground_support(evidence, pixel_size=pixel_size, block_m=small_m)
     guessed = finite & ~evidence
     check["support_where_guessed"] = float(np.mean(support[guessed])) if guessed.any() else 1.0
-    return GroundFit(ground, chosen, evidence, evidence_source, support, error.astype(np.float32), check)
+    return GroundFit(
+        ground, chosen, evidence, evidence_source, support, error.astype(np.float32, copy=False), check
+    )
 
 
 def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):

@@ -98,7 +98,7 @@ class RasterSpool:
         t = self.tile
         parts = []
         for ti in range(r0 // t, -(-r1 // t)):
-            band = self.tile_row(ti).transpose(1, 0, 2).reshape(t, -1)
+            band = _band(self.tile_row(ti))
             parts.append(band[max(r0 - ti * t, 0) : min(r1 - ti * t, t), : self.shape[1]])
         return np.concatenate(parts) if parts else np.zeros((0, self.shape[1]), _DTYPE)
 
@@ -152,6 +152,11 @@ def _tiles(level, below):
         tiles = level.tile_row(ti)
         if below is not None:  # bands of 512 (even) rows: the means of the whole level's, exactly
             r0 = ti * COG_TILE
-            band = tiles.transpose(1, 0, 2).reshape(COG_TILE, -1)[: min(rows - r0, COG_TILE), :cols]
+            band = _band(tiles)[: min(rows - r0, COG_TILE), :cols]
             below.put(r0 // 2, 0, block_mean(band, 2))
         yield from tiles
+
+
+def _band(tiles):
+    """A tile row, (tiles across, tile, tile), as one band of pixels (tile, tiles across x tile)."""
+    return tiles.transpose(1, 0, 2).reshape(tiles.shape[1], -1)
