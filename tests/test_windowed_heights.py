@@ -29,7 +29,7 @@ from conftest import REPO
 from cliff_terrain.build import build_relief
 from cliff_terrain.errors import CliffTerrainError
 from cliff_terrain.io.raster.geotiff import geotiff_tags, write_geotiff
-from cliff_terrain.io.raster.geotiff_stream import RasterSpool
+from cliff_terrain.io.raster.geotiff_stream import RasterSpool, TileSpool, encode_block
 from cliff_terrain.io.vector.plot_files import write_plots
 from cliff_terrain.io.vector.plot_polygons import PlotSet, read_plots
 from cliff_terrain.measure.window_reading import upsample
@@ -200,6 +200,34 @@ def test_the_windowed_rasters_are_the_in_memory_writers_overviews_included(tmp_p
         tags = {t.code: t.value for t in a.pages[0].tags.values() if t.code >= 33550}
         assert tags == {t.code: t.value for t in b.pages[0].tags.values() if t.code >= 33550}
     assert not (tmp_path / "chm.raw").exists()
+
+
+def test_windows_encoded_where_measured_write_the_same_file_byte_for_byte(tmp_path):
+    # Windows of whole tiles come back compressed (encode_block, on the workers); the file written
+    # from their bytes is RasterSpool's, which compresses every tile itself (tested above against
+    # the in-memory writer), to the byte: same tiles, same overviews, same tags.
+    rng = np.random.default_rng(1)
+    data = rng.normal(size=(1300, 1100)).astype(np.float32)  # neither side a multiple of 512
+    data[rng.random(data.shape) < 0.1] = np.nan
+    transform = np.array([[0.1, 0, 1000.0], [0, -0.1, 2000.0], [0, 0, 1]])
+    raw, encoded = RasterSpool(tmp_path, "raw", data.shape), TileSpool(tmp_path, "encoded", data.shape)
+    for r0 in reversed(range(0, 1300, 512)):  # out of order, the edges' short tiles included
+        for c0 in range(0, 1100, 1024):
+            block = data[r0 : r0 + 512, c0 : c0 + 1024]
+            raw.put(r0, c0, block)
+            encoded.put(r0, c0, encode_block(block))
+    np.testing.assert_array_equal(encoded.read_rows(300, 1300), data[300:])
+    for spool in (raw, encoded):
+        spool.write_geotiff(
+            tmp_path / f"{spool.path}.tif", transform=transform, crs=32616, nodata=float("nan")
+        )
+        spool.close()
+    assert (tmp_path / "encoded.tiles.tif").read_bytes() == (tmp_path / "raw.raw.tif").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["encoded.tiles.tif", "raw.raw.tif"]
+    unaligned = TileSpool(tmp_path, "x", data.shape)
+    with pytest.raises(ValueError, match=r"must start on a tile corner, not at \(0, 100\)"):
+        unaligned.put(0, 100, encode_block(data[:512, 100:612]))
+    unaligned.close()
 
 
 def test_the_ground_is_upsampled_with_its_pixel_centres_aligned():

@@ -26,7 +26,7 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
     from ..evaluate.views import json_safe
     from ..io.vector.geojson import polygon_geometries, table_geojson
     from ..measure.field_plots import check_plot_crs, table_columns
-    from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, table_csv, write_files
+    from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, table_csv, text_writer, write_files
     from ..measure.windowed import WINDOW_PX, measure_windowed
     from .cluster_options import cluster_security
 
@@ -85,13 +85,17 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
             if plots is not None:
                 columns = table_columns(plots, support=True, sigma=True)
                 columns[-1:-1] = ruler_columns
-                files[out / PLOTS_CSV] = table_csv(rows, columns)
-                files[out / PLOTS_GEOJSON] = table_geojson(rows, polygon_geometries(plots), crs=result.crs)
+                # Made while the rasters are written (130 000 plots' text takes seconds of Python).
+                files[out / PLOTS_CSV] = text_writer(lambda: table_csv(rows, columns))
+                files[out / PLOTS_GEOJSON] = text_writer(
+                    lambda: table_geojson(rows, polygon_geometries(plots), crs=result.crs)
+                )
             files[out / "summary.json"] = json.dumps(json_safe(summary), indent=2) + "\n"
             order = {out / name: i for i, name in enumerate(outputs)}
             files = dict(sorted(files.items(), key=lambda item: order.get(item[0], -1)))
-            # The rasters at once: their Deflate and reading release the GIL (a third of the run's time).
-            write_files(files, threads=min(len(result.spools), usable_cores()))
+            # All at once: the rasters' reading, copying and Deflate of their overviews release the
+            # GIL, so the tables' Python runs beside them.
+            write_files(files, threads=max(usable_cores(), sum(map(callable, files.values()))))
         except OSError as exc:
             raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
         finally:

@@ -133,6 +133,18 @@ def table_csv(rows, columns=None):
     return out.getvalue()
 
 
+def text_writer(make):
+    """A writer for :func:`write_files` of the text ``make()`` returns, made when it is written (on
+    the writers' threads, beside the other files)."""
+
+    def write(tmp):
+        text = make()
+        with open(tmp, "w", encoding="utf-8", newline="") as file:
+            file.write(text)
+
+    return write
+
+
 def write_files(files, *, threads=1):
     """Write {path: text or bytes-writer} all or nothing: each to a temporary name, then all renamed.
 

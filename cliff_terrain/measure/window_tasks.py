@@ -1,6 +1,8 @@
 """The windows of :mod:`cliff_terrain.measure.windowed` as self-contained tasks: what one window
 needs, picklable, so that the same function runs in this process or on a Dask worker.
 
+- :class:`OverviewTask` / :func:`overview_band`: a band of the orthophoto's overview, on which the
+  plant/soil threshold is taken.
 - :class:`CoarseTask` / :func:`coarse_window`: the first pass, one window of the orthophoto and
   its DSM reduced to the ground grid.
 - :class:`WindowTask` / :func:`measure_window`: the second pass, one window's CHM, its error and
@@ -54,6 +56,23 @@ def close_worker_sources():
     if held is not None:
         held[1].close()
         _LOCAL.sources = None
+
+
+@dataclass
+class OverviewTask:
+    """One band of rows of the orthophoto's overview (picklable: :func:`overview_band`)."""
+
+    ortho: str
+    dsm: str
+    rows: tuple  # (r0, r1)
+    step: int
+
+
+def overview_band(task, *, sources=None):
+    """:meth:`cliff_terrain.io.raster.mosaic.MosaicReader.overview_band` of `task`'s rows."""
+    if sources is None:
+        sources = worker_sources(task.ortho, task.dsm, None)
+    return sources.ortho.overview_band(*task.rows, task.step)
 
 
 @dataclass
@@ -174,6 +193,8 @@ class WindowTask:
     fields: tuple = ()
     plots_path: str = ""
     mine: np.ndarray | None = None  # the plots whose centre the core holds
+    # The rasters come back encoded (geotiff_stream.encode_block): the core is whole output tiles.
+    encode: bool = False
 
 
 def measure_window(task, ground=None, *, sources=None):
@@ -222,6 +243,12 @@ def measure_window(task, ground=None, *, sources=None):
     }
     if sigma is not None:
         out["chm_err"], out["ground_support"] = sigma[core].copy(), support[core].copy()
+    if task.encode:  # compressed here, on every worker at once, not by the one process writing
+        from ..io.raster.geotiff_stream import encode_block
+
+        for name in ("chm", "chm_err", "ground_support"):
+            if name in out:
+                out[name] = encode_block(out[name])
     if task.mine is not None and task.mine.size:
         n = len(task.plot_ids)
         local = PlotSet(task.pixel_rings, [{}] * n, (), None, task.plots_path)
@@ -245,6 +272,14 @@ def measure_window(task, ground=None, *, sources=None):
     return out
 
 
+def encoded_windows(window):
+    """Whether windows of side `window` are whole output tiles, so they come back encoded
+    (:class:`~cliff_terrain.io.raster.geotiff_stream.TileSpool`)."""
+    from ..io.raster.geotiff import COG_TILE
+
+    return window % COG_TILE == 0
+
+
 def window_tasks(sources, plots, window, result):
     """The second pass's :class:`WindowTask` s, row-major."""
     transform, shape = result.transform, result.shape
@@ -266,7 +301,7 @@ def window_tasks(sources, plots, window, result):
         C0, C1 = max(0, c0 - halo), min(cols, c1 + halo)
         task = WindowTask(
             sources.ortho.path, sources.dsm.path, dtm, transform, shape, result.factor, result.index,
-            result.threshold, (r0, r1, c0, c1), (R0, R1, C0, C1),
+            result.threshold, (r0, r1, c0, c1), (R0, R1, C0, C1), encode=encoded_windows(window),
         )  # fmt: skip
         if plots is not None:
             mine = np.flatnonzero(owner == k)

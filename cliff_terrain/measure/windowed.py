@@ -21,8 +21,10 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
    the coarse grid (pixel centres aligned: full pixel ``i`` lies at coarse ``(i + 0.5) / factor -
    0.5``, held flat beyond the outer centres) is the CHM; it, the ground's standard error and its
    support are spooled window by window into tiled, Deflate GeoTIFFs with overviews
-   (:mod:`cliff_terrain.io.raster.geotiff_stream`). Plants are the blurred index above the same threshold
-   (the rule of :func:`~cliff_terrain.measure.canopy.plant_mask`).
+   (:mod:`cliff_terrain.io.raster.geotiff_stream`); windows of whole 512-pixel tiles (the default)
+   come back compressed from where they were measured, so no one process compresses them all.
+   Plants are the blurred index above the same threshold (the rule of
+   :func:`~cliff_terrain.measure.canopy.plant_mask`).
 3. **Plots, exactly.** Each plot belongs to the window holding its centre; windows are read with a
    halo of half the largest plot's extent (plus the blur's reach), so every plot lies whole in its
    window and :func:`cliff_terrain.measure.field_plots.plot_table` takes all its pixels: the
@@ -48,7 +50,15 @@ from .._validate import check_float, check_int
 from ..errors import GeoreferenceError
 from .ground import DEFAULT_BLOCK_M, fit_ground
 from .window_reading import WindowSources, windows
-from .window_tasks import coarse_tasks, coarse_window, measure_window, window_tasks
+from .window_tasks import (
+    OverviewTask,
+    coarse_tasks,
+    coarse_window,
+    encoded_windows,
+    measure_window,
+    overview_band,
+    window_tasks,
+)
 
 #: The ground grid's finest pixel (metres): the ground's finest detail is a Gaussian of 0.15 m.
 GROUND_PIXEL_M = 0.05
@@ -84,6 +94,7 @@ class WindowedCanopy:
         The plot table, as :func:`cliff_terrain.measure.field_plots.plot_table` gives it.
     spools : dict
         Raster name (``"chm"``, ``"chm_err"``, ``"ground_support"``) ->
+        :class:`~cliff_terrain.io.raster.geotiff_stream.TileSpool` (windows of whole tiles) or
         :class:`~cliff_terrain.io.raster.geotiff_stream.RasterSpool`.
     windows : int
         Number of windows measured.
@@ -262,7 +273,7 @@ def _on_threads(function, arguments, shared, readers):
 
 
 def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run):
-    from ..io.raster.geotiff_stream import RasterSpool
+    from ..io.raster.geotiff_stream import RasterSpool, TileSpool
     from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold
 
     transform = sources.ortho.transform
@@ -271,8 +282,9 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     name = sources.ortho.path
     factor = ground_factor(shape, pixel_size, ground_pixels=ground_pixels)
 
-    # 0. The plant/soil threshold, on an overview of the whole photo (every step-th pixel, <= 4 MP).
-    overview, valid_o, _ = sources.ortho.overview()
+    # 0. The plant/soil threshold, on an overview of the whole photo (every step-th pixel, <= 4 MP),
+    # read band by band where the windows are (decoding the photo is most of it).
+    overview, valid_o = _overview(sources, run)
     vi_o, index = blurred_index(overview)
     threshold = float(photo_threshold(vi_o, overview, index=index, valid=valid_o).threshold)
     del overview, valid_o, vi_o
@@ -318,7 +330,8 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
         factor, threshold, index, check,
     )  # fmt: skip
     names = ["chm"] + (["chm_err", "ground_support"] if ground_c is not None else [])
-    result.spools = {n: RasterSpool(folder, n, shape) for n in names}
+    spool = TileSpool if encoded_windows(window) else RasterSpool
+    result.spools = {n: spool(folder, n, shape) for n in names}
     try:
         ground = None if ground_c is None else (ground_c, sigma_c, support_c)
         _full_grid(sources, plots, window, result, ground, step, run)
@@ -326,6 +339,21 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
         result.close()
         raise
     return result
+
+
+def _overview(sources, run):
+    """:meth:`~cliff_terrain.io.raster.mosaic.MosaicReader.overview`'s photo and valid mask, its bands
+    read by `run`."""
+    step, bands = sources.ortho.overview_bands()
+    rows, cols = sources.ortho.shape
+    rgb = np.zeros((-(-rows // step), -(-cols // step), 3), np.uint8)
+    valid = np.ones(rgb.shape[:2], bool)
+    tasks = ((OverviewTask(sources.ortho.path, sources.dsm.path, band, step),) for band in bands)
+    for at, part, ok in run(overview_band, tasks):
+        rgb[at : at + len(part)] = part
+        if ok is not None:
+            valid[at : at + len(part)] = ok
+    return rgb, (None if valid.all() else valid)
 
 
 def _ahead(client):

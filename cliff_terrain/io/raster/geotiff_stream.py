@@ -8,6 +8,13 @@ one tile holds it, each the NaN-aware mean of 2 x 2 pixels of the level above). 
 tiles from an iterator, a band of 512 rows at a time, and each level is spooled to disk while the
 level above is written, so memory follows one band of 512 rows, not the raster. The pixels and the
 overviews are those of ``write_geotiff(..., overviews=True)`` on the whole array (tested).
+
+:class:`TileSpool` is the same raster arriving already encoded: a window whose core is made of whole
+tiles is compressed where it was measured (:func:`encode_block`, on a Dask worker or a window's
+thread) into the bytes tifffile would write, with its 2 x 2 means for the first overview. Writing
+is then a copy of those bytes and the overviews' encoding (a third of the pixels): the Deflate of
+the full-resolution image, most of a windowed run's writing, runs where the windows do. The file is
+byte for byte :class:`RasterSpool`'s (tested).
 """
 
 from __future__ import annotations
@@ -17,7 +24,7 @@ import os
 import numpy as np
 
 from .blocks import block_mean
-from .geotiff import COG_TILE, cog_options, geotiff_tags
+from .geotiff import COG_TILE, DEFLATE_LEVEL, cog_options, geotiff_tags
 
 _DTYPE = np.dtype(np.float32)
 
@@ -110,38 +117,184 @@ class RasterSpool:
     def write_geotiff(self, path, *, transform, crs, nodata=None):
         """Write the raster as a tiled, Deflate GeoTIFF with overviews at `path` (not atomically:
         the caller writes to a temporary name, as :func:`cliff_terrain.measure.tables.write_files`)."""
-        import tifffile
-
-        rows, cols = self.shape
-        levels = []
-        options = cog_options()
+        below = _overview_spool(self, path, 0)
         try:
-            with tifffile.TiffWriter(os.fspath(path), bigtiff=rows * cols * _DTYPE.itemsize > 2**31) as tif:
-                level = self
-                extratags = geotiff_tags(transform, crs, nodata=nodata)
-                while True:
-                    below = None
-                    if max(level.shape) > COG_TILE:  # the next overview, spooled while this level is written
-                        half = ((level.shape[0] + 1) // 2, (level.shape[1] + 1) // 2)
-                        below = RasterSpool(
-                            os.path.dirname(self.path), f"{os.path.basename(path)}-{len(levels)}", half
-                        )
-                        levels.append(below)
-                    tif.write(
-                        _tiles(level, below),
-                        shape=level.shape,
-                        dtype=_DTYPE,
-                        extratags=extratags,
-                        subfiletype=0 if level is self else 1,
-                        **options,
-                    )
-                    extratags = ()
-                    if below is None:
-                        break
-                    level = below
+            _write_pyramid(
+                path, self, _tiles(self, below), below, transform=transform, crs=crs, nodata=nodata
+            )
         finally:
-            for spool in levels:
-                spool.close()
+            if below is not None:
+                below.close()
+
+
+class TileSpool:
+    """A (rows, cols) float32 raster arriving as encoded tiles (:func:`encode_block`), under `folder`.
+
+    Level 0 is kept as its tiles' bytes (appended to a file, in any order); the first overview as a
+    :class:`RasterSpool` of the blocks' 2 x 2 means. :meth:`write_geotiff` writes the file
+    :class:`RasterSpool` writes for the same pixels, byte for byte, without compressing level 0
+    again. Not for concurrent writers.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = tempfile.mkdtemp()
+    >>> spool = TileSpool(folder, "chm", (3, 4), tile=2)
+    >>> spool.put(0, 0, encode_block(np.ones((3, 2), np.float32), tile=2))
+    >>> spool.put(0, 2, encode_block(np.zeros((3, 2), np.float32), tile=2))
+    >>> spool.read_rows(1, 2).tolist()
+    [[1.0, 1.0, 0.0, 0.0]]
+    >>> spool.close()
+    """
+
+    def __init__(self, folder, name, shape, *, tile=COG_TILE):
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.tile = int(tile)
+        self.tiles = (-(-self.shape[0] // self.tile), -(-self.shape[1] // self.tile))
+        self.path = os.path.join(os.fspath(folder), f"{name}.tiles")
+        self._file = open(self.path, "w+b")  # noqa: SIM115 (closed by close())
+        self._end = 0
+        self._offsets = np.full(self.tiles, -1, np.int64)
+        self._sizes = np.zeros(self.tiles, np.int64)
+        self.half = None
+        if max(self.shape) > self.tile:
+            half = ((self.shape[0] + 1) // 2, (self.shape[1] + 1) // 2)
+            self.half = RasterSpool(folder, f"{name}-half", half, tile=self.tile)
+
+    def put(self, r0, c0, encoded):
+        """Store `encoded` (:func:`encode_block` of a block whose top-left pixel is (r0, c0), a tile
+        corner)."""
+        t = self.tile
+        if r0 % t or c0 % t:
+            raise ValueError(f"a block of encoded tiles must start on a tile corner, not at ({r0}, {c0})")
+        rows, cols = encoded["shape"]
+        across = -(-cols // t)
+        for k, data in enumerate(encoded["tiles"]):
+            ti, tj = r0 // t + k // across, c0 // t + k % across
+            self._offsets[ti, tj], self._sizes[ti, tj] = self._end, len(data)
+            self._file.seek(self._end)
+            self._file.write(data)
+            self._end += len(data)
+        if self.half is not None:
+            self.half.put(r0 // 2, c0 // 2, encoded["half"])
+
+    def _encoded_tiles(self):
+        self._file.flush()
+        if (self._offsets < 0).any():
+            ti, tj = np.argwhere(self._offsets < 0)[0]
+            raise ValueError(f"tile ({ti}, {tj}) of {self.path!r} was never written")
+        for offset, size in zip(self._offsets.ravel().tolist(), self._sizes.ravel().tolist(), strict=True):
+            self._file.seek(offset)
+            yield self._file.read(size)
+
+    def read_rows(self, r0, r1):
+        """Rows [r0:r1] of the raster (decoded)."""
+        t = self.tile
+        parts = []
+        self._file.flush()
+        for ti in range(r0 // t, -(-r1 // t)):
+            tiles = []
+            for tj in range(self.tiles[1]):
+                self._file.seek(self._offsets[ti, tj])
+                tiles.append(decode_tile(self._file.read(self._sizes[ti, tj]), t))
+            band = _band(np.stack(tiles))
+            parts.append(band[max(r0 - ti * t, 0) : min(r1 - ti * t, t), : self.shape[1]])
+        return np.concatenate(parts) if parts else np.zeros((0, self.shape[1]), _DTYPE)
+
+    def close(self):
+        self._file.close()
+        if os.path.exists(self.path):
+            os.remove(self.path)
+        if self.half is not None:
+            self.half.close()
+
+    def write_geotiff(self, path, *, transform, crs, nodata=None):
+        """As :meth:`RasterSpool.write_geotiff`: the same file, level 0 copied as encoded."""
+        _write_pyramid(
+            path, self, self._encoded_tiles(), self.half, transform=transform, crs=crs, nodata=nodata
+        )
+
+
+def encode_tile(tile):
+    """A (tile, tile) float32 tile's bytes as the output stores it: the floating-point predictor
+    along each row, then Deflate at :data:`~cliff_terrain.io.raster.geotiff.DEFLATE_LEVEL`, with
+    the codecs tifffile itself uses for :data:`~cliff_terrain.io.raster.geotiff.COG_OPTIONS`."""
+    import tifffile
+
+    data = tifffile.TIFF.PREDICTORS[3](np.ascontiguousarray(tile, _DTYPE), axis=-1)
+    return tifffile.TIFF.COMPRESSORS[8](data, level=DEFLATE_LEVEL)
+
+
+def decode_tile(data, tile=COG_TILE):
+    """The (tile, tile) float32 pixels of :func:`encode_tile`'s bytes."""
+    import tifffile
+
+    raw = np.frombuffer(tifffile.TIFF.DECOMPRESSORS[8](data), _DTYPE).reshape(tile, tile).copy()
+    return tifffile.TIFF.UNPREDICTORS[3](raw, axis=-1, out=raw)
+
+
+def encode_block(block, *, tile=COG_TILE):
+    """A window's raster as :class:`TileSpool` takes it: its tiles encoded (row-major, zero beyond
+    the block, as tifffile pads a raster's edge tiles) and its 2 x 2 means for the first overview.
+
+    The block must start on a tile corner and be whole tiles but at the raster's right and bottom
+    edges, where the tiles it leaves short are the raster's last.
+
+    Examples
+    --------
+    >>> encoded = encode_block(np.ones((3, 5), np.float32), tile=2)
+    >>> len(encoded["tiles"]), encoded["half"].shape
+    (6, (2, 3))
+    """
+    block = np.asarray(block, dtype=_DTYPE)
+    rows, cols = block.shape
+    tiles = []
+    for r in range(0, rows, tile):
+        for c in range(0, cols, tile):
+            part = block[r : r + tile, c : c + tile]
+            if part.shape != (tile, tile):
+                part = np.pad(part, ((0, tile - part.shape[0]), (0, tile - part.shape[1])))
+            tiles.append(encode_tile(part))
+    return {"shape": (rows, cols), "tiles": tiles, "half": block_mean(block, 2)}
+
+
+def _overview_spool(level, path, index):
+    """The spool of `level`'s next overview (None when one tile holds `level`)."""
+    if max(level.shape) <= COG_TILE:
+        return None
+    half = ((level.shape[0] + 1) // 2, (level.shape[1] + 1) // 2)
+    return RasterSpool(os.path.dirname(level.path), f"{os.path.basename(path)}-{index}", half)
+
+
+def _write_pyramid(path, level0, tiles0, below, *, transform, crs, nodata):
+    """Write `level0` (its tiles `tiles0`: arrays, or bytes already encoded) and its overviews,
+    the first being `below` (filled by the time `tiles0` is exhausted), each spooled while the level
+    above is written."""
+    import tifffile
+
+    rows, cols = level0.shape
+    options = cog_options()
+    levels = []
+    try:
+        with tifffile.TiffWriter(os.fspath(path), bigtiff=rows * cols * _DTYPE.itemsize > 2**31) as tif:
+            tif.write(
+                tiles0,
+                shape=level0.shape,
+                dtype=_DTYPE,
+                extratags=geotiff_tags(transform, crs, nodata=nodata),
+                subfiletype=0,
+                **options,
+            )
+            level = below
+            while level is not None:
+                below = _overview_spool(level, path, len(levels) + 1)
+                if below is not None:
+                    levels.append(below)
+                tif.write(_tiles(level, below), shape=level.shape, dtype=_DTYPE, subfiletype=1, **options)
+                level = below
+    finally:
+        for spool in levels:
+            spool.close()
 
 
 def _tiles(level, below):

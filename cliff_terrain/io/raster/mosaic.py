@@ -117,19 +117,29 @@ class MosaicReader:
         valid : (rows', cols') bool or None
         step : int
         """
+        step, bands = self.overview_bands(max_pixels=max_pixels)
+        rows, cols = self.shape
+        rgb = np.zeros((math.ceil(rows / step), math.ceil(cols / step), 3), np.uint8)
+        valid = np.ones(rgb.shape[:2], bool)
+        for r0, r1 in bands:
+            at, part, ok = self.overview_band(r0, r1, step)
+            rgb[at : at + len(part)] = part
+            if ok is not None:
+                valid[at : at + len(part)] = ok
+        return rgb, (None if valid.all() else valid), step
+
+    def overview_bands(self, *, max_pixels=OVERVIEW_PIXELS):
+        """(step, [(r0, r1), ...]): :meth:`overview`'s step and its bands of rows, whole rows of
+        TIFF tiles (each tile decoded once) starting on a multiple of the step; a band can be read
+        anywhere (:meth:`overview_band`), a cluster's worker or a thread."""
         rows, cols = self.shape
         step = max(1, math.ceil(math.sqrt(rows * cols / max_pixels)))
-        out_rows, out_cols = math.ceil(rows / step), math.ceil(cols / step)
-        rgb = np.zeros((out_rows, out_cols, 3), np.uint8)
-        valid = np.ones((out_rows, out_cols), bool)
-        # A band of TIFF tiles at a time (whole rows of tiles), so each tile is decoded once.
         band = max(self.tile_shape[0], step)
         band -= band % step or 0
         band = max(band, step)
-        for r0 in range(0, rows, band):
-            r1 = min(rows, r0 + band)
-            part, ok = self.read(r0, r1, 0, cols)
-            rgb[r0 // step : r0 // step + len(range(0, r1 - r0, step))] = part[::step, ::step]
-            if ok is not None:
-                valid[r0 // step : r0 // step + len(range(0, r1 - r0, step))] = ok[::step, ::step]
-        return rgb, (None if valid.all() else valid), step
+        return step, [(r0, min(rows, r0 + band)) for r0 in range(0, rows, band)]
+
+    def overview_band(self, r0, r1, step):
+        """(row in the overview, every `step`-th pixel of rows [r0:r1] as RGB, valid mask or None)."""
+        part, ok = self.read(r0, r1, 0, self.shape[1])
+        return r0 // step, part[::step, ::step], (None if ok is None else ok[::step, ::step])
