@@ -303,10 +303,21 @@ def main(argv=None):
                 row[f"workers_{w}_wall_s"] = round(on_cluster["wall"], 1)
                 row[f"workers_{w}_main_peak_gib"] = round(on_cluster["peak"] / 2**30, 2)
                 row[f"workers_{w}_same_table"] = same
+                stages = json.loads((cluster_out / "summary.json").read_text())["windowed"]["seconds"]
+                row[f"workers_{w}_stages_s"] = stages
             if len(args.workers) >= 2:
                 one, two = args.workers[0], args.workers[1]
                 row[f"speedup_{two}_over_{one}_workers"] = round(
                     row[f"workers_{one}_wall_s"] / row[f"workers_{two}_wall_s"], 2
+                )
+                # The stages on the workers alone (the overview and both passes), without what this
+                # process does by itself (reading the plots, the ground's fit, writing).
+                on_workers = {
+                    w: sum(row[f"workers_{w}_stages_s"][k] for k in ("overview", "ground_grid", "windows"))
+                    for w in (one, two)
+                }
+                row[f"speedup_{two}_over_{one}_workers_their_stages"] = round(
+                    on_workers[one] / on_workers[two], 2
                 )
             rows.append(row)
             print(json.dumps(row), flush=True)

@@ -120,6 +120,9 @@ def test_the_windowed_command_agrees_with_the_in_memory_one_on_the_real_pair(tmp
     ]  # fmt: skip
     summary = json.loads((win / "summary.json").read_text())
     assert summary["windowed"]["ground_grid_factor"] == 1 and summary["ground_method"] == "detailed"
+    seconds = summary["windowed"]["seconds"]  # where the time went, stage by stage
+    assert list(seconds) == ["overview", "ground_grid", "ground_fit", "windows"]
+    assert all(v >= 0 for v in seconds.values()) and seconds["windows"] > 0
     with tifffile.TiffFile(win / "chm.tif") as tif:  # tiled, Deflate, with an overview
         page = tif.pages[0]
         assert page.is_tiled and page.compression == 8 and len(tif.pages) == 2

@@ -7,8 +7,8 @@ fits the cap, the plot table exact. It writes ``chm.tif``, ``chm_err.tif`` and
 ``ground_support.tif`` (tiled, Deflate, overviews, written window by window), with ``--plots``
 ``plots.csv`` and ``plots.geojson`` (the in-memory run's columns), with ``--ruler`` its columns and
 ``ruler.png``, and ``summary.json`` (``"windowed"``: the window, the ground grid's pixel and
-factor). It writes no ``regions.csv``: the plants' regions come from the in-memory segmentation's
-watershed. ``--indices`` and ``--band-files`` are refused (they read the bands whole).
+factor, each stage's wall time). It writes no ``regions.csv``: the plants' regions come from the
+in-memory segmentation's watershed. ``--indices`` and ``--band-files`` are refused (they read the bands whole).
 """
 
 from __future__ import annotations
@@ -168,6 +168,7 @@ def _files(args, result, ruler, window, estimate_gib):
             "ground_grid_factor": result.factor,
             "ground_grid_pixel_m": result.pixel_size * result.factor,
             "memory_estimate_gib": estimate_gib,
+            "seconds": result.seconds,
         },
         "crs": result.crs if isinstance(result.crs, int) else None,
         "crs_wkt": getattr(result.crs, "wkt", None),
