@@ -74,6 +74,21 @@ def assert_same(a, b):
     assert ra.plant_pixels == rb.plant_pixels and ra.valid_pixels == rb.valid_pixels
 
 
+def assert_table_text(result, plots):
+    """The table's text as the windows made it is the text made from the rows here, to the byte."""
+    from cliff_terrain.io.vector.geojson import polygon_geometries, table_geojson
+    from cliff_terrain.measure.field_plots import table_columns
+    from cliff_terrain.measure.tables import table_csv
+
+    columns, text = table_columns(plots, support=True, sigma=True), result.table_text
+    assert len(text["csv"]) == len(text["features"]) == len(plots)
+    assert table_csv(result.rows, columns, lines=text["csv"]) == table_csv(result.rows, columns)
+    geometries = polygon_geometries(plots)
+    made_there = table_geojson(result.rows, None, crs=result.crs, features=text["features"])
+    assert made_there == table_geojson(result.rows, geometries, crs=result.crs)
+    assert len(json.loads(made_there)["features"]) == len(plots)
+
+
 @pytest.mark.parametrize("ground_pixels", [6_000_000, 100_000])
 def test_small_windows_give_exactly_one_whole_windows_tables_on_the_real_pair(tmp_path, ground_pixels):
     need_plots()
@@ -87,6 +102,8 @@ def test_small_windows_give_exactly_one_whole_windows_tables_on_the_real_pair(tm
     p90 = np.array([r["height_p90_m"] for r in small[0].rows])
     assert np.isfinite(p90).all() and 0.2 < np.median(p90) < 0.7
     assert sorted(r["plot"] for r in small[0].rows) == list(range(len(plots)))
+    assert_table_text(small[0], plots)
+    assert_table_text(whole[0], plots)
 
 
 def run_heights(tmp_path, name, *extra, ortho=ORTHO, dsm=DSM, plots=PAIR_PLOTS):
@@ -380,6 +397,7 @@ def test_a_dask_cluster_gives_exactly_what_this_process_gives(tmp_path):
             )  # fmt: skip
             assert there[0].windows == 25
             assert_same(here, there)
+            assert_table_text(there[0], plots)
 
 
 def test_the_command_on_two_workers_writes_the_same_tables(tmp_path):

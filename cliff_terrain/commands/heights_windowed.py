@@ -85,10 +85,17 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
             if plots is not None:
                 columns = table_columns(plots, support=True, sigma=True)
                 columns[-1:-1] = ruler_columns
-                # Made while the rasters are written (130 000 plots' text takes seconds of Python).
-                files[out / PLOTS_CSV] = text_writer(lambda: table_csv(rows, columns))
+                # The rows' text as the windows made it (on every worker at once), unless a ruler
+                # added columns; joined while the rasters are written.
+                text = (result.table_text or {}) if not ruler_columns else {}
+                files[out / PLOTS_CSV] = text_writer(lambda: table_csv(rows, columns, lines=text.get("csv")))
                 files[out / PLOTS_GEOJSON] = text_writer(
-                    lambda: table_geojson(rows, polygon_geometries(plots), crs=result.crs)
+                    lambda: table_geojson(
+                        rows,
+                        None if text else polygon_geometries(plots),
+                        crs=result.crs,
+                        features=text.get("features"),
+                    )
                 )
             files[out / "summary.json"] = json.dumps(json_safe(summary), indent=2) + "\n"
             order = {out / name: i for i, name in enumerate(outputs)}

@@ -122,15 +122,26 @@ def _cell(value):
     return str(value)
 
 
-def table_csv(rows, columns=None):
-    """CSV text of `rows` (NaN as empty cells)."""
+def table_csv(rows, columns=None, *, lines=None):
+    """CSV text of `rows` (NaN as empty cells); `lines`, when given, are the rows' own
+    (:func:`csv_lines`, made where the rows were: on a cluster's workers)."""
     columns = list(columns or (rows[0].keys() if rows else ()))
     out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerow(columns)
+    return out.getvalue() + "".join(csv_lines(rows, columns) if lines is None else lines)
+
+
+def csv_lines(rows, columns):
+    """Each row's line of :func:`table_csv` (its newline included)."""
+    out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(columns)
+    lines = []
     for row in rows:
         writer.writerow([_cell(row.get(c)) for c in columns])
-    return out.getvalue()
+        lines.append(out.getvalue())
+        out.seek(0)
+        out.truncate()
+    return lines
 
 
 def text_writer(make):

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..io.raster.blocks import reduce_blocks
 from ..io.raster.transform import affine_inverse, apply_affine
+from .field_plots import table_columns
 from .ground import canopy_height
 from .window_reading import BLUR_REACH, WindowSources, upsample, windows
 
@@ -195,6 +196,8 @@ class WindowTask:
     mine: np.ndarray | None = None  # the plots whose centre the core holds
     # The rasters come back encoded (geotiff_stream.encode_block): the core is whole output tiles.
     encode: bool = False
+    # The plot table's columns: the rows come back with their CSV lines and GeoJSON features too.
+    columns: list | None = None
 
 
 def measure_window(task, ground=None, *, sources=None):
@@ -269,6 +272,16 @@ def measure_window(task, ground=None, *, sources=None):
             if i in wanted:
                 row["plot"] = i
                 out["rows"][i] = row
+        if task.columns is not None:  # the tables' text, made here on every worker at once
+            from ..io.vector.geojson import feature_texts, polygon_geometry
+            from .tables import csv_lines
+
+            mine = [j for j, i in enumerate(task.plot_ids.tolist()) if i in wanted]
+            ids = [int(task.plot_ids[j]) for j in mine]
+            rows = [out["rows"][i] for i in ids]
+            geometries = [polygon_geometry(task.polygons[j]) for j in mine]
+            out["csv"] = dict(zip(ids, csv_lines(rows, task.columns), strict=True))
+            out["features"] = dict(zip(ids, feature_texts(rows, geometries), strict=True))
     return out
 
 
@@ -296,6 +309,7 @@ def window_tasks(sources, plots, window, result):
         across = -(-cols // window)
         owner = (centre_r // window).astype(np.int64) * across + (centre_c // window).astype(np.int64)
     dtm = None if sources.dtm is None else sources.dtm.path
+    columns = None if plots is None else table_columns(plots, support=True, sigma=True)
     for k, (r0, r1, c0, c1) in enumerate(windows(shape, window)):
         R0, R1 = max(0, r0 - halo), min(rows, r1 + halo)
         C0, C1 = max(0, c0 - halo), min(cols, c1 + halo)
@@ -316,4 +330,5 @@ def window_tasks(sources, plots, window, result):
                 task.polygons = [plots.polygons[i] for i in touching]
                 task.attributes = [plots.attributes[i] for i in touching]
                 task.fields, task.plots_path = plots.fields, plots.path
+                task.columns = columns
         yield task

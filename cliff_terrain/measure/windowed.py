@@ -98,6 +98,11 @@ class WindowedCanopy:
         :class:`~cliff_terrain.io.raster.geotiff_stream.RasterSpool`.
     windows : int
         Number of windows measured.
+    table_text : dict or None
+        The plot table's text as the windows made it: ``{"csv": [line], "features": [GeoJSON
+        Feature text]}`` in plot order (:func:`~cliff_terrain.measure.tables.table_csv`'s `lines`,
+        :func:`~cliff_terrain.io.vector.geojson.table_geojson`'s `features`), for the columns of
+        :func:`~cliff_terrain.measure.field_plots.table_columns` with support and sigma.
     seconds : dict
         Wall time of each stage: ``overview`` (the threshold's), ``ground_grid`` (the first pass),
         ``ground_fit`` (the fit and its check, here) and ``windows`` (the second pass).
@@ -118,6 +123,7 @@ class WindowedCanopy:
     plant_pixels: int = 0
     valid_pixels: int = 0
     seconds: dict = field(default_factory=dict)
+    table_text: dict | None = None
 
     def close(self):
         """Remove the spooled rasters."""
@@ -393,6 +399,8 @@ def _full_grid(sources, plots, window, result, ground, step, run):
     else:
         outputs = run(measure_window, ((task,) for task in tasks), ground)
     rows_out = [None] * len(plots) if plots is not None else None
+    lines = [None] * len(plots) if plots is not None else None
+    features = [None] * len(plots) if plots is not None else None
     labelled = False
     for k, out in enumerate(outputs):
         r0, _, c0, _ = out["core"]
@@ -404,6 +412,10 @@ def _full_grid(sources, plots, window, result, ground, step, run):
         if rows_out is not None:
             for i, row in out["rows"].items():
                 rows_out[i] = row
+            for i, line in out.get("csv", {}).items():
+                lines[i] = line
+            for i, text in out.get("features", {}).items():
+                features[i] = text
         result.windows += 1
         step(0.45 + 0.5 * (k + 1) / count, "canopy and plots")
     if plots is not None:
@@ -412,3 +424,5 @@ def _full_grid(sources, plots, window, result, ground, step, run):
                 f"no plot of {plots.path!r} overlaps the orthophoto {sources.ortho.path!r}"
             )
         result.rows = rows_out
+        if all(line is not None for line in lines) and all(text is not None for text in features):
+            result.table_text = {"csv": lines, "features": features}

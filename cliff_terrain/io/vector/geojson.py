@@ -20,21 +20,38 @@ def _json_value(value):
     return str(value)  # dates and other attribute types of Shapefiles
 
 
-def table_geojson(rows, geometries, *, crs):
+def table_geojson(rows, geometries, *, crs, features=None):
     """GeoJSON text: one Feature per row, with its geometry (a GeoJSON geometry dict) and EPSG `crs`.
 
     A CRS without an EPSG code (a :class:`cliff_terrain.io.raster.crs.UserCrs`, or its WKT as a record
     holds it) is left out, as GDAL does: GeoJSON's ``crs`` member names CRSs by URN only.
+    `features`, when given, are the rows' own texts (:func:`feature_texts`, made where the rows
+    were: on a cluster's workers; `geometries` is then not read); the text is the same.
     """
-    features = [
-        {"type": "Feature", "properties": {k: _json_value(v) for k, v in row.items()}, "geometry": geometry}
-        for row, geometry in zip(rows, geometries, strict=True)
-    ]
+    if features is None:
+        features = feature_texts(rows, geometries)
     doc = {"type": "FeatureCollection"}
     if isinstance(crs, int | np.integer):
         doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{crs}"}}
-    doc["features"] = features
-    return json.dumps(doc, allow_nan=False) + "\n"
+    doc["features"] = []
+    # json.dumps of the whole document, its features joined as json.dumps joins a list's items.
+    head = json.dumps(doc, allow_nan=False)[: -len("]}")]
+    return head + ", ".join(features) + "]}\n"
+
+
+def feature_texts(rows, geometries):
+    """Each row's Feature as JSON text, with its geometry (a GeoJSON geometry dict)."""
+    return [
+        json.dumps(
+            {
+                "type": "Feature",
+                "properties": {k: _json_value(v) for k, v in row.items()},
+                "geometry": geometry,
+            },
+            allow_nan=False,
+        )
+        for row, geometry in zip(rows, geometries, strict=True)
+    ]
 
 
 def point_geometries(rows):
@@ -44,16 +61,17 @@ def point_geometries(rows):
 def polygon_geometries(plots):
     """GeoJSON geometries of the plots: each ring inside an odd number of others is a hole of the
     innermost ring around it (the even-odd rule the plots are read and rasterised with)."""
-    geometries = []
-    for rings in plots.polygons:
-        parts = [[ring.tolist()] for ring in _outer_rings(rings, holes=False)]
-        for hole, outer in _outer_rings(rings, holes=True):
-            parts[outer].append(hole.tolist())
-        if len(parts) == 1:
-            geometries.append({"type": "Polygon", "coordinates": parts[0]})
-        else:
-            geometries.append({"type": "MultiPolygon", "coordinates": parts})
-    return geometries
+    return [polygon_geometry(rings) for rings in plots.polygons]
+
+
+def polygon_geometry(rings):
+    """The GeoJSON geometry of one plot's rings (:func:`polygon_geometries`)."""
+    parts = [[ring.tolist()] for ring in _outer_rings(rings, holes=False)]
+    for hole, outer in _outer_rings(rings, holes=True):
+        parts[outer].append(hole.tolist())
+    if len(parts) == 1:
+        return {"type": "Polygon", "coordinates": parts[0]}
+    return {"type": "MultiPolygon", "coordinates": parts}
 
 
 def _outer_rings(rings, *, holes):
