@@ -17,7 +17,7 @@ reference's plants, beside the same figures with the colour test off (last round
 reference's median plant cover (a source of seedlings scores low IoU on few pixels).
 
 What each source is (crop, soil, light, stage, licence, origin) is in ``DATA_DIR/masks/SOURCES.md``;
-``/work/data/masks_layout.py`` lays the public sources out from their repositories.
+``bench/layout_masks.py DATA_DIR`` lays the public sources out from their repositories' pinned commits.
 """
 
 from __future__ import annotations
