@@ -310,8 +310,9 @@ def main(argv=None):
                 row[f"speedup_{two}_over_{one}_workers"] = round(
                     row[f"workers_{one}_wall_s"] / row[f"workers_{two}_wall_s"], 2
                 )
-                # The stages on the workers alone (the overview and both passes), without what this
-                # process does by itself (reading the plots, the ground's fit, writing).
+                # The stages whose work is on the workers (the overview and both passes; this process
+                # still takes the overview's threshold and stores what the windows send back), without
+                # what it does by itself (reading the plots, the ground's fit, writing).
                 on_workers = {
                     w: sum(row[f"workers_{w}_stages_s"][k] for k in ("overview", "ground_grid", "windows"))
                     for w in (one, two)

@@ -590,8 +590,9 @@ def docs_page(record):
         "mask's IoU and F1 against the reference and the share of the relief's volume standing on the "
         "reference's plants; per field and date, r, RMSE and bias of `cliff-terrain heights`' per-plot p90 "
         "against the two-flight difference, with the naive peer (2nd percentile of the DSM in 5 m blocks) "
-        "in the same run. Its docstring gives the folder layout; `bench/layout_fields.py DATA_DIR` lays "
-        "the fields out from the public repositories' pinned commits (fetched as bare git directories). "
+        "in the same run. Its docstring gives the folder layout; `bench/layout_masks.py DATA_DIR` and "
+        "`bench/layout_fields.py DATA_DIR` lay the photos and the fields out from the public "
+        "repositories' pinned commits (fetched as bare git directories). "
         "None of this data is in the repository: "
         "the licences below do not allow it, or are unclear. This page is written from the run's record "
         "(`python bench/validate_real.py DATA_DIR --json record.json --docs docs/validation.md`).",

@@ -247,6 +247,10 @@ def test_windows_encoded_where_measured_write_the_same_file_byte_for_byte(tmp_pa
     unaligned = TileSpool(tmp_path, "x", data.shape)
     with pytest.raises(ValueError, match=r"must start on a tile corner, not at \(0, 100\)"):
         unaligned.put(0, 100, encode_block(data[:512, 100:612]))
+    with pytest.raises(
+        ValueError, match=r"must be whole tiles but at the raster's edge, not 512 x 600 at \(0, 0\)"
+    ):
+        unaligned.put(0, 0, encode_block(data[:512, :600]))
     unaligned.close()
 
 
@@ -387,21 +391,29 @@ def test_a_dask_cluster_gives_exactly_what_this_process_gives(tmp_path):
 
     plots = read_plots(PAIR_PLOTS)
     with local_cluster(2) as cluster, Client(cluster, set_as_default=False) as client:
-        for ground_pixels in (6_000_000, 100_000):
+        # 128: windows of raw rasters; 512: whole tiles, sent back compressed.
+        for ground_pixels, window, count in ((6_000_000, 128, 25), (100_000, 128, 25), (6_000_000, 512, 4)):
+            name = f"{ground_pixels}-{window}"
             here = windowed(
-                tmp_path, f"here{ground_pixels}", ORTHO, DSM, plots, window=128, ground_pixels=ground_pixels
+                tmp_path, f"here{name}", ORTHO, DSM, plots, window=window, ground_pixels=ground_pixels
             )
             there = windowed(
-                tmp_path, f"there{ground_pixels}", ORTHO, DSM, plots, window=128, ground_pixels=ground_pixels,
+                tmp_path, f"there{name}", ORTHO, DSM, plots, window=window, ground_pixels=ground_pixels,
                 client=client,
             )  # fmt: skip
-            assert there[0].windows == 25
+            assert there[0].windows == count
             assert_same(here, there)
             assert_table_text(there[0], plots)
 
 
 def test_the_command_on_two_workers_writes_the_same_tables(tmp_path):
-    _, rows_here, _ = run_heights(tmp_path, "here", "--windowed", "--window", "256")
-    _, rows_there, stdout = run_heights(tmp_path, "there", "--windowed", "--window", "256", "--workers", "2")
-    assert "windowed (9 windows)" in stdout
+    # Windows of whole 512-pixel tiles: the workers send the rasters back compressed and the tables'
+    # text made; every file is this process's, byte for byte.
+    here, rows_here, _ = run_heights(tmp_path, "here", "--windowed", "--window", "512")
+    there, rows_there, stdout = run_heights(
+        tmp_path, "there", "--windowed", "--window", "512", "--workers", "2"
+    )
+    assert "windowed (4 windows)" in stdout
     assert rows_here == rows_there  # the CSV's text, every column
+    for name in ("plots.csv", "plots.geojson", "chm.tif", "chm_err.tif", "ground_support.tif"):
+        assert (here / name).read_bytes() == (there / name).read_bytes(), name

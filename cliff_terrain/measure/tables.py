@@ -161,7 +161,8 @@ def write_files(files, *, threads=1):
 
     Values are ``str`` (written as UTF-8 text) or callables ``write(tmp_path)``. With `threads`
     above 1 the callables run that many at once (they must be thread-safe: the windowed rasters,
-    whose compression and reading release the GIL); the first error is raised once all stopped.
+    whose compression and reading release the GIL, and :func:`text_writer` s of tables made beside
+    them); the first error is raised once all stopped.
     """
     from concurrent.futures import ThreadPoolExecutor
 

@@ -204,10 +204,13 @@ def measure_window(task, ground=None, *, sources=None):
     """The CHM, its error and support on `task`'s core, and the rows of the plots it owns.
 
     `ground` is ``(ground, sigma, support)`` on the coarse grid, or None with a terrain model.
-    `sources` (open readers) default to this thread's readers of `task`'s files (:func:`worker_sources`). Returns a dict: ``core``, the
-    rasters ``chm``, ``chm_err``, ``ground_support`` (the latter two without a DTM) on the core,
-    ``rows`` {plot index: row}, ``valid_pixels``, ``plant_pixels`` and ``labelled`` (a plot
-    pixel was burnt).
+    `sources` (open readers) default to this thread's readers of `task`'s files
+    (:func:`worker_sources`). Returns a dict: ``core``, the rasters ``chm``, ``chm_err``,
+    ``ground_support`` (the latter two without a DTM) on the core (arrays, or with ``task.encode``
+    :func:`~cliff_terrain.io.raster.geotiff_stream.encode_block` dicts), ``rows`` {plot index:
+    row}, with ``task.columns`` also ``csv`` and ``features`` {plot index: the row's CSV line,
+    its GeoJSON Feature text}, ``valid_pixels``, ``plant_pixels`` and ``labelled`` (a plot pixel
+    was burnt).
     """
     from ..io.vector.plot_polygons import PlotSet
     from ..photo_heights.vegetation import blurred_index

@@ -6,7 +6,8 @@ the output's 512 x 512 tiles), then :meth:`RasterSpool.write_geotiff` streams it
 tiles, Deflate with the floating-point predictor, reduced-resolution images halving the size until
 one tile holds it, each the NaN-aware mean of 2 x 2 pixels of the level above). tifffile takes the
 tiles from an iterator, a band of 512 rows at a time, and each level is spooled to disk while the
-level above is written, so memory follows one band of 512 rows, not the raster. The pixels and the
+level above is written (:class:`TileSpool`'s first overview while the windows arrive), so memory
+follows one band of 512 rows, not the raster. The pixels and the
 overviews are those of ``write_geotiff(..., overviews=True)`` on the whole array (tested).
 
 :class:`TileSpool` is the same raster arriving already encoded: a window whose core is made of whole
@@ -165,9 +166,14 @@ class TileSpool:
         """Store `encoded` (:func:`encode_block` of a block whose top-left pixel is (r0, c0), a tile
         corner)."""
         t = self.tile
+        rows, cols = encoded["shape"]
         if r0 % t or c0 % t:
             raise ValueError(f"a block of encoded tiles must start on a tile corner, not at ({r0}, {c0})")
-        rows, cols = encoded["shape"]
+        if (rows % t and r0 + rows != self.shape[0]) or (cols % t and c0 + cols != self.shape[1]):
+            raise ValueError(
+                f"a block of encoded tiles must be whole tiles but at the raster's edge, not {rows} x {cols} "
+                f"at ({r0}, {c0}) of {self.shape[0]} x {self.shape[1]}"
+            )
         across = -(-cols // t)
         for k, data in enumerate(encoded["tiles"]):
             ti, tj = r0 // t + k // across, c0 // t + k % across

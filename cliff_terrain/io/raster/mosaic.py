@@ -142,4 +142,5 @@ class MosaicReader:
     def overview_band(self, r0, r1, step):
         """(row in the overview, every `step`-th pixel of rows [r0:r1] as RGB, valid mask or None)."""
         part, ok = self.read(r0, r1, 0, self.shape[1])
-        return r0 // step, part[::step, ::step], (None if ok is None else ok[::step, ::step])
+        # Copies: a view would hold the whole band while the result waits to be placed.
+        return r0 // step, part[::step, ::step].copy(), (None if ok is None else ok[::step, ::step].copy())
