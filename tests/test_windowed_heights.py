@@ -254,6 +254,39 @@ def test_windows_encoded_where_measured_write_the_same_file_byte_for_byte(tmp_pa
     unaligned.close()
 
 
+def test_with_a_terrain_model_encoded_and_raw_windows_give_the_same_chm(tmp_path):
+    # A DTM instead of an estimated ground: only chm.tif, no error or support raster. Windows of
+    # whole tiles (512, sent back compressed) and small ones (100) give the same CHM to the bit, and
+    # it is the DSM minus the terrain model on the orthophoto's grid.
+    need_plots()
+    from cliff_terrain.io.raster.geotiff import read_surface
+
+    dsm = read_surface(DSM)
+    dtm_path = tmp_path / "dtm.tif"
+    terrain = np.full(dsm.shape, np.nanpercentile(dsm.data, 2), np.float32)  # a flat ground
+    write_geotiff(dtm_path, terrain, transform=dsm.transform, crs=dsm.crs)
+    plots = read_plots(PAIR_PLOTS)
+    runs = []
+    for window in (512, 100):
+        folder = tmp_path / f"w{window}"
+        folder.mkdir()
+        result = measure_windowed(ORTHO, DSM, dtm=dtm_path, plots=plots, folder=folder, window=window)
+        assert list(result.spools) == ["chm"] and result.check is None and result.ground_source == "dtm"
+        assert isinstance(result.spools["chm"], TileSpool if window == 512 else RasterSpool)
+        runs.append((result, {n: s.read_rows(0, s.shape[0]) for n, s in result.spools.items()}))
+        result.close()
+    assert_same(*runs)
+    chm = runs[0][1]["chm"]
+    assert np.isfinite(chm).mean() > 0.8  # the ODM orthophoto has a no-data border
+    p90 = np.array([r["height_p90_m"] for r in runs[0][0].rows])
+    assert np.isfinite(p90).all()
+    # The CHM is the surface above the flat ground: its median over the field is the DSM's median
+    # minus the ground's level, whatever the resampling onto the orthophoto's grid.
+    level = float(terrain[0, 0])
+    assert np.nanmedian(chm) == pytest.approx(np.nanmedian(dsm.data) - level, abs=0.05)
+    assert_table_text(runs[0][0], plots)
+
+
 def test_the_ground_is_upsampled_with_its_pixel_centres_aligned():
     coarse = np.array([[0.0, 1.0, 2.0, 3.0], [4.0, 5.0, 6.0, 7.0], [8.0, 9.0, 10.0, 11.0]], np.float32)
     full = upsample(coarse, 4, 0, 12, 0, 16)
