@@ -172,6 +172,44 @@ def _halo(boxes):
 
 
 @dataclass
+class PackedRings:
+    """Plots' rings in one (points, 2) array, as a task carries them: pickled (to a Dask worker) as
+    three arrays, not one per ring (a window of 500 plots held a thousand, the most of the
+    client's work in sending it).
+
+    Examples
+    --------
+    >>> square = np.array([[0.0, 0], [1, 0], [1, 1], [0, 0]])
+    >>> packed = PackedRings.pack([[square], [square + 5, square + 7]], offset=(5, 5))
+    >>> [[ring.tolist()[1] for ring in plot] for plot in packed.unpack()]
+    [[[-4.0, -5.0]], [[1.0, 0.0], [3.0, 2.0]]]
+    """
+
+    points: np.ndarray
+    ring_ends: np.ndarray  # each ring's end in `points`
+    plot_ends: np.ndarray  # each plot's end in the rings
+
+    @classmethod
+    def pack(cls, polygons, *, offset=(0.0, 0.0)):
+        """`polygons` (a list of plots, each a list of (n, 2) rings) with `offset` subtracted."""
+        rings = [ring for polygon in polygons for ring in polygon]
+        points = np.concatenate(rings) if rings else np.zeros((0, 2))
+        if offset != (0.0, 0.0):
+            points = points - offset  # elementwise: each point as ``ring - offset`` gives it
+        return cls(
+            points,
+            np.cumsum([len(ring) for ring in rings], dtype=np.int64),
+            np.cumsum([len(polygon) for polygon in polygons], dtype=np.int64),
+        )
+
+    def unpack(self):
+        """The list of plots, each a list of rings (views into :attr:`points`)."""
+        rings = np.split(self.points, self.ring_ends[:-1]) if self.ring_ends.size else []
+        starts = np.concatenate([[0], self.plot_ends[:-1]]).astype(np.int64)
+        return [rings[a:b] for a, b in zip(starts.tolist(), self.plot_ends.tolist(), strict=True)]
+
+
+@dataclass
 class WindowTask:
     """One window of the second pass: everything it needs but the coarse ground (picklable, so a
     Dask worker can run it: :func:`measure_window`)."""
@@ -188,8 +226,8 @@ class WindowTask:
     read: tuple  # (R0, R1, C0, C1): the core and its halo, inside the grid
     # The plots touching the window (file order), in pixels of the window read, and in map units.
     plot_ids: np.ndarray | None = None
-    pixel_rings: list | None = None
-    polygons: list | None = None
+    pixel_rings: PackedRings | None = None
+    polygons: PackedRings | None = None
     attributes: list | None = None
     fields: tuple = ()
     plots_path: str = ""
@@ -257,10 +295,11 @@ def measure_window(task, ground=None, *, sources=None):
                 out[name] = encode_block(out[name])
     if task.mine is not None and task.mine.size:
         n = len(task.plot_ids)
-        local = PlotSet(task.pixel_rings, [{}] * n, (), None, task.plots_path)
+        local = PlotSet(task.pixel_rings.unpack(), [{}] * n, (), None, task.plots_path)
         labels = rasterize_plots(local, transform=np.eye(3), shape=chm.shape)
         out["labelled"] = bool(labels.any())
-        subset = PlotSet(task.polygons, task.attributes, task.fields, None, task.plots_path)
+        polygons = task.polygons.unpack()
+        subset = PlotSet(polygons, task.attributes, task.fields, None, task.plots_path)
         table = plot_table(
             subset,
             labels,
@@ -282,7 +321,7 @@ def measure_window(task, ground=None, *, sources=None):
             mine = [j for j, i in enumerate(task.plot_ids.tolist()) if i in wanted]
             ids = [int(task.plot_ids[j]) for j in mine]
             rows = [out["rows"][i] for i in ids]
-            geometries = [polygon_geometry(task.polygons[j]) for j in mine]
+            geometries = [polygon_geometry(polygons[j]) for j in mine]
             out["csv"] = dict(zip(ids, csv_lines(rows, task.columns), strict=True))
             out["features"] = dict(zip(ids, feature_texts(rows, geometries), strict=True))
     return out
@@ -329,8 +368,8 @@ def window_tasks(sources, plots, window, result):
                 )
                 touching = np.union1d(touching, mine)
                 task.plot_ids, task.mine = touching, mine
-                task.pixel_rings = [[ring - (C0, R0) for ring in pixel_rings[i]] for i in touching]
-                task.polygons = [plots.polygons[i] for i in touching]
+                task.pixel_rings = PackedRings.pack([pixel_rings[i] for i in touching], offset=(C0, R0))
+                task.polygons = PackedRings.pack([plots.polygons[i] for i in touching])
                 task.attributes = [plots.attributes[i] for i in touching]
                 task.fields, task.plots_path = plots.fields, plots.path
                 task.columns = columns
