@@ -374,16 +374,11 @@ class _Clock:
 def _overview(sources, run):
     """:meth:`~cliff_terrain.io.raster.mosaic.MosaicReader.overview`'s photo and valid mask, its bands
     read by `run`."""
+    from ..io.raster.mosaic import overview_from_bands
+
     step, bands = sources.ortho.overview_bands()
-    rows, cols = sources.ortho.shape
-    rgb = np.zeros((-(-rows // step), -(-cols // step), 3), np.uint8)
-    valid = np.ones(rgb.shape[:2], bool)
     tasks = ((OverviewTask(sources.ortho.path, sources.dsm.path, band, step),) for band in bands)
-    for at, part, ok in run(overview_band, tasks):
-        rgb[at : at + len(part)] = part
-        if ok is not None:
-            valid[at : at + len(part)] = ok
-    return rgb, (None if valid.all() else valid)
+    return overview_from_bands(sources.ortho.shape, step, run(overview_band, tasks))
 
 
 def _ahead(client):

@@ -118,15 +118,8 @@ class MosaicReader:
         step : int
         """
         step, bands = self.overview_bands(max_pixels=max_pixels)
-        rows, cols = self.shape
-        rgb = np.zeros((math.ceil(rows / step), math.ceil(cols / step), 3), np.uint8)
-        valid = np.ones(rgb.shape[:2], bool)
-        for r0, r1 in bands:
-            at, part, ok = self.overview_band(r0, r1, step)
-            rgb[at : at + len(part)] = part
-            if ok is not None:
-                valid[at : at + len(part)] = ok
-        return rgb, (None if valid.all() else valid), step
+        parts = (self.overview_band(r0, r1, step) for r0, r1 in bands)
+        return (*overview_from_bands(self.shape, step, parts), step)
 
     def overview_bands(self, *, max_pixels=OVERVIEW_PIXELS):
         """(step, [(r0, r1), ...]): :meth:`overview`'s step and its bands of rows, whole rows of
@@ -144,3 +137,16 @@ class MosaicReader:
         part, ok = self.read(r0, r1, 0, self.shape[1])
         # Copies: a view would hold the whole band while the result waits to be placed.
         return r0 // step, part[::step, ::step].copy(), (None if ok is None else ok[::step, ::step].copy())
+
+
+def overview_from_bands(shape, step, parts):
+    """(rgb, valid or None): the overview of a (rows, cols) mosaic at `step` from its bands'
+    :meth:`MosaicReader.overview_band` results `parts` (in any order)."""
+    rows, cols = shape
+    rgb = np.zeros((math.ceil(rows / step), math.ceil(cols / step), 3), np.uint8)
+    valid = np.ones(rgb.shape[:2], bool)
+    for at, part, ok in parts:
+        rgb[at : at + len(part)] = part
+        if ok is not None:
+            valid[at : at + len(part)] = ok
+    return rgb, (None if valid.all() else valid)
