@@ -30,7 +30,33 @@ from .geotiff import COG_TILE, DEFLATE_LEVEL, cog_options, geotiff_tags
 _DTYPE = np.dtype(np.float32)
 
 
-class RasterSpool:
+class _TiledFile:
+    """A (rows, cols) float32 raster in `tile` x `tile` tiles, kept in a file under `folder`: what
+    both spools share (their tile grid, their file, reading rows from their :meth:`tile_row`)."""
+
+    def __init__(self, folder, name, shape, tile):
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.tile = int(tile)
+        self.tiles = (-(-self.shape[0] // self.tile), -(-self.shape[1] // self.tile))
+        self.path = os.path.join(os.fspath(folder), name)
+        self._file = open(self.path, "w+b")  # noqa: SIM115 (closed by close())
+
+    def read_rows(self, r0, r1):
+        """Rows [r0:r1] of the raster."""
+        t = self.tile
+        parts = []
+        for ti in range(r0 // t, -(-r1 // t)):
+            band = _band(self.tile_row(ti))
+            parts.append(band[max(r0 - ti * t, 0) : min(r1 - ti * t, t), : self.shape[1]])
+        return np.concatenate(parts) if parts else np.zeros((0, self.shape[1]), _DTYPE)
+
+    def close(self):
+        self._file.close()
+        if os.path.exists(self.path):
+            os.remove(self.path)
+
+
+class RasterSpool(_TiledFile):
     """A (rows, cols) float32 raster filled window by window in a raw file under `folder`.
 
     The file holds the raster in `tile` x `tile` tiles (row-major tile order, zero beyond the
@@ -51,11 +77,7 @@ class RasterSpool:
     """
 
     def __init__(self, folder, name, shape, *, tile=COG_TILE):
-        self.shape = (int(shape[0]), int(shape[1]))
-        self.tile = int(tile)
-        self.tiles = (-(-self.shape[0] // self.tile), -(-self.shape[1] // self.tile))
-        self.path = os.path.join(os.fspath(folder), f"{name}.raw")
-        self._file = open(self.path, "w+b")  # noqa: SIM115 (closed by close())
+        super().__init__(folder, f"{name}.raw", shape, tile)
         self._file.truncate(self.tiles[0] * self.tiles[1] * self.tile**2 * _DTYPE.itemsize)  # sparse
 
     def _offset(self, ti, tj):
@@ -101,20 +123,6 @@ class RasterSpool:
         self._file.flush()
         return self._read(self._offset(ti, 0), self.tiles[1] * t * t).reshape(self.tiles[1], t, t)
 
-    def read_rows(self, r0, r1):
-        """Rows [r0:r1] of the raster."""
-        t = self.tile
-        parts = []
-        for ti in range(r0 // t, -(-r1 // t)):
-            band = _band(self.tile_row(ti))
-            parts.append(band[max(r0 - ti * t, 0) : min(r1 - ti * t, t), : self.shape[1]])
-        return np.concatenate(parts) if parts else np.zeros((0, self.shape[1]), _DTYPE)
-
-    def close(self):
-        self._file.close()
-        if os.path.exists(self.path):
-            os.remove(self.path)
-
     def write_geotiff(self, path, *, transform, crs, nodata=None):
         """Write the raster as a tiled, Deflate GeoTIFF with overviews at `path` (not atomically:
         the caller writes to a temporary name, as :func:`cliff_terrain.measure.tables.write_files`)."""
@@ -128,7 +136,7 @@ class RasterSpool:
                 below.close()
 
 
-class TileSpool:
+class TileSpool(_TiledFile):
     """A (rows, cols) float32 raster arriving as encoded tiles (:func:`encode_block`), under `folder`.
 
     Level 0 is kept as its tiles' bytes (appended to a file, in any order); the first overview as a
@@ -149,11 +157,7 @@ class TileSpool:
     """
 
     def __init__(self, folder, name, shape, *, tile=COG_TILE):
-        self.shape = (int(shape[0]), int(shape[1]))
-        self.tile = int(tile)
-        self.tiles = (-(-self.shape[0] // self.tile), -(-self.shape[1] // self.tile))
-        self.path = os.path.join(os.fspath(folder), f"{name}.tiles")
-        self._file = open(self.path, "w+b")  # noqa: SIM115 (closed by close())
+        super().__init__(folder, f"{name}.tiles", shape, tile)
         self._end = 0
         self._offsets = np.full(self.tiles, -1, np.int64)
         self._sizes = np.zeros(self.tiles, np.int64)
@@ -189,28 +193,20 @@ class TileSpool:
         if (self._offsets < 0).any():
             ti, tj = np.argwhere(self._offsets < 0)[0]
             raise ValueError(f"tile ({ti}, {tj}) of {self.path!r} was never written")
-        for offset, size in zip(self._offsets.ravel().tolist(), self._sizes.ravel().tolist(), strict=True):
-            self._file.seek(offset)
-            yield self._file.read(size)
+        for ti, tj in np.ndindex(*self.tiles):
+            yield self._tile_bytes(ti, tj)
 
-    def read_rows(self, r0, r1):
-        """Rows [r0:r1] of the raster (decoded)."""
-        t = self.tile
-        parts = []
+    def _tile_bytes(self, ti, tj):
+        self._file.seek(self._offsets[ti, tj])
+        return self._file.read(self._sizes[ti, tj])
+
+    def tile_row(self, ti):
+        """Tile row `ti` decoded, as :meth:`RasterSpool.tile_row` gives it."""
         self._file.flush()
-        for ti in range(r0 // t, -(-r1 // t)):
-            tiles = []
-            for tj in range(self.tiles[1]):
-                self._file.seek(self._offsets[ti, tj])
-                tiles.append(decode_tile(self._file.read(self._sizes[ti, tj]), t))
-            band = _band(np.stack(tiles))
-            parts.append(band[max(r0 - ti * t, 0) : min(r1 - ti * t, t), : self.shape[1]])
-        return np.concatenate(parts) if parts else np.zeros((0, self.shape[1]), _DTYPE)
+        return np.stack([decode_tile(self._tile_bytes(ti, tj), self.tile) for tj in range(self.tiles[1])])
 
     def close(self):
-        self._file.close()
-        if os.path.exists(self.path):
-            os.remove(self.path)
+        super().close()
         if self.half is not None:
             self.half.close()
 
