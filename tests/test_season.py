@@ -146,6 +146,32 @@ def test_local_cluster_table_is_byte_identical(serial, soybean, tmp_path):
     assert done.stderr == "", done.stderr
 
 
+def test_a_closing_cluster_keeps_its_workers_heartbeat_tracebacks_off_stderr():
+    """A worker may send one more heartbeat after the scheduler has let it go, and log a traceback
+    for it (dask/distributed#7105; seen once in CI as the stderr of the test above). Run on the
+    workers as a local cluster closes, the filter drops that line and no other error."""
+    import logging
+
+    from cliff_terrain.season.cluster import _not_a_heartbeat_failure, _quiet_heartbeat_failures
+
+    logger = logging.getLogger("distributed.worker")
+    seen = []
+    handler = logging.Handler()
+    handler.emit = seen.append
+    logger.addHandler(handler)
+    try:
+        _quiet_heartbeat_failures()
+        try:
+            raise OSError("Stream is closed")
+        except OSError:
+            logger.exception("Failed to communicate with scheduler during heartbeat.")
+            logger.exception("Compute Failed")
+    finally:
+        logger.removeHandler(handler)
+        logger.removeFilter(_not_a_heartbeat_failure)
+    assert [record.getMessage() for record in seen] == ["Compute Failed"]
+
+
 def test_small_season_runs_in_process_by_default(serial, soybean, tmp_path):
     """No --workers: the 7 soybean dates (6.6 MP) are too little work for a cluster to pay off, so
     they run in this process, the same table, and the command, the record and season.json say why."""

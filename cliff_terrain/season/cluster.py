@@ -190,10 +190,29 @@ def dask_client(*, workers=None, scheduler=None, timeout=10.0, memory_limit="aut
             cluster = local_cluster(n, memory_limit=memory_limit)
             client = Client(cluster, set_as_default=False)
         with client:
-            yield client
+            try:
+                yield client
+            finally:
+                if cluster is not None:
+                    # Before the cluster closes: its workers may still send a heartbeat once the
+                    # scheduler has let them go, and log a traceback for it (dask/distributed#7105).
+                    client.run(_quiet_heartbeat_failures, on_error="ignore")
     finally:
         if cluster is not None:
             cluster.close()
+
+
+def _not_a_heartbeat_failure(record):
+    """A logging filter: drop the worker's "failed to communicate during heartbeat" traceback."""
+    return not record.getMessage().startswith("Failed to communicate with scheduler during heartbeat")
+
+
+def _quiet_heartbeat_failures():
+    """Run on each worker of a local cluster that is about to close, where a failed heartbeat is
+    the expected end of a worker and not an error the user should see on stderr."""
+    import logging
+
+    logging.getLogger("distributed.worker").addFilter(_not_a_heartbeat_failure)
 
 
 def _submit(client, jobs, finished):
