@@ -135,6 +135,33 @@ def test_a_ground_that_misses_held_out_soil_is_refused_and_names_the_file():
     assert not forced.check["passed"]  # a forced method still reports the failed check
 
 
+def test_the_checks_folds_run_anywhere_with_the_same_numbers():
+    """`run` sends the five folds elsewhere (threads, a cluster): the builder goes by pickle, and
+    the ground, its check and its uncertainty are the same to the bit as one after another here."""
+    import pickle
+    from concurrent.futures import ThreadPoolExecutor
+
+    dsm, _, bed = beds()
+    calls = []
+
+    def on_threads(function, arguments, shared):
+        shared = pickle.loads(pickle.dumps(shared))  # as a cluster's workers get it
+        arguments = list(arguments)
+        calls.append(len(arguments))
+        with ThreadPoolExecutor(2) as pool:
+            return list(pool.map(lambda args: function(*args, shared), arguments))
+
+    here = fit_ground(dsm, soil=~bed, pixel_size=0.05)
+    there = fit_ground(dsm, soil=~bed, pixel_size=0.05, run=on_threads)
+    assert calls == [here.check["folds_used"]] == [5]
+    assert here.method == there.method == "detailed"
+    for name in ("ground", "sigma", "support"):
+        assert getattr(here, name).tobytes() == getattr(there, name).tobytes(), name
+    assert json.dumps(here.check, sort_keys=True, default=float) == json.dumps(
+        there.check, sort_keys=True, default=float
+    )
+
+
 def test_bad_method_names_the_parameter():
     with pytest.raises(CliffTerrainError, match="`method`.*'auto'"):
         fit_ground(np.zeros((50, 50), np.float32), pixel_size=0.1, method="cloth")

@@ -116,6 +116,7 @@ def fit_ground(
     detail_m=DEFAULT_DETAIL_M,
     method="auto",
     source="the surface model",
+    run=None,
 ):
     """The ground under a crop from its surface model, checked on held-out bare soil.
 
@@ -137,6 +138,11 @@ def fit_ground(
         ground that fails the check; a name forces that candidate (still checked and reported).
     source : str, optional
         Names the surface model in error messages.
+    run : callable, optional
+        ``run(function, argument tuples, shared)``: runs the held-out check's folds and returns
+        their results in order (:func:`~cliff_terrain.measure.ground_check.check_ground`), for
+        example on threads or a Dask cluster's workers; by default one after another, here. The
+        result does not depend on it.
 
     Returns
     -------
@@ -186,21 +192,7 @@ def fit_ground(
     # baseline stays the naive peer, in blocks of `block_m` whatever the field.
     small_m = min(block_m, max(2, min(dsm.shape) // 3) * pixel_size)
     lowest = lowest_surface(dsm, pixel_size=pixel_size, block_m=small_m)
-    baseline = []  # made once, when first asked for: it does not depend on the evidence
-
-    def build(names, train):
-        grounds = ground_candidates(
-            dsm, lowest, train, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m, names=names
-        )
-        if "baseline" in names:
-            if not baseline:
-                baseline.append(
-                    naive_block_ground(
-                        dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
-                    )
-                )
-            grounds["baseline"] = baseline[0]
-        return grounds
+    build = CandidateGrounds(dsm, lowest, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m)
 
     exposed = None if soil is None else exposed_soil(soil, pixel_size=pixel_size)
     evidence, evidence_source, colour = ground_evidence(dsm, lowest, soil=soil, exposed=exposed)
@@ -216,7 +208,12 @@ def fit_ground(
     names = CANDIDATES if evidence_source == "colour and surface" else ("baseline", "smooth")
     if method not in ("auto", *names):
         names = (*names, method)
-    check, residuals = check_ground(dsm, evidence, build, pixel_size=pixel_size, block_m=block_m, names=names)
+    # The baseline does not depend on the evidence: made once, outside the folds.
+    baseline = naive_block_ground(dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE)
+    check, residuals = check_ground(
+        dsm, evidence, build, pixel_size=pixel_size, block_m=block_m, names=names,
+        fixed={"baseline": baseline}, run=run,
+    )  # fmt: skip
     check["evidence"] = {"source": evidence_source, "share": float(evidence.sum() / finite.sum()), **colour}
     chosen = check["chosen"] if method == "auto" else method
     check["method"] = chosen
@@ -230,6 +227,8 @@ def fit_ground(
         )  # fmt: skip
         ground, level = canopy_level(dsm, local["smooth"] + broad, local["detailed"], evidence)
         check["detail_under_canopy_m"] = level
+    elif chosen == "baseline":
+        ground, level = baseline, 0.0
     else:
         ground, level = build((chosen,), evidence)[chosen], 0.0
     sigma = ground_sigma(residuals[chosen], evidence, pixel_size=pixel_size)
@@ -366,6 +365,27 @@ def _soil_peak(above):
     lower = above[(above <= mode) & (above >= low)] - mode
     spread = float(np.sqrt(np.mean(lower**2))) if lower.size else step
     return float(min(MICRORELIEF_M, mode + _PEAK_SPREAD * max(spread, step)))
+
+
+@dataclass(eq=False, frozen=True)
+class CandidateGrounds:
+    """``build(names, evidence) -> {name: ground}``: :func:`ground_candidates` of one surface.
+
+    An object rather than a closure so that the held-out check's folds can be sent to a Dask
+    cluster's workers, the surface once to each (`run` of :func:`fit_ground`).
+    """
+
+    dsm: np.ndarray
+    lowest: np.ndarray
+    pixel_size: float
+    block_m: float
+    detail_m: float
+
+    def __call__(self, names, evidence):
+        return ground_candidates(
+            self.dsm, self.lowest, evidence, pixel_size=self.pixel_size, block_m=self.block_m,
+            detail_m=self.detail_m, names=names,
+        )  # fmt: skip
 
 
 def ground_candidates(dsm, lowest, evidence, *, pixel_size, block_m, detail_m, names=CANDIDATES):

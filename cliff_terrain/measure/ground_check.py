@@ -66,7 +66,7 @@ def robust_error(errors):
     return float(np.hypot(med, mad))
 
 
-def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_m=None):
+def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_m=None, fixed=None, run=None):
     """Each candidate ground's error on held-out evidence, and the choice.
 
     Parameters
@@ -75,13 +75,20 @@ def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_
     evidence : (rows, cols) bool
         The bare soil the grounds are built from.
     build : callable
-        ``build(names, train_evidence) -> {name: ground}``.
+        ``build(names, train_evidence) -> {name: ground}``; picklable to run the folds elsewhere.
     pixel_size, block_m : float
         Metres per pixel; the folds' block side in metres.
     names : tuple of str
         The candidates, simplest first (a tie goes to the simpler one).
     tolerance_m : float, optional
         The largest held-out error that passes (default `CHECK_TOLERANCE_M`).
+    fixed : dict, optional
+        {name: ground} of candidates among `names` that do not depend on the evidence (the
+        baseline): measured on every fold as they are, not built.
+    run : callable, optional
+        ``run(function, argument tuples, shared)``, the results in order: runs the folds
+        (:func:`fold_grounds`, `build` shared), on threads or a cluster's workers. Default: here,
+        one after another.
 
     Returns
     -------
@@ -101,22 +108,33 @@ def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_
     errors = {name: [] for name in names}
     distances = {name: [] for name in names}
     fold_errors = {name: [] for name in names}
-    used = 0
+    fixed = dict(fixed or {})
+    built = tuple(name for name in names if name not in fixed)
     rng = np.random.default_rng(0)  # the same sample on every run
+    samples = []
     for k in range(FOLDS):
         test = evidence & (folds == k)
         train = evidence & (folds != k)
         if not test.any() or not train.any():
             continue
-        used += 1
         rr, cc = np.nonzero(test)
         if rr.size > _SAMPLE:
             keep = rng.choice(rr.size, _SAMPLE, replace=False)
             rr, cc = rr[keep], cc[keep]
+        samples.append((train, rr, cc))
+    used = len(samples)
+    if run is None:
+        run = _here
+    # The folds are independent: the same numbers however and wherever `run` runs them.
+    tasks = ((built, train, rr, cc) for train, rr, cc in samples) if built else ()
+    at_samples = iter(run(fold_grounds, tasks, build) if built else ())
+    for train, rr, cc in samples:
         gap = cv2.distanceTransform((~train).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         gap_m = gap[rr, cc].astype(np.float64) * pixel_size
-        for name, ground in build(names, train).items():
-            errors[name].append((dsm[rr, cc] - ground[rr, cc]).astype(np.float64))
+        values = {name: ground[rr, cc] for name, ground in fixed.items()}
+        values.update(next(at_samples) if built else {})
+        for name in names:
+            errors[name].append((dsm[rr, cc] - values[name]).astype(np.float64))
             distances[name].append(gap_m)
             fold_errors[name].append(robust_error(errors[name][-1]))
     candidates = {}
@@ -166,6 +184,18 @@ def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_
         "reason": reason,
     }
     return check, residuals
+
+
+def fold_grounds(names, train, rr, cc, build, *, sources=None):
+    """One fold of :func:`check_ground`: {name: ground at the held-out pixels ``(rr, cc)``} of the
+    candidates `names` built from the `train` evidence. `sources` (a window runner's reader) is
+    not used."""
+    return {name: ground[rr, cc] for name, ground in build(names, train).items()}
+
+
+def _here(function, arguments, shared=None):
+    """The default runner: each call in turn, in this thread."""
+    return (function(*args, shared) for args in arguments)
 
 
 @dataclass

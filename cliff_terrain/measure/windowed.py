@@ -105,7 +105,7 @@ class WindowedCanopy:
         :func:`~cliff_terrain.measure.field_plots.table_columns` with support and sigma.
     seconds : dict
         Wall time of each stage: ``overview`` (the threshold's), ``ground_grid`` (the first pass),
-        ``ground_fit`` (the fit and its check, here) and ``windows`` (the second pass).
+        ``ground_fit`` (the fit here, its held-out check's five folds where the windows run) and ``windows`` (the second pass).
     """
 
     transform: np.ndarray
@@ -332,6 +332,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
             block_m=block_m,
             method=ground_method,
             source=f"{sources.dsm.path!r} over {name!r}",
+            run=run,  # the check's five folds where the windows run
         )
         ground_c, support_c, sigma_c, check = fit.ground, fit.support, fit.sigma, fit.check
         del fit, soil_c
