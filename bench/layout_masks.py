@@ -36,6 +36,11 @@ ews_wheat              supervisely-ecosystem/EWS-Dataset-training-data @ aa94606
                        `Wheat` bitmaps, base64 of zlib of a PNG, placed at their `origin`): all 24
                        of validation and spread(142, 24) of train.
 
+maize_sugarbeet        Schine73/Plant-and-Weed-detection-using-UNet-CNN @ 8513885: training_images/
+                       NAME.jpg and NAME.png (8-bit classes: 0 background, 1 weed, 2 sugar beet,
+                       3 maize; plant = 1-3), spread(154, 30) of the pairs whose photo is under
+                       4 MiB (SCHINE_MAX_BYTES: the snapshot holds no bigger file).
+
 Photos without masks (DATA_DIR/photos/; the reference is an index mask made by the reader):
 
 maize_rows_straw       WoodratTradeCo/crop-rows-detection @ d75cf5e: mydata/images/{test,train}/
@@ -68,6 +73,10 @@ REPOS = {
     "peanut": ("ptdkhoa/Peanut-dataset", "ec8e68d19b15487c56a6cff6f309f822861b05f9"),
     "carrotweed": ("lameski/rgbweeddetection", "2220f89bcae92650090db8502c090740f72f241f"),
     "ews": ("supervisely-ecosystem/EWS-Dataset-training-data", "aa9460619728e7e7a7cc84d4b892fa20ffdf5b1b"),
+    "schine": (
+        "Schine73/Plant-and-Weed-detection-using-UNet-CNN",
+        "8513885c73e4974153cddfddf0f4a6238ef3947b",
+    ),
     "maize_rows": ("WoodratTradeCo/crop-rows-detection", "d75cf5e0412c5cdfaef1e9e99f53507e98d7fd3b"),
     "uavbroccoli": ("UTokyo-FieldPhenomics-Lab/UAVbroccoli", "f30abe2c736eb479d346dff52246cea363cb56c1"),
 }
@@ -279,6 +288,43 @@ def ews_wheat(out):
         )
 
 
+# Photos of Schine73/Plant-and-Weed-detection-using-UNet-CNN above this size are left out: the
+# snapshot the layout was made from holds no file of 4 MiB or more (328 of its 482 phone photos).
+SCHINE_MAX_BYTES = 4 * 2**20
+SCHINE_PLANT = (1, 2, 3)  # weed, sugar beet, maize; 0 is background
+
+
+def maize_sugarbeet(out):
+    folder = "training_images"
+    sizes = {}
+    for line in git("schine", "ls-tree", "-l", REPOS["schine"][1], folder + "/").decode().splitlines():
+        meta, path = line.split("\t")
+        size = meta.split()[3]
+        sizes[Path(path).name] = int(size) if size.isdigit() else None  # None: not in this copy
+    pairs = [
+        name
+        for name in sizes
+        if name.endswith(".jpg")
+        and sizes[name] is not None
+        and sizes[name] < SCHINE_MAX_BYTES
+        and f"{Path(name).stem}.png" in sizes
+    ]
+    for name in spread(pairs, 30):
+        stem = Path(name).stem
+        photo_path, path = f"{folder}/{name}", f"{folder}/{stem}.png"
+        photo = open_image(blob("schine", photo_path))
+        labels = np.asarray(open_image(blob("schine", path)))
+        if labels.shape != (photo.height, photo.width) or photo.getexif().get(0x0112, 1) != 1:
+            raise SystemExit(f"maize_sugarbeet {path}: {labels.shape}, photo {photo.size} (EXIF rotated?)")
+        if not set(np.unique(labels).tolist()) <= {0, *SCHINE_PLANT}:
+            raise SystemExit(f"maize_sugarbeet {path}: classes {np.unique(labels)}, expected 0-3")
+        out.copy("masks", "maize_sugarbeet", name, "schine", photo_path)
+        out.put(
+            "masks", "maize_sugarbeet", f"{stem}_mask.png", mask_png(np.isin(labels, SCHINE_PLANT)),
+            "schine", path, "classes 1-3",
+        )  # fmt: skip
+
+
 def maize_rows_straw(out):
     for split in ("test", "train"):
         for name in listing("maize_rows", f"mydata/images/{split}"):
@@ -372,6 +418,22 @@ SOURCES = [
         "licence": "CC BY-SA 4.0 (README); cite Zenkl et al., Front. Plant Sci. 12:774068 (2022)",
         "reference": "hand annotations, class `Wheat` (Supervisely bitmaps: base64 of zlib of a PNG "
         "placed at its origin)",
+    },
+    {
+        "folder": "maize_sugarbeet",
+        "kind": "masks",
+        "make": maize_sugarbeet,
+        "repo": "schine",
+        "files": "training_images/NAME.jpg, training_images/NAME.png; 30 by spread() of the 154 "
+        "pairs whose photo is under 4 MiB",
+        "crop": "young maize rows and sugar beet, with weeds (Wiener Neustadt, Austria, 2022)",
+        "soil": "dark moist loam with straw bits; pale dry crusted soil; light brown clods",
+        "light": "overcast, and low sun with hard shadows; handheld phone, nadir",
+        "stage": "seedlings (maize 2-4 leaves, beet 2-6 leaves)",
+        "licence": '"The images were taken and hand segmented by me and my class colleagues. Feel '
+        'free to use them for your own purposes." (README; no licence file)',
+        "reference": "hand-segmented class maps (0 background, 1 weed, 2 sugar beet, 3 maize): crop "
+        "and weeds are plant",
     },
     {
         "folder": "maize_rows_straw",

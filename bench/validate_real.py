@@ -437,6 +437,16 @@ SOURCES = (
         "the dataset's hand annotations (class `Wheat`)",
     ),
     (
+        "`maize_sugarbeet` (30 of 154)",
+        "handheld nadir phone photos of maize rows and sugar beet seedlings with weeds, on dark moist "
+        "loam with straw bits, pale dry crusted soil and light clods; overcast, and low sun with hard "
+        "shadows (Austria, 2022)",
+        "`Schine73/Plant-and-Weed-detection-using-UNet-CNN`, `training_images/`",
+        '"hand segmented by me and my class colleagues. Feel free to use them for your own purposes." '
+        "(README; no licence file)",
+        "the dataset's hand-segmented class maps (maize, sugar beet and weeds are plant)",
+    ),
+    (
         "`maize_rows_straw` (22)",
         "oblique tractor-camera frames of young maize rows (about V3-V6) on straw-covered no-till soil; "
         "overcast",
