@@ -416,24 +416,37 @@ def test_an_unreachable_scheduler_exits_in_one_line_and_leaves_no_empty_out_fold
 def test_a_dask_cluster_gives_exactly_what_this_process_gives(tmp_path):
     """Both passes' windows as tasks on two worker processes (the readers opened in the workers, the
     coarse ground scattered to them): every plot column and raster pixel equal to the in-process run,
-    on the ground grid of the orthophoto's own pixels and on one 2 pixels to one."""
+    on the ground grid of the orthophoto's own pixels and on one 2 pixels to one. Joined by its
+    address, as a scheduler elsewhere, the cluster also runs the ground check's five folds; a
+    local cluster's client leaves them here, where the memory plan counts them."""
     need_plots()
-    from distributed import Client
+    from distributed import Client, get_task_stream
 
     from cliff_terrain.season.cluster import local_cluster
 
     plots = read_plots(PAIR_PLOTS)
-    with local_cluster(2) as cluster, Client(cluster, set_as_default=False) as client:
+    with (
+        local_cluster(2) as cluster,
+        Client(cluster, set_as_default=False) as local,
+        Client(cluster.scheduler_address, set_as_default=False) as remote,
+    ):
         # 128: windows of raw rasters; 512: whole tiles, sent back compressed.
-        for ground_pixels, window, count in ((6_000_000, 128, 25), (100_000, 128, 25), (6_000_000, 512, 4)):
+        for ground_pixels, window, count, client in (
+            (6_000_000, 128, 25, local),
+            (100_000, 128, 25, remote),
+            (6_000_000, 512, 4, remote),
+        ):
             name = f"{ground_pixels}-{window}"
             here = windowed(
                 tmp_path, f"here{name}", ORTHO, DSM, plots, window=window, ground_pixels=ground_pixels
             )
-            there = windowed(
-                tmp_path, f"there{name}", ORTHO, DSM, plots, window=window, ground_pixels=ground_pixels,
-                client=client,
-            )  # fmt: skip
+            with get_task_stream(client=client) as stream:
+                there = windowed(
+                    tmp_path, f"there{name}", ORTHO, DSM, plots, window=window, ground_pixels=ground_pixels,
+                    client=client,
+                )  # fmt: skip
+            folds = [task for task in stream.data if task["key"].startswith("fold_grounds")]
+            assert len(folds) == (there[0].check["folds_used"] if client is remote else 0)
             assert there[0].windows == count
             assert_same(here, there)
             assert_table_text(there[0], plots)

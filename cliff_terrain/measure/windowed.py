@@ -105,7 +105,8 @@ class WindowedCanopy:
         :func:`~cliff_terrain.measure.field_plots.table_columns` with support and sigma.
     seconds : dict
         Wall time of each stage: ``overview`` (the threshold's), ``ground_grid`` (the first pass),
-        ``ground_fit`` (the fit here, its held-out check's five folds where the windows run) and ``windows`` (the second pass).
+        ``ground_fit`` (the fit here, its held-out check's five folds on a remote scheduler's workers) and
+        ``windows`` (the second pass).
     """
 
     transform: np.ndarray
@@ -192,7 +193,8 @@ def measure_windowed(
     client : distributed.Client, optional
         Spread both passes' windows over a Dask cluster (:func:`~.window_tasks.coarse_window`
         and :func:`~.window_tasks.measure_window` as tasks, the coarse ground scattered to every
-        worker once); the results are the same.
+        worker once); the results are the same. A client joined to a scheduler by its address
+        (not one made on a local cluster object here) also gets the ground check's folds.
     threads : int, optional
         Without `client`, windows measured at once in this process, each thread with its own
         readers (numpy, OpenCV and the TIFF codecs release the GIL); the results are the same.
@@ -220,7 +222,14 @@ def measure_windowed(
         if client is None:
             readers += [WindowSources(ortho, dsm, dtm) for _ in range(threads - 1)]
         run = _runner(client, readers)
-        return _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run)
+        # The ground's check sends its five folds to a scheduler elsewhere, whose memory is its own;
+        # here, and on a local cluster, they run one after another in this process: the memory plan
+        # (commands.memory_estimate.windowed_plan) counts one fold at a time beside idle workers,
+        # and each fold at once would add about 0.15 GiB per megapixel of the ground grid.
+        fit_run = run if client is not None and getattr(client, "cluster", None) is None else None
+        return _measure(
+            sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run
+        )
     finally:
         for reader in readers:
             reader.close()
@@ -282,7 +291,7 @@ def _on_threads(function, arguments, shared, readers):
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run):
+def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run=None):
     from ..io.raster.geotiff_stream import RasterSpool, TileSpool
     from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold
 
@@ -332,7 +341,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
             block_m=block_m,
             method=ground_method,
             source=f"{sources.dsm.path!r} over {name!r}",
-            run=run,  # the check's five folds where the windows run
+            run=fit_run,  # the check's five folds on a remote scheduler's workers, or here
         )
         ground_c, support_c, sigma_c, check = fit.ground, fit.support, fit.sigma, fit.check
         del fit, soil_c
