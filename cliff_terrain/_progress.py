@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import time
 from contextlib import contextmanager
 
 
@@ -82,3 +83,34 @@ def count_bar(label, total, *, enabled=True, unit="images"):
         yield step
     finally:
         bar.close()
+
+
+class StageClock:
+    """Times a run's stages into `timings` (``{stage: seconds}``) and reports ``progress(fraction,
+    stage)`` as each one starts (when given a fraction); ``start(None)`` ends the last. With `digits`, the seconds are
+    rounded (for a summary file). The build's stages and the windowed heights' share it.
+
+    Examples
+    --------
+    >>> timings = {}
+    >>> clock = StageClock(None, timings, digits=1)
+    >>> clock.start("load"); clock.start("mesh"); clock.start(None)
+    >>> sorted(timings), timings["load"] >= 0.0
+    (['load', 'mesh'], True)
+    """
+
+    def __init__(self, progress, timings, *, digits=None):
+        self.progress = progress
+        self.timings = timings
+        self.digits = digits
+        self.stage = None
+        self.t0 = time.perf_counter()
+
+    def start(self, stage, fraction=None):
+        now = time.perf_counter()
+        if self.stage is not None:
+            elapsed = now - self.t0
+            self.timings[self.stage] = elapsed if self.digits is None else round(elapsed, self.digits)
+        self.stage, self.t0 = stage, now
+        if self.progress is not None and fraction is not None:
+            self.progress(fraction, stage or "done")

@@ -5,13 +5,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
-import time
 import warnings
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
+from ._progress import StageClock
 from ._validate import check_rgb
 from .errors import CliffTerrainError
 from .io.photo import ImageMetadata, open_image
@@ -217,7 +217,7 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         )
     params = params.replace(profile=resolve_profile(params.profile, params.segmentation))
     timings = {}
-    clock = _Clock(progress, timings)
+    clock = StageClock(progress, timings)
     clock.start("load", 0.0)
     if isinstance(image_or_path, str | os.PathLike):
         with open_image(
@@ -450,24 +450,6 @@ def _image_stages(image, metadata, params, *, clock, bands=None, surface=None):
         mask_distance=seg.distance,
     )
     return _ImageStages(image, metadata, working, filtered, seg, distance, heights_px)
-
-
-class _Clock:
-    """Times the stages and reports progress as each one starts (``start(None, ...)`` ends the last)."""
-
-    def __init__(self, progress, timings):
-        self.progress = progress
-        self.timings = timings
-        self.stage = None
-        self.t0 = time.perf_counter()
-
-    def start(self, stage, fraction):
-        now = time.perf_counter()
-        if self.stage is not None:
-            self.timings[self.stage] = now - self.t0
-        self.stage, self.t0 = stage, now
-        if self.progress is not None:
-            self.progress(fraction, stage or "done")
 
 
 def _from_array(image, gsd):

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._dask import in_order
+from .._progress import StageClock
 from .._validate import check_float, check_int
 from ..errors import GeoreferenceError
 from .ground import DEFAULT_BLOCK_M, fit_ground
@@ -301,14 +302,16 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     name = sources.ortho.path
     factor = ground_factor(shape, pixel_size, ground_pixels=ground_pixels)
 
-    seconds, clock = {}, _Clock()
+    seconds = {}
+    clock = StageClock(None, seconds, digits=3)  # `step` draws the bar, in its own stages
+    clock.start("overview")
     # 0. The plant/soil threshold, on an overview of the whole photo (every step-th pixel, <= 4 MP),
     # read band by band where the windows are (decoding the photo is most of it).
     overview, valid_o = _overview(sources, run)
     vi_o, index = blurred_index(overview)
     threshold = float(photo_threshold(vi_o, overview, index=index, valid=valid_o).threshold)
     del overview, valid_o, vi_o
-    seconds["overview"] = clock()
+    clock.start("ground_grid")
 
     # 1. The coarse grid: photo, its valid pixels and the surface, reduced window by window
     # (:func:`~.window_tasks.coarse_window`, here or on the cluster's workers).
@@ -323,7 +326,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
         where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
         rgb_c[where], valid_c[where], dsm_c[where] = block["rgb"], block["valid"], block["dsm"]
         step(0.4 * (k + 1) / len(parts), "ground grid")
-    seconds["ground_grid"] = clock()
+    clock.start("ground_fit")
     has_data = valid_c & np.isfinite(dsm_c)
     if not has_data.any():
         raise GeoreferenceError(f"{sources.dsm.path!r} has no data where it overlaps {name!r}")
@@ -346,7 +349,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
         ground_c, support_c, sigma_c, check = fit.ground, fit.support, fit.sigma, fit.check
         del fit, soil_c
     del dsm_c, has_data, plant_c, valid_c
-    seconds["ground_fit"] = clock()
+    clock.start("windows")
 
     # 2. and 3. The full grid, window by window: CHM, its error and support, and the plots.
     result = WindowedCanopy(
@@ -359,26 +362,11 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     try:
         ground = None if ground_c is None else (ground_c, sigma_c, support_c)
         _full_grid(sources, plots, window, result, ground, step, run)
-        seconds["windows"] = clock()
+        clock.start(None)
     except BaseException:
         result.close()
         raise
     return result
-
-
-class _Clock:
-    """``clock()``: seconds since the last call (or since made)."""
-
-    def __init__(self):
-        import time
-
-        self._now = time.perf_counter
-        self._last = self._now()
-
-    def __call__(self):
-        now = self._now()
-        elapsed, self._last = now - self._last, now
-        return round(elapsed, 3)
 
 
 def _overview(sources, run):
