@@ -30,15 +30,17 @@ potato_fieldimager_ex2       filipematias23/FIELDimageR-Workshop-10 @ df52c1d: d
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 import re
-import subprocess
 import sys
 from pathlib import Path
 
-MIRROR = Path(os.environ.get("MIRROR", "/work/.mirror"))
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench import _mirror as mirror  # noqa: E402
+
 REPOS = {
     "qgis_workshop": ("filipematias23/FIELDimageR-QGIS-Workshop", "88091a23c458fcfd8b633c3f5803bd219516c32c"),
     "phenome_force": ("phenome-force/FIELDimageR-workshop", "ea5072efd0d09aca6c22a589efe889ae3cb085cc"),
@@ -55,23 +57,13 @@ def assert_not_held_out(path):
         raise SystemExit(f"refusing {path}: day 70 (or its copy 75) is held out")
 
 
-def git_dir(key):
-    repo, _ = REPOS[key]
-    return MIRROR / repo.replace("/", "+") / "repo"
-
-
 def extract(key, path, target):
     """`git show COMMIT:path > target`; returns the blob's sha1."""
     assert_not_held_out(path)
-    _, commit = REPOS[key]
     target.parent.mkdir(parents=True, exist_ok=True)
-    data = subprocess.run(
-        ["git", "--git-dir", str(git_dir(key)), "show", f"{commit}:{path}"], check=True, capture_output=True
-    ).stdout
-    if data.startswith(b"version https://git-lfs"):
-        raise SystemExit(f"{REPOS[key][0]}:{path} is a Git LFS pointer; no copy of it here")
+    data = mirror.blob(*REPOS[key], path)
     target.write_bytes(data)
-    return hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+    return mirror.blob_id(data)
 
 
 def write_json(path, spec):

@@ -54,11 +54,8 @@ uavbroccoli            UTokyo-FieldPhenomics-Lab/UAVbroccoli @ f30abe2 (the fold
 from __future__ import annotations
 
 import base64
-import hashlib
 import io
 import json
-import os
-import subprocess
 import sys
 import zlib
 from pathlib import Path
@@ -66,7 +63,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageOps
 
-MIRROR = Path(os.environ.get("MIRROR", "/work/.mirror"))
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench import _mirror as mirror  # noqa: E402
+
 REPOS = {
     "cwfid": ("cwfid/dataset", "36290d0912a032f0bd1a5678ed55457ddafde217"),
     "segveg": ("mserouar/SegVeg", "98a7fc627e2cf854e8e1b17e89215f91e3623833"),
@@ -80,14 +82,6 @@ REPOS = {
     "maize_rows": ("WoodratTradeCo/crop-rows-detection", "d75cf5e0412c5cdfaef1e9e99f53507e98d7fd3b"),
     "uavbroccoli": ("UTokyo-FieldPhenomics-Lab/UAVbroccoli", "f30abe2c736eb479d346dff52246cea363cb56c1"),
 }
-# Held out for the project's own checks: never read here.
-RESERVED = {
-    "filipematias23/Bison-Fly_Workshop_01",
-    "eseigel/plantcv-geospatial-tutorial-plant-height",
-    "niconaut/CropDetectR",
-    "JamesMCurrier/FieldMeasurer",
-    "aipal-nchu/RiceSeedlingDataset",
-}
 BROCCOLI_TILES = (
     "grid_x02_y06",
     "grid_x06_y15",
@@ -98,26 +92,13 @@ BROCCOLI_TILES = (
 )
 
 
-def git_dir(key):
-    repo, _ = REPOS[key]
-    if repo in RESERVED:
-        raise SystemExit(f"refusing {repo}: held out")
-    base = MIRROR / repo.replace("/", "+") / "repo"
-    return base / ".git" if (base / ".git").is_dir() else base
-
-
 def git(key, *args):
-    return subprocess.run(
-        ["git", "--git-dir", str(git_dir(key)), *args], check=True, capture_output=True
-    ).stdout
+    return mirror.git(REPOS[key][0], *args)
 
 
 def blob(key, path):
     """The bytes of `path` at the pinned commit."""
-    data = git(key, "show", f"{REPOS[key][1]}:{path}")
-    if data.startswith(b"version https://git-lfs"):
-        raise SystemExit(f"{REPOS[key][0]}:{path} is a Git LFS pointer; no copy of it here")
-    return data
+    return mirror.blob(*REPOS[key], path)
 
 
 def listing(key, folder):
@@ -135,16 +116,12 @@ def spread(names, k):
     return [names[(2 * i * (n - 1) + (k - 1)) // (2 * (k - 1))] for i in range(k)]
 
 
-def sha1(data):
-    return hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
-
-
 def write(target, data):
     """Write `data` unless `target` already holds it; its git blob id."""
     target.parent.mkdir(parents=True, exist_ok=True)
     if not (target.is_file() and target.read_bytes() == data):
         target.write_bytes(data)
-    return sha1(data)
+    return mirror.blob_id(data)
 
 
 def png_bytes(image):
