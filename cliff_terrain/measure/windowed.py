@@ -106,8 +106,8 @@ class WindowedCanopy:
         :func:`~cliff_terrain.measure.field_plots.table_columns` with support and sigma.
     seconds : dict
         Wall time of each stage: ``overview`` (the threshold's), ``ground_grid`` (the first pass),
-        ``ground_fit`` (the fit here, its held-out check's five folds on a remote scheduler's workers) and
-        ``windows`` (the second pass).
+        ``ground_fit`` (the fit here, its held-out check's five folds on a remote scheduler's
+        workers) and ``windows`` (the second pass).
     """
 
     transform: np.ndarray
