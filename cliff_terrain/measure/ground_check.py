@@ -126,13 +126,13 @@ def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_
     if run is None:
         run = _here
     # The folds are independent: the same numbers however and wherever `run` runs them.
-    tasks = ((built, train, rr, cc) for train, rr, cc in samples) if built else ()
-    at_samples = iter(run(fold_grounds, tasks, build) if built else ())
+    tasks = ((built, train, rr, cc) for train, rr, cc in samples)
+    at_samples = iter(run(fold_grounds, tasks, build))
     for train, rr, cc in samples:
         gap = cv2.distanceTransform((~train).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         gap_m = gap[rr, cc].astype(np.float64) * pixel_size
         values = {name: ground[rr, cc] for name, ground in fixed.items()}
-        values.update(next(at_samples) if built else {})
+        values.update(next(at_samples))
         for name in names:
             errors[name].append((dsm[rr, cc] - values[name]).astype(np.float64))
             distances[name].append(gap_m)
@@ -186,10 +186,9 @@ def check_ground(dsm, evidence, build, *, pixel_size, block_m, names, tolerance_
     return check, residuals
 
 
-def fold_grounds(names, train, rr, cc, build, *, sources=None):
+def fold_grounds(names, train, rr, cc, build):
     """One fold of :func:`check_ground`: {name: ground at the held-out pixels ``(rr, cc)``} of the
-    candidates `names` built from the `train` evidence. `sources` (a window runner's reader) is
-    not used."""
+    candidates `names` built from the `train` evidence."""
     return {name: ground[rr, cc] for name, ground in build(names, train).items()}
 
 

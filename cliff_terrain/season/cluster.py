@@ -190,13 +190,15 @@ def dask_client(*, workers=None, scheduler=None, timeout=10.0, memory_limit="aut
             cluster = local_cluster(n, memory_limit=memory_limit)
             client = Client(cluster, set_as_default=False)
         with client:
-            yield client
-            if cluster is not None:
-                # After a run that ended well, before the cluster closes: its workers may still send
-                # a heartbeat once the scheduler has let them go, and log a traceback for it
-                # (dask/distributed#7105). After an error, or Ctrl-C, nothing may delay or mask it.
-                with contextlib.suppress(Exception):
-                    client.run(_quiet_heartbeat_failures, on_error="ignore")
+            try:
+                yield client
+            finally:
+                if cluster is not None:
+                    # Before the cluster closes, after success or an error alike: its workers may
+                    # still send a heartbeat once the scheduler has let them go, and log a traceback
+                    # for it (dask/distributed#7105). Suppressed: it never masks the run's own error.
+                    with contextlib.suppress(Exception):
+                        client.run(_quiet_heartbeat_failures, on_error="ignore")
     finally:
         if cluster is not None:
             cluster.close()
