@@ -17,6 +17,7 @@ from cliff_terrain.io.vector.plot_polygons import PlotSet
 from cliff_terrain.measure.ground import fit_ground, naive_block_ground
 from cliff_terrain.measure.ground_check import robust_error, spatial_folds
 from cliff_terrain.measure.ground_detail import canopy_level
+from cliff_terrain.measure.ground_evidence import soil_peak
 from cliff_terrain.measure.ruler import agreement, calibrate, read_ruler
 
 
@@ -116,6 +117,56 @@ def test_a_senescent_canopy_the_colour_calls_soil_is_overruled_by_the_surface():
     # The colour alone would give the beds a support of 1 (all 'soil'); the alleys' share is 1/4.
     assert fit.support[bed].mean() < 0.35
     assert fit.check["support_where_guessed"] < 0.35
+
+
+@pytest.mark.parametrize("colour", ["all soil", "random"])
+def test_a_short_canopy_the_colour_does_not_follow_is_overruled_by_the_surface(colour):
+    # A 20 cm canopy stands within the microrelief: the share of 'soil' standing high cannot
+    # tell. The colour is then tested against the surface: a photo with no plants, or whose plants
+    # stand no higher than its soil, does not decide; the surface's lowest mode does.
+    dsm, ground, bed = beds(height=0.20)
+    rng = np.random.default_rng(1)
+    soil = np.ones(dsm.shape, bool) if colour == "all soil" else rng.random(dsm.shape) < 0.6
+    fit = fit_ground(dsm, soil=soil, pixel_size=0.05)
+    evidence = fit.check["evidence"]
+    assert fit.evidence_source == "surface"
+    assert evidence["colour_soil_above"] < 0.5  # the old test alone took the canopy for soil
+    if colour == "all soil":
+        assert evidence["colour_plants_rise_m"] is None
+        assert evidence["colour_contradicted"] == "the photo shows no plants"
+    else:
+        assert abs(evidence["colour_plants_rise_m"]) < 0.02
+        assert evidence["colour_contradicted"].startswith("the photo's plants stand no higher")
+        assert not (fit.evidence & ~soil).any()  # the colour still takes its plants out
+    assert fit.evidence[bed].mean() < 0.02
+    heights = (dsm - fit.ground)[bed]
+    assert abs(np.median(heights) - 0.20) < 0.03
+
+
+def test_the_soil_band_ends_above_the_lowest_mode_not_the_largest_nor_a_shoulder():
+    rng = np.random.default_rng(0)
+    soil = rng.normal(0.02, 0.01, 40_000)
+    canopy = rng.normal(0.18, 0.02, 120_000)  # a short closed canopy: the larger mode
+    band = soil_peak(np.concatenate([soil, canopy]))
+    assert 0.04 < band < 0.07  # the soil's mode, 2 cm, plus three of its deviations
+    # A shoulder below the soil's mode (a few furrows 4 cm lower) is not a mode of its own: taken as
+    # one, the band would end near 1 cm; it widens the soil's lower side instead.
+    furrows = rng.normal(-0.02, 0.01, 15_000)
+    assert soil_peak(np.concatenate([furrows, soil, soil])) > band
+    # Noise is no mode: a few scattered pits far below do not move the band.
+    pits = rng.uniform(-0.2, -0.1, 50)
+    assert soil_peak(np.concatenate([pits, soil, canopy])) == pytest.approx(band, abs=0.005)
+
+
+def test_a_photo_whose_plants_stand_above_its_soil_is_the_evidence():
+    dsm, ground, bed = beds(height=0.20)
+    fit = fit_ground(dsm, soil=~bed, pixel_size=0.05)
+    evidence = fit.check["evidence"]
+    assert fit.evidence_source == "colour and surface"
+    assert "colour_contradicted" not in evidence
+    assert evidence["colour_plants_rise_m"] == pytest.approx(0.20, abs=0.03)
+    assert evidence["colour_plants_rise_m"] > evidence["surface_soil_band_m"]
+    assert abs(np.median((dsm - fit.ground)[bed]) - 0.20) < 0.03
 
 
 def test_the_uncertainty_grows_from_the_alleys_into_the_beds():

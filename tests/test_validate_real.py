@@ -93,6 +93,25 @@ def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_pat
     assert aligned["baseline"]["rmse_cm"] > aligned["ours"]["rmse_cm"]
     assert aligned["plantcv"]["n"] == aligned["ours"]["n"] == 4
     assert row["ground_method"] in ("baseline", "smooth", "detailed") and 0 <= aligned["coverage"] <= 1
+    # The same date with its photo turned straw-coloured: the surface decides the ground, and says why.
+    (straw,) = record["fields_straw"]
+    assert straw["evidence"] == "surface" and straw["colour_contradicted"]
+    assert row["evidence"] == "colour and surface" and row["colour_contradicted"] is None
+    assert abs(straw["against"]["aligned"]["ours"]["bias_cm"]) < 3.0
+
+
+def test_a_straw_coloured_photo_keeps_its_brightness_and_georeference_not_its_colour(validate, tmp_path):
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
+
+    write_synthetic_pair(tmp_path)
+    photo = read_orthophoto(tmp_path / "ortho.tif")
+    straw = read_orthophoto(validate.straw_photo(tmp_path / "ortho.tif", tmp_path / "straw.tif"))
+    assert np.array_equal(straw.transform, photo.transform) and straw.crs == photo.crs
+    level = np.maximum(photo.data[..., 0], photo.data[..., 1])
+    assert np.array_equal(straw.data[..., 0], level)
+    ratio = straw.data[..., 1:].astype(float) / np.maximum(level, 1)[..., None]
+    bright = level > 40  # the same chroma everywhere (up to rounding)
+    assert np.allclose(ratio[bright], [0.85, 0.55], atol=0.03)
 
 
 def test_the_validation_page_is_written_from_its_record(validate, tmp_path):
