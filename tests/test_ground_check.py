@@ -390,6 +390,43 @@ def test_heights_with_the_baseline_is_the_naive_peer(trial):
     np.testing.assert_allclose(chm.data[ok], expected[ok], atol=1e-5)
 
 
+def test_heights_on_a_grey_photo_says_the_surface_decided_and_measures_the_same(trial):
+    # A photo whose colour tells nothing (grey: a senescent canopy over dry soil, for an RGB
+    # threshold): the ground comes from the surface, the one-line summary says so, and the plots
+    # measure what they measure with the colour.
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
+
+    folder, _, _ = trial
+    photo = read_orthophoto(folder / "ortho.tif")
+    grey = photo.data.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+    tifffile.imwrite(
+        folder / "grey.tif",
+        np.repeat(grey.round().astype(np.uint8)[..., None], 3, axis=2),
+        photometric="rgb",
+        extratags=geotiff_tags(photo.transform, photo.crs),
+    )
+    runs = {}
+    for name in ("ortho", "grey"):
+        out = folder / f"h_{name}"
+        done = run_cli(
+            "heights", folder / f"{name}.tif", "--dsm", folder / "dsm.tif", "--plots", folder / "plots.geojson",
+            "--out", out,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        evidence = json.loads((out / "summary.json").read_text())["ground_check"]["evidence"]
+        with open(out / "plots.csv", newline="") as stream:
+            p90 = np.array([float(row["height_p90_m"]) for row in csv.DictReader(stream)])
+        runs[name] = done.stdout, evidence, p90
+    stdout, evidence, p90 = runs["grey"]
+    assert evidence["source"] == "surface" and evidence["colour_contradicted"]
+    assert f"soil from the surface: {evidence['colour_contradicted']})" in stdout
+    assert "soil from the surface" not in runs["ortho"][0]
+    assert "colour_contradicted" not in runs["ortho"][1]
+    assert np.abs(p90 - runs["ortho"][2]).max() < 0.03
+
+
 @pytest.mark.parametrize(
     "extra, words",
     [

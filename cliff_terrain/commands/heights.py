@@ -259,7 +259,9 @@ def run(args):
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
     ground = canopy.ground_source
     if check:
-        ground += f" ({check['method']}, held-out bare soil within {check['candidates'][check['method']]['error_m'] * 100:.1f} cm)"
+        from ..measure.ground_evidence import evidence_note
+
+        ground += f" ({check['method']}, held-out bare soil within {check['candidates'][check['method']]['error_m'] * 100:.1f} cm{evidence_note(check)})"
     against = ""
     if ruler_record:
         a = ruler_record["height_p90_m"]

@@ -115,8 +115,10 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
     check = result.check or {}
     ground = result.ground_source
     if check:
+        from ..measure.ground_evidence import evidence_note
+
         error = check["candidates"][check["method"]]["error_m"] * 100
-        ground += f" ({check['method']} on a {result.pixel_size * result.factor:.3g} m grid, held-out bare soil within {error:.1f} cm)"
+        ground += f" ({check['method']} on a {result.pixel_size * result.factor:.3g} m grid, held-out bare soil within {error:.1f} cm{evidence_note(check)})"
     measured = ""
     if rows is not None:
         import numpy as np

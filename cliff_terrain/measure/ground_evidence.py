@@ -121,3 +121,11 @@ def soil_peak(above):
     lower = above[(above <= mode) & (above >= low)] - mode
     spread = float(np.sqrt(np.mean(lower**2))) if lower.size else step
     return float(min(MICRORELIEF_M, mode + _PEAK_SPREAD * max(spread, step)))
+
+
+def evidence_note(check):
+    """``"; soil from the surface: <why>"`` when a ground check's colour was overruled, else ``""``:
+    for the one-line summary, so that the user reads that the photo's colour was not trusted."""
+    evidence = (check or {}).get("evidence") or {}
+    why = evidence.get("colour_contradicted")
+    return f"; soil from the surface: {why}" if why else ""
