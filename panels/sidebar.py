@@ -83,7 +83,8 @@ def relief_size_lines(record):
 
 
 def key_figure_lines(record):
-    """Plants and cover, and the measured canopy height p50/p90 in cm after a build with a DSM."""
+    """Plants and cover, and the measured canopy height p50/p90 in cm after a build with a DSM; and
+    why the ground took its soil from the surface when the photo's colour was not trusted."""
     lines = []
     if record.cover is not None:
         lines.append(f"Plants {record.regions}, cover {float(record.cover):.0%}")
@@ -91,6 +92,8 @@ def key_figure_lines(record):
         lines.append(
             f"Canopy height p50 {float(record.canopy_p50_cm):.1f} cm, p90 {float(record.canopy_p90_cm):.1f} cm"
         )
+    if record.soil_note:
+        lines.append(f"Soil from the surface: {record.soil_note}")
     return lines
 
 

@@ -68,6 +68,9 @@ class Record:
     map_offset: tuple | None = None
     crs: int | str | None = None  # an EPSG code, or a user-defined CRS's WKT
     ground: str | None = None
+    # Why the estimated ground took its soil from the surface, not from the photo's colour ("": it
+    # took the colour's, or no ground was estimated).
+    soil_note: str = ""
 
     __hash__ = None  # `params` is a dict
 
@@ -195,4 +198,6 @@ def key_figures(relief):
 
         figures["crs"] = crs_record(canopy.crs)  # an EPSG code, or a user-defined CRS's WKT
         figures["ground"] = canopy.ground_source
+        evidence = (canopy.check or {}).get("evidence") or {}
+        figures["soil_note"] = evidence.get("colour_contradicted") or ""
     return figures

@@ -59,6 +59,43 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
     assert lines[1] == f"Canopy height p50 {info['canopy_p50_cm']:.1f} cm, p90 {info['canopy_p90_cm']:.1f} cm"
 
 
+def test_a_grey_photo_says_in_the_sidebar_that_the_surface_decided_the_soil(scene, tmp_path):
+    import bpy
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
+
+    photo = read_orthophoto(ex2("odm_orthophoto.tif"))
+    grey = np.round(photo.data.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32))
+    alpha = np.full(photo.shape, 255, np.uint8) if photo.valid is None else np.where(photo.valid, 255, 0)
+    tifffile.imwrite(
+        tmp_path / "grey.tif",
+        np.dstack([np.repeat(grey.astype(np.uint8)[..., None], 3, axis=2), alpha.astype(np.uint8)]),
+        photometric="rgb",
+        extrasamples=[2],
+        extratags=geotiff_tags(photo.transform, photo.crs),
+    )
+    settings = scene.cliff_terrain
+    settings.filepath = str(tmp_path / "grey.tif")
+    settings.dsm = ex2("dsm.tif")
+    settings.height_source = "measured"
+    settings.max_size = 300
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    note = obj["cliff_terrain"]["soil_note"]
+    assert note == "the photo shows no plants"
+
+    from cliff_terrain_addon.panels.sidebar import key_figure_lines, relief_info
+
+    assert key_figure_lines(relief_info(obj))[-1] == f"Soil from the surface: {note}"
+    # The photo as it is: the colour's soil, and no such line.
+    settings.filepath = ex2("odm_orthophoto.tif")
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["cliff_terrain"]["soil_note"] == ""
+    assert not any(line.startswith("Soil from") for line in key_figure_lines(relief_info(obj)))
+
+
 def test_measured_heights_without_a_dsm_is_reported(scene):
     import bpy
 
