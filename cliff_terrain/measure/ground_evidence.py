@@ -50,7 +50,8 @@ def ground_evidence(dsm, reference, *, soil=None, exposed=None):
     # microrelief, and its plants stand above its soil by more than the soil's own band. A photo
     # whose colour does not follow the crop (a senescent or yellow canopy, a grey photo) calls the
     # canopy soil: on a real potato trial with its photos turned straw-coloured, the colour's
-    # evidence put a closed canopy's ground 23-34 cm high, every pixel within the microrelief.
+    # evidence took the closed canopy (every pixel within the microrelief) for soil, and the plots'
+    # p90 came out 23-34 cm low on days 100 and 90.
     if not n_soil or high > 0.5 * n_soil:
         colour["colour_contradicted"] = "most of the photo's soil stands above the microrelief"
     elif rise is None:
@@ -95,8 +96,9 @@ def soil_peak(above):
     it is resolved (the valleys beside it fall below half its height, the half-maximum criterion),
     rises out of its counts' noise (three standard deviations of a smoothed bin's Poisson noise, a
     mean of five counts: sqrt(n / 5)) and holds `MIN_SOIL_PIXELS`. A shoulder is not a mode: on a
-    real ridged potato field a shoulder 4.5 cm below the soil's mode (prominence 5 % of its
-    height) would have put the ground 1.5 cm lower.
+    real ridged potato field's surface model alone (potato_fieldimager_ex1) a shoulder 4.5 cm below
+    the soil's mode (prominence 5 % of its height), taken as the mode, raised the plots' p90 bias
+    against the two-flight difference from +3.7 to +5.3 cm.
     """
     from scipy.signal import find_peaks
 
