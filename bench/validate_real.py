@@ -213,8 +213,9 @@ def field_rows(data_dir, *, ground="auto", colour="photo"):
     reference the field has (the aligned and raw two-flight difference, a ruler), with the coverage
     of ours' uncertainty (|error| <= 1.645 x height_p90_err_m).
 
-    ``colour="straw"`` runs ours on each orthophoto turned straw-coloured (:func:`straw_photo`), and
-    skips the dates without one: the ground when the colour does not follow the crop."""
+    ``colour="straw"`` or ``"golden"`` runs ours on each orthophoto recoloured (:func:`straw_photo`,
+    :func:`golden_photo`), and skips the dates without one: the ground when the colour does not
+    follow the crop."""
     import cv2
 
     from cliff_terrain.io.raster.geotiff import read_surface, resample
@@ -245,7 +246,7 @@ def field_rows(data_dir, *, ground="auto", colour="photo"):
                     height_column=ruler_spec.get("height"),
                     units=ruler_spec["unit"],
                 )
-            if colour == "straw" and not files.get("ortho"):
+            if colour != "photo" and not files.get("ortho"):
                 continue
             dsm_raster = read_surface(folder / files["dsm"])
             if files.get("ortho"):
@@ -332,6 +333,35 @@ def straw_photo(path, out):
     return out
 
 
+def golden_photo(path, out):
+    """Write `path`'s orthophoto to `out` with its plants (the independent ExG/Otsu mask of the
+    photo) turned golden (R : G : B = 1 : 0.8 : 0.4 at the brightness of their brightest band) and
+    its soil as it is: a senescent canopy over its soil, which the photo's own threshold calls soil
+    for the most part while a few pixels keep some green."""
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
+
+    photo = read_orthophoto(path)
+    plants = reference_mask(photo.data)
+    level = photo.data.max(axis=-1).astype(np.float32)
+    gold = np.stack([level, 0.8 * level, 0.4 * level], axis=-1)
+    rgb = np.clip(np.where(plants[..., None], gold, photo.data), 0, 255).astype(np.uint8)
+    alpha = np.full(photo.shape, 255, np.uint8) if photo.valid is None else np.where(photo.valid, 255, 0)
+    tifffile.imwrite(
+        out,
+        np.dstack([rgb, alpha.astype(np.uint8)]),
+        photometric="rgb",
+        extrasamples=[2],
+        extratags=geotiff_tags(photo.transform, photo.crs),
+    )
+    return out
+
+
+# The photos recoloured so that their colour does not follow the crop (field_rows' `colour`).
+RECOLOURED = {"straw": straw_photo, "golden": golden_photo}
+
+
 def _run_heights(folder, files, spec, ground, colour="photo"):
     """`cliff-terrain heights` on one date: (p90, p90 err, ground check, grid transform, grid shape)."""
     from cliff_terrain.cli import main as cli
@@ -340,8 +370,8 @@ def _run_heights(folder, files, spec, ground, colour="photo"):
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "heights"
         ortho = folder / files["ortho"]
-        if colour == "straw":
-            ortho = straw_photo(ortho, Path(tmp) / "straw.tif")
+        if colour in RECOLOURED:
+            ortho = RECOLOURED[colour](ortho, Path(tmp) / f"{colour}.tif")
         args = ["heights", str(ortho), "--dsm", str(folder / files["dsm"])]
         args += ["--plots", str(folder / spec["plots"]), "--out", str(out), "--ground", ground]
         if cli(args) != 0:
@@ -735,37 +765,40 @@ def docs_page(record):
         for kind, figures in r.get("against", {}).items()
     ]
     parts.append(_table(header, rows) if rows else "No field in this record.")
-    straw = record.get("fields_straw") or []
-    if straw:
+    recoloured = {colour: record.get(f"fields_{colour}") or [] for colour in RECOLOURED}
+    if any(recoloured.values()):
         parts += [
             "### When the colour does not follow the crop",
-            "The same dates, each orthophoto turned straw-coloured first (every pixel's chroma made "
-            "R : G : B = 1 : 0.85 : 0.55, its brightness kept: plants and soil alike, as a senescent "
-            "canopy over dry soil; `straw_photo` in `bench/validate_real.py`). The colour then tells "
-            "nothing about the crop: the ground must come from the surface, and the heights still "
-            "hold against the same references. The hidden wheat trial at maturity failed this way (its "
-            "photo called the canopy soil). Against the aligned two-flight difference:",
+            "The same dates, each orthophoto recoloured first: *straw* (every pixel's chroma made R : G : B "
+            "= 1 : 0.85 : 0.55, its brightness kept: plants and soil alike; `straw_photo`) and *golden* (the "
+            "plants of the photo's independent ExG/Otsu mask made R : G : B = 1 : 0.8 : 0.4, the soil as it "
+            "is: a senescent canopy over its soil; `golden_photo`, both in `bench/validate_real.py`). The "
+            "colour then does not tell the crop: the ground must come from the surface, and the heights "
+            "still hold against the same references. The hidden wheat trial at maturity failed this way "
+            "(its photo called the canopy soil). Against the aligned two-flight difference:",
         ]
-        header = ("field", "date", "ground (held-out error)", "why the surface decided", "ours", "naive baseline",
-                  "ours − baseline: r, RMSE (95 %)")  # fmt: skip
+        header = ("field", "date", "photo", "ground (held-out error)", "why the surface decided", "ours",
+                  "naive baseline", "ours − baseline: r, RMSE (95 %)")  # fmt: skip
         rows = [
             (
                 r["field"],
                 r["date"],
+                colour,
                 f"{r.get('ground_method')} ({_num(r.get('ground_check_error_cm'), 1)} cm, {r.get('evidence')})",
                 r.get("colour_contradicted") or "- (the colour was taken)",
                 _fit(figures.get("ours")),
                 _fit(figures.get("baseline")),
                 _difference((figures.get("difference") or {}).get("baseline")),
             )
-            for r in straw
+            for colour, dated in recoloured.items()
+            for r in dated
             for kind, figures in r.get("against", {}).items()
             if kind == "aligned"
         ]
         parts.append(_table(header, rows))
-    losses = _losses(fields, images, summary) + _losses(
-        [{**r, "date": f"{r['date']} (straw-coloured photo)"} for r in straw], [], {}
-    )
+    losses = _losses(fields, images, summary)
+    for colour, dated in recoloured.items():
+        losses += _losses([{**r, "date": f"{r['date']} ({colour} photo)"} for r in dated], [], {})
     parts.append("## Where we lose")
     parts.append("\n".join(f"- {line}" for line in losses) if losses else "Nowhere in this record.")
     if record.get("notes"):
@@ -805,8 +838,10 @@ def main(argv=None):
     warnings.filterwarnings("ignore", message=".*GDAL_NODATA.*")
     images = [] if args.skip_images else image_rows(args.data_dir, args.max_size)
     fields = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground)
-    straw = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground, colour="straw")
-    record = {"images": images, "fields": fields, "fields_straw": straw, "summary": {}}
+    record = {"images": images, "fields": fields, "summary": {}}
+    for colour in RECOLOURED:
+        rows = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground, colour=colour)
+        record[f"fields_{colour}"] = rows
     for half in ("tune", "holdout"):
         for group in sorted({r["set"] for r in images}):
             record["summary"][f"{group}/{half}"] = summarise([r for r in images if r["set"] == group], half)

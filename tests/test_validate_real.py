@@ -98,6 +98,24 @@ def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_pat
     assert straw["evidence"] == "surface" and straw["colour_contradicted"]
     assert row["evidence"] == "colour and surface" and row["colour_contradicted"] is None
     assert abs(straw["against"]["aligned"]["ours"]["bias_cm"]) < 3.0
+    (golden,) = record["fields_golden"]
+    assert abs(golden["against"]["aligned"]["ours"]["bias_cm"]) < 3.0
+
+
+def test_a_golden_photo_turns_the_plants_golden_and_keeps_the_soil(validate, tmp_path):
+    from cliff_terrain.evaluate.mask_quality import reference_mask
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
+
+    write_synthetic_pair(tmp_path)
+    photo = read_orthophoto(tmp_path / "ortho.tif")
+    golden = read_orthophoto(validate.golden_photo(tmp_path / "ortho.tif", tmp_path / "golden.tif"))
+    assert np.array_equal(golden.transform, photo.transform) and golden.crs == photo.crs
+    plants = reference_mask(photo.data)
+    assert 0.05 < plants.mean() < 0.95
+    assert np.array_equal(golden.data[~plants], photo.data[~plants])
+    level = photo.data[plants].max(axis=-1).astype(float)
+    np.testing.assert_allclose(golden.data[plants][:, 1], 0.8 * level, atol=1)
+    np.testing.assert_allclose(golden.data[plants][:, 2], 0.4 * level, atol=1)
 
 
 def test_a_straw_coloured_photo_keeps_its_brightness_and_georeference_not_its_colour(validate, tmp_path):
