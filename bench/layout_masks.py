@@ -41,6 +41,11 @@ maize_sugarbeet        Schine73/Plant-and-Weed-detection-using-UNet-CNN @ 851388
                        3 maize; plant = 1-3), spread(154, 30) of the pairs whose photo is under
                        4 MiB (SCHINE_MAX_BYTES: the snapshot holds no bigger file).
 
+weedsgalore            koesan/weedseg @ a009f40: WeedsGalore/yolo_dataset/images/test/DATE_ID.png and
+                       labels/test/DATE_ID.txt (YOLO segmentation polygons, classes 0 crop and 1
+                       weed, traced by that repository from WeedsGalore's masks; every polygon
+                       filled as plant), all 26.
+
 Photos without masks (DATA_DIR/photos/; the reference is an index mask made by the reader):
 
 maize_rows_straw       WoodratTradeCo/crop-rows-detection @ d75cf5e: mydata/images/{test,train}/
@@ -81,6 +86,7 @@ REPOS = {
     ),
     "maize_rows": ("WoodratTradeCo/crop-rows-detection", "d75cf5e0412c5cdfaef1e9e99f53507e98d7fd3b"),
     "uavbroccoli": ("UTokyo-FieldPhenomics-Lab/UAVbroccoli", "f30abe2c736eb479d346dff52246cea363cb56c1"),
+    "weedseg": ("koesan/weedseg", "a009f40f682d771d59ff3088e914ae6fa37792fe"),
 }
 BROCCOLI_TILES = (
     "grid_x02_y06",
@@ -302,6 +308,41 @@ def maize_sugarbeet(out):
         )  # fmt: skip
 
 
+def yolo_polygons_mask(text, size):
+    """The plant mask of a YOLO segmentation label file: every polygon (any class) filled.
+
+    Each line is ``class x1 y1 x2 y2 ...`` with coordinates in [0, 1] of the image's (width,
+    height); PIL fills each polygon with its outline.
+    """
+    from PIL import ImageDraw
+
+    mask = Image.new("L", size, 0)
+    draw = ImageDraw.Draw(mask)
+    for line in text.splitlines():
+        values = line.split()
+        if len(values) < 7:  # a class and at least three points
+            continue
+        xy = np.asarray(values[1:], dtype=np.float64).reshape(-1, 2) * np.asarray(size, dtype=np.float64)
+        draw.polygon([tuple(point) for point in xy], fill=255)
+    return np.asarray(mask) > 0
+
+
+def weedsgalore(out):
+    folder = "WeedsGalore/yolo_dataset"
+    for name in listing("weedseg", f"{folder}/images/test"):
+        if not name.endswith(".png"):
+            continue
+        stem = Path(name).stem
+        photo_path, path = f"{folder}/images/test/{name}", f"{folder}/labels/test/{stem}.txt"
+        photo = open_image(blob("weedseg", photo_path))
+        plant = yolo_polygons_mask(blob("weedseg", path).decode(), photo.size)
+        out.copy("masks", "weedsgalore", name, "weedseg", photo_path)
+        out.put(
+            "masks", "weedsgalore", f"{stem}_mask.png", mask_png(plant), "weedseg", path,
+            "YOLO polygons filled",
+        )  # fmt: skip
+
+
 def maize_rows_straw(out):
     for split in ("test", "train"):
         for name in listing("maize_rows", f"mydata/images/{split}"):
@@ -411,6 +452,24 @@ SOURCES = [
         'free to use them for your own purposes." (README; no licence file)',
         "reference": "hand-segmented class maps (0 background, 1 weed, 2 sugar beet, 3 maize): crop "
         "and weeds are plant",
+    },
+    {
+        "folder": "weedsgalore",
+        "kind": "masks",
+        "make": weedsgalore,
+        "repo": "weedseg",
+        "files": "WeedsGalore/yolo_dataset/images/test/DATE_ID.png, labels/test/DATE_ID.txt; all 26",
+        "crop": "maize with four weed species, UAV nadir (WeedsGalore, Celikkan et al., WACV 2025; "
+        "Brandenburg, Germany, 2023)",
+        "soil": "pale, dry, sandy soil",
+        "light": "sun with hard shadows; UAV nadir, RGB bands of a multispectral camera",
+        "stage": "four dates from emergence (most frames under 2 % cover) to rows closing (55 %)",
+        "licence": 'WeedsGalore: "distributed under the Creative Commons Attribution (CC BY) Licence" '
+        "(GFZ/weedsgalore README); cite Celikkan et al., WACV 2025. koesan/weedseg, which holds "
+        "this copy, has no licence file",
+        "reference": "the dataset's dense crop and weed annotations, as koesan/weedseg traced them to "
+        "YOLO polygons (filled here; small plants and holes may be lost); not verified as hand-drawn "
+        "from the paper's text",
     },
     {
         "folder": "maize_rows_straw",

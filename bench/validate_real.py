@@ -509,6 +509,16 @@ SOURCES = (
         "the dataset's hand-segmented class maps (maize, sugar beet and weeds are plant)",
     ),
     (
+        "`weedsgalore` (26)",
+        "WeedsGalore's test frames: UAV nadir RGB (of a multispectral camera) of maize with four weed "
+        "species on pale, dry soil, sun and hard shadows, four dates from emergence (most frames under 2 % "
+        "cover) to rows closing (Germany, 2023)",
+        "`koesan/weedseg`, `WeedsGalore/yolo_dataset/{images,labels}/test/` (a copy of `GFZ/weedsgalore`'s)",
+        "CC BY 4.0 (WeedsGalore's README); cite Celikkan et al., WACV 2025",
+        "the dataset's dense crop and weed annotations, traced to polygons by the copy's author and filled "
+        "here (small plants and holes may be lost; not verified as hand-drawn)",
+    ),
+    (
         "`maize_rows_straw` (22)",
         "oblique tractor-camera frames of young maize rows (about V3-V6) on straw-covered no-till soil; "
         "overcast",

@@ -1,0 +1,36 @@
+"""bench/layout_masks.py's converters: a source's annotation format into the layout's plant mask."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+
+@pytest.fixture(scope="module")
+def layout():
+    spec = importlib.util.spec_from_file_location("layout_masks", REPO / "bench" / "layout_masks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_yolo_polygons_fill_every_class_and_skip_degenerate_lines(layout):
+    # A crop square (class 0) and a weed triangle (class 1) in a 100 x 50 (width x height) frame.
+    text = "0 0.1 0.2 0.3 0.2 0.3 0.6 0.1 0.6\n1 0.6 0.2 0.9 0.2 0.75 0.8\n1 0.5 0.5 0.6 0.6\n\n"
+    mask = layout.yolo_polygons_mask(text, (100, 50))
+    assert mask.shape == (50, 100)
+    assert mask[10:30, 10:30].all() and not mask[35:, :55].any()
+    square = mask[:, :50].sum()
+    assert square == pytest.approx(21 * 21, abs=2)  # 20 x 20 plus the outline PIL draws
+    triangle = mask[:, 55:].sum()
+    assert triangle == pytest.approx(0.5 * 30 * 30, rel=0.1)
+    assert not mask[24:26, 49:56].any()  # the two-point line is no polygon
+
+
+def test_spread_keeps_the_ends_and_spaces_the_rest(layout):
+    names = [f"{k:03d}" for k in range(10)]
+    assert layout.spread(names, 4) == ["000", "003", "006", "009"]
+    assert layout.spread(names, 20) == names
