@@ -315,22 +315,11 @@ def straw_photo(path, out):
     """Write `path`'s orthophoto to `out` with every pixel's chroma made straw (R : G : B = 1 : 0.85 :
     0.55 at the brightness of its brighter red or green band): plants and soil alike, as a senescent
     canopy over dry soil; the colour then tells nothing, the brightness (shade) still does."""
-    import tifffile
-
-    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
 
     photo = read_orthophoto(path)
     level = np.maximum(photo.data[..., 0], photo.data[..., 1]).astype(np.float32)
-    rgb = np.clip(np.stack([level, 0.85 * level, 0.55 * level], axis=-1), 0, 255).astype(np.uint8)
-    alpha = np.full(photo.shape, 255, np.uint8) if photo.valid is None else np.where(photo.valid, 255, 0)
-    tifffile.imwrite(
-        out,
-        np.dstack([rgb, alpha.astype(np.uint8)]),
-        photometric="rgb",
-        extrasamples=[2],
-        extratags=geotiff_tags(photo.transform, photo.crs),
-    )
-    return out
+    return _write_photo(out, np.stack([level, 0.85 * level, 0.55 * level], axis=-1), photo)
 
 
 def golden_photo(path, out):
@@ -338,15 +327,23 @@ def golden_photo(path, out):
     photo) turned golden (R : G : B = 1 : 0.8 : 0.4 at the brightness of their brightest band) and
     its soil as it is: a senescent canopy over its soil, which the photo's own threshold calls soil
     for the most part while a few pixels keep some green."""
-    import tifffile
-
-    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
 
     photo = read_orthophoto(path)
     plants = reference_mask(photo.data)
     level = photo.data.max(axis=-1).astype(np.float32)
     gold = np.stack([level, 0.8 * level, 0.4 * level], axis=-1)
-    rgb = np.clip(np.where(plants[..., None], gold, photo.data), 0, 255).astype(np.uint8)
+    return _write_photo(out, np.where(plants[..., None], gold, photo.data), photo)
+
+
+def _write_photo(out, rgb, photo):
+    """`rgb` (clipped to 8 bits) as an RGBA GeoTIFF at `out` with `photo`'s georeference, its
+    no-data as alpha."""
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags
+
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
     alpha = np.full(photo.shape, 255, np.uint8) if photo.valid is None else np.where(photo.valid, 255, 0)
     tifffile.imwrite(
         out,

@@ -35,6 +35,38 @@ RENDER_VIEWS_OUTPUTS = (
 SHARED_UAV = REPO.parent / "shared" / "data" / "uav"
 
 
+def load_script(path, name=None):
+    """A script outside the packages (``bench/``, ``tools/``) loaded as a module from its `path`."""
+    import importlib.util
+
+    path = Path(path)
+    spec = importlib.util.spec_from_file_location(name or path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def grey_copy(source, target):
+    """Orthophoto GeoTIFF `source` written to `target` in grey (its luma in all three bands), its
+    georeference and no-data kept (as alpha): a photo whose colour tells nothing. Returns `target`."""
+    import numpy as np
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
+
+    photo = read_orthophoto(source)
+    grey = np.round(photo.data.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32))
+    alpha = np.full(photo.shape, 255, np.uint8) if photo.valid is None else np.where(photo.valid, 255, 0)
+    tifffile.imwrite(
+        target,
+        np.dstack([np.repeat(grey.astype(np.uint8)[..., None], 3, axis=2), alpha.astype(np.uint8)]),
+        photometric="rgb",
+        extrasamples=[2],
+        extratags=geotiff_tags(photo.transform, photo.crs),
+    )
+    return target
+
+
 def uav_image(relative: str) -> Path:
     """Path of a shared UAV image, or skip the test with the reason when ../shared is absent."""
     path = SHARED_UAV / relative

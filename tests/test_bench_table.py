@@ -1,19 +1,16 @@
 """bench/run_all.py writes the benchmark table of docs/benchmarks.md between its markers, and only there."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def run_all():
-    spec = importlib.util.spec_from_file_location("run_all", ROOT / "bench" / "run_all.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(ROOT / "bench" / "run_all.py", "run_all")
 
 
 def test_the_table_goes_between_the_markers_and_replaces_the_last_one(run_all, tmp_path):

@@ -10,7 +10,6 @@ Pillow can only come from the wheels inside the zip. Wheels are cached in ``whee
 """
 
 import ast
-import importlib.util
 import json
 import os
 import subprocess
@@ -22,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import SHARED_UAV as UAV
-from conftest import blender_only_site
+from conftest import blender_only_site, load_script
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 bpy = pytest.importorskip("bpy")
@@ -34,10 +33,7 @@ OTHER_PYTHON = {"3.11": "3.13", "3.13": "3.11"}[PYTHON]
 
 
 def load_tool():
-    spec = importlib.util.spec_from_file_location("_build_extension", ROOT / "tools" / "build_extension.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(ROOT / "tools" / "build_extension.py", "_build_extension")
 
 
 @pytest.fixture(scope="module")

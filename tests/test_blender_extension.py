@@ -11,7 +11,6 @@ The installed-zip path is covered by test_blender_build.py.
 import dataclasses
 import functools
 import importlib
-import importlib.util
 import tomllib
 import types
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import SHARED_UAV as UAV
+from conftest import load_script
 
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
@@ -708,9 +708,7 @@ def test_manifest_follows_the_core_and_bundles_no_numpy(core):
     assert wheels and not any(w.lower().startswith("numpy-") for w in wheels)
     # Every platform gets exactly one wheel of each bundled package for each of Blender's Pythons
     # (3.11: Blender 4.2-5.0; 3.13: Blender 5.1+ and Linux distributions' Blender).
-    spec = importlib.util.spec_from_file_location("_build_extension", ROOT / "tools" / "build_extension.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = load_script(ROOT / "tools" / "build_extension.py", "_build_extension")
     blender_ext = tool.load_blender_ext(tool.blender_ext_path())
     assert tuple(tool.PYTHONS) == ("3.11", "3.13")
     for platform in manifest["platforms"]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import REPO, grey_copy
 from PIL import Image
 
 pytestmark = pytest.mark.blender
@@ -61,22 +61,9 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
 
 def test_a_grey_photo_says_in_the_sidebar_that_the_surface_decided_the_soil(scene, tmp_path):
     import bpy
-    import tifffile
 
-    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
-
-    photo = read_orthophoto(ex2("odm_orthophoto.tif"))
-    grey = np.round(photo.data.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32))
-    alpha = np.full(photo.shape, 255, np.uint8) if photo.valid is None else np.where(photo.valid, 255, 0)
-    tifffile.imwrite(
-        tmp_path / "grey.tif",
-        np.dstack([np.repeat(grey.astype(np.uint8)[..., None], 3, axis=2), alpha.astype(np.uint8)]),
-        photometric="rgb",
-        extrasamples=[2],
-        extratags=geotiff_tags(photo.transform, photo.crs),
-    )
     settings = scene.cliff_terrain
-    settings.filepath = str(tmp_path / "grey.tif")
+    settings.filepath = str(grey_copy(ex2("odm_orthophoto.tif"), tmp_path / "grey.tif"))
     settings.dsm = ex2("dsm.tif")
     settings.height_source = "measured"
     settings.max_size = 300

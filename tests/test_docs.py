@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import REPO, load_script
 
 import cliff_terrain
 
@@ -183,11 +183,7 @@ def test_the_parameter_table_names_every_setting_with_its_default():
 
 
 def test_the_parameter_table_is_made_from_the_declarations():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("_parameter_table", REPO / "tools" / "parameter_table.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = load_script(REPO / "tools" / "parameter_table.py", "_parameter_table")
     text = (DOCS / "api.md").read_text()
     assert tool.page_table(text) == tool.parameter_table(), (
         "docs/api.md's parameters are not their declarations': run `python tools/parameter_table.py --write`"
@@ -242,7 +238,6 @@ def test_the_readme_is_a_front_page_whose_figures_stand_on_the_pages_it_links():
 
 
 def test_the_docs_and_the_changelog_stay_out_of_the_extension_zip(tmp_path):
-    import importlib.util
     import tomllib
     import zipfile
 
@@ -251,9 +246,7 @@ def test_the_docs_and_the_changelog_stay_out_of_the_extension_zip(tmp_path):
     # Blender's builder leaves these out ...
     assert {"/docs/", "/CHANGES.md", "/requirements*.txt", "/.venv*/"} <= set(patterns)
     # ... and tools/build_extension.py refuses a zip that holds them all the same.
-    spec = importlib.util.spec_from_file_location("_build_extension", REPO / "tools" / "build_extension.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = load_script(REPO / "tools" / "build_extension.py", "_build_extension")
     for leaked in ("docs/index.md", "CHANGES.md"):
         archive_path = tmp_path / f"{leaked.replace('/', '_')}.zip"
         with zipfile.ZipFile(archive_path, "w") as archive:

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import grey_copy
 from scipy import stats
 from test_measured_heights import run_cli, write_synthetic_pair
 
@@ -394,19 +395,8 @@ def test_heights_on_a_grey_photo_says_the_surface_decided_and_measures_the_same(
     # A photo whose colour tells nothing (grey: a senescent canopy over dry soil, for an RGB
     # threshold): the ground comes from the surface, the one-line summary says so, and the plots
     # measure what they measure with the colour.
-    import tifffile
-
-    from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
-
     folder, _, _ = trial
-    photo = read_orthophoto(folder / "ortho.tif")
-    grey = photo.data.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
-    tifffile.imwrite(
-        folder / "grey.tif",
-        np.repeat(grey.round().astype(np.uint8)[..., None], 3, axis=2),
-        photometric="rgb",
-        extratags=geotiff_tags(photo.transform, photo.crs),
-    )
+    grey_copy(folder / "ortho.tif", folder / "grey.tif")
     runs = {}
     for name in ("ortho", "grey"):
         out = folder / f"h_{name}"

@@ -9,7 +9,6 @@ touching single-row plots is used when /work/data holds it (never copied into th
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -17,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO, SHARED_UAV
+from conftest import REPO, SHARED_UAV, load_script
 from scipy.optimize import linear_sum_assignment
 
 from cliff_terrain.errors import CliffTerrainError
@@ -28,9 +27,7 @@ from cliff_terrain.measure.plot_fit import fit_grid
 from cliff_terrain.measure.plot_grid import axes, place_grid, plots_from
 
 # The plots' centres and the outer corners of a breeder's grid, as the validation bench takes them.
-_spec = importlib.util.spec_from_file_location("validate_plot_fit", REPO / "bench" / "validate_plot_fit.py")
-_bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_bench)
+_bench = load_script(REPO / "bench" / "validate_plot_fit.py", "validate_plot_fit")
 centres, outer_corners = _bench.centres, _bench.outer_corners
 
 SOYBEAN = SHARED_UAV / "lamberton_soybean"

@@ -1,17 +1,15 @@
 """The map of which tests test which core module (tests/TEST_MAP.md, made by tools/test_map.py) is
 current, and no module of the core with code is left without a test file."""
 
-import importlib.util
 from pathlib import Path
+
+from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("_test_map", ROOT / "tools" / "test_map.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(ROOT / "tools" / "test_map.py", "_test_map")
 
 
 TOOL = _tool()

@@ -4,12 +4,11 @@ raw and the aligned difference."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import REPO, load_script
 from PIL import Image
 from test_measured_heights import FIELD_TRANSFORM, UTM16N, write_synthetic_pair
 
@@ -19,10 +18,7 @@ from cliff_terrain.io.raster.geotiff import write_geotiff
 
 @pytest.fixture(scope="module")
 def validate():
-    spec = importlib.util.spec_from_file_location("validate_real", REPO / "bench" / "validate_real.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(REPO / "bench" / "validate_real.py", "validate_real")
 
 
 def test_stable_alignment_recovers_a_tilt_between_flights(validate):
@@ -260,10 +256,7 @@ def _write_json(path, value):
 
 @pytest.fixture(scope="module")
 def sources():
-    spec = importlib.util.spec_from_file_location("mask_sources", REPO / "bench" / "mask_sources.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(REPO / "bench" / "mask_sources.py", "mask_sources")
 
 
 def test_the_colour_bound_is_chosen_without_the_source_it_is_reported_on(sources):
