@@ -334,7 +334,7 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
         note = (
             "undecided: most of the upper class of the photo's own split lies below the index "
             "floor (yellow, senescent canopy, or straw and residue, over soil?); colour alone "
-            f"cannot tell which is plant, so that class stays flat and only what lies above the "
+            "cannot tell which is plant, so that class stays flat and only what lies above the "
             f"floor ({low}) rises"
         )
     elif otsu > high and not at_band <= TWO_CLASS_VALLEY:
