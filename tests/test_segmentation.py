@@ -502,6 +502,8 @@ def test_yellow_canopy_over_brown_soil_is_undecided_not_guessed():
     relief = build_relief(np.clip(rgb, 0, 255).astype(np.uint8), mesh=None)
     record = relief.params["threshold"]
     assert record["source"] == "band" and record["note"].startswith("undecided:")
+    # The note says what still rises: whatever lies above the floor, the threshold taken.
+    assert record["note"].endswith(f"only what lies above the floor ({record['value']}) rises")
     assert relief.mask.mean() < 0.05  # nothing raised that the photo cannot justify
 
 
