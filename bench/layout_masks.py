@@ -45,6 +45,10 @@ weedsgalore            koesan/weedseg @ a009f40: WeedsGalore/yolo_dataset/images
                        labels/test/DATE_ID.txt (YOLO segmentation polygons, classes 0 crop and 1
                        weed, traced by that repository from WeedsGalore's masks; every polygon
                        filled as plant), all 26.
+stover_residue         soilwater/stover @ 8c0e980: dataset_v2/image_data/image_NNNN.jpg and
+                       label_data/label_NNNN.png (8-bit classes: 0 soil, 1 green canopy, 2 residue;
+                       plant = 1), spread(468, 30) of the frames whose own cover table
+                       (images_registry_outputs.csv) gives more than 1 % plant and 10 % residue.
 
 Photos without masks (DATA_DIR/photos/; the reference is an index mask made by the reader):
 
@@ -87,6 +91,7 @@ REPOS = {
     "maize_rows": ("WoodratTradeCo/crop-rows-detection", "d75cf5e0412c5cdfaef1e9e99f53507e98d7fd3b"),
     "uavbroccoli": ("UTokyo-FieldPhenomics-Lab/UAVbroccoli", "f30abe2c736eb479d346dff52246cea363cb56c1"),
     "weedseg": ("koesan/weedseg", "a009f40f682d771d59ff3088e914ae6fa37792fe"),
+    "stover": ("soilwater/stover", "8c0e980e8cccc94dca913e3bfc92a6ea9d77d0c7"),
 }
 BROCCOLI_TILES = (
     "grid_x02_y06",
@@ -343,6 +348,44 @@ def weedsgalore(out):
         )  # fmt: skip
 
 
+# Stover's frames with plants among residue: more than these percentages in its own cover table.
+STOVER_MIN_PLANT, STOVER_MIN_RESIDUE = 1.0, 10.0
+
+
+def stover_frames(table):
+    """{photo name: row} of Stover's cover table (CSV text) with plants among residue: more than
+    STOVER_MIN_PLANT % green canopy and STOVER_MIN_RESIDUE % residue in its label maps."""
+    import csv
+
+    return {
+        row["name"]: row
+        for row in csv.DictReader(io.StringIO(table))
+        if float(row["true_plant"]) > STOVER_MIN_PLANT and float(row["true_residue"]) > STOVER_MIN_RESIDUE
+    }
+
+
+def stover_residue(out):
+    folder = "dataset_v2"
+    rows = stover_frames(blob("stover", f"{folder}/images_registry_outputs.csv").decode())
+    for name in spread(rows, 30):
+        row = rows[name]
+        photo_path, path = f"{folder}/image_data/{name}", f"{folder}/label_data/{row['label']}"
+        labels = np.asarray(open_image(blob("stover", path)))
+        photo = open_image(blob("stover", photo_path))
+        if labels.shape != (photo.height, photo.width) or not set(np.unique(labels).tolist()) <= {0, 1, 2}:
+            raise SystemExit(f"stover_residue {path}: {labels.shape} {np.unique(labels)}, photo {photo.size}")
+        # The label map is the one the table describes: its plant share to the table's 0.01 %.
+        if abs(100 * (labels == 1).mean() - float(row["true_plant"])) > 0.01:
+            raise SystemExit(
+                f"stover_residue {path}: plant {100 * (labels == 1).mean():.2f} %, table {row['true_plant']}"
+            )
+        out.copy("masks", "stover_residue", name, "stover", photo_path)
+        out.put(
+            "masks", "stover_residue", f"{Path(name).stem}_mask.png", mask_png(labels == 1), "stover", path,
+            "class 1",
+        )  # fmt: skip
+
+
 def maize_rows_straw(out):
     for split in ("test", "train"):
         for name in listing("maize_rows", f"mydata/images/{split}"):
@@ -470,6 +513,24 @@ SOURCES = [
         "reference": "the dataset's dense crop and weed annotations, as koesan/weedseg traced them to "
         "YOLO polygons (filled here; small plants and holes may be lost); not verified as hand-drawn "
         "from the paper's text",
+    },
+    {
+        "folder": "stover_residue",
+        "kind": "masks",
+        "make": stover_residue,
+        "repo": "stover",
+        "files": "dataset_v2/image_data/image_NNNN.jpg, label_data/label_NNNN.png; 30 by spread() of "
+        "the 468 frames with more than 1 % plant and 10 % residue in images_registry_outputs.csv",
+        "crop": "corn, sorghum, soybean, sunflower and wheat in no-till residue (Stover, Kansas State "
+        "University)",
+        "soil": "straw and stalk residue over brown soil, from a few stalks to full cover",
+        "light": "sun with hard shadows, and diffuse; handheld nadir, 0.6-0.9 m, 512 px crops",
+        "stage": "seedlings to closed rows",
+        "licence": "the repository is MIT; its dataset release states CC BY 4.0; cite Patrignani, "
+        "Bisheh and Nahitiya, Agronomy Journal (in press)",
+        "reference": "the dataset's label maps (0 soil, 1 green canopy, 2 residue): green canopy is "
+        "plant. They look threshold-made and edited by hand (pixel-fine edges, brush-sized blocks), "
+        "not drawn from scratch; senescent plant material is labelled residue",
     },
     {
         "folder": "maize_rows_straw",

@@ -28,3 +28,17 @@ def test_spread_keeps_the_ends_and_spaces_the_rest(layout):
     names = [f"{k:03d}" for k in range(10)]
     assert layout.spread(names, 4) == ["000", "003", "006", "009"]
     assert layout.spread(names, 20) == names
+
+
+def test_stover_frames_keep_plants_among_residue_only(layout):
+    table = (
+        "name,label,train,val,test,true_soil,true_plant,true_residue,pred_soil,pred_plant,pred_residue\n"
+        "image_0001.jpg,label_0001.png,True,False,False,69.59,14.52,15.89,69.92,14.24,15.84\n"
+        "image_0002.jpg,label_0002.png,True,False,False,98.00,1.00,1.00,98.0,1.0,1.0\n"  # 1 %: not more
+        "image_0003.jpg,label_0003.png,True,False,False,0.00,85.00,15.00,0.0,85.0,15.0\n"
+        "image_0004.jpg,label_0004.png,True,False,False,5.00,90.00,5.00,5.0,90.0,5.0\n"  # little residue
+        "image_0005.jpg,label_0005.png,True,False,False,0.00,0.50,99.50,0.0,0.5,99.5\n"  # no plants
+    )
+    frames = layout.stover_frames(table)
+    assert sorted(frames) == ["image_0001.jpg", "image_0003.jpg"]
+    assert frames["image_0003.jpg"]["label"] == "label_0003.png"

@@ -323,7 +323,8 @@ def test_the_flood_kernel_is_scikit_images_own_and_its_neighbour_order():
 def test_otsu_is_scikit_images_on_real_indices_and_odd_histograms(shared_uav):
     from skimage.filters import threshold_otsu
 
-    from cliff_terrain.photo_heights.vegetation import _otsu, blurred_index
+    from cliff_terrain.photo_heights.histogram import _otsu
+    from cliff_terrain.photo_heights.vegetation import blurred_index
 
     samples = []
     for path in sorted(shared_uav.rglob("*")):
@@ -505,6 +506,50 @@ def test_yellow_canopy_over_brown_soil_is_undecided_not_guessed():
     # The note says what still rises: whatever lies above the floor, the threshold taken.
     assert record["note"].endswith(f"only what lies above the floor ({record['value']}) rises")
     assert relief.mask.mean() < 0.05  # nothing raised that the photo cannot justify
+
+
+def test_green_plants_among_straw_residue_rise_and_the_residue_stays_flat():
+    # Stover's frames in small: grey residue, pale straw stalks and their bluish shade (the index's
+    # low tail, where Otsu's split falls: it divides shade from residue), 3 % green plants. The upper
+    # class of that split is mostly residue below the floor (undecided); within it an empty valley
+    # parts the plants from the residue, and only the plants rise. At the floor the pale straw rose.
+    from cliff_terrain.evaluate.mask_quality import mask_agreement, volume_fraction
+
+    rng = np.random.default_rng(5)
+    rows, cols = 240, 320
+    yy, xx = np.mgrid[:rows, :cols]
+    plants = np.zeros((rows, cols), bool)
+    for r0 in range(30, rows, 60):
+        for c0 in range(30, cols, 60):
+            dr, dc = rng.integers(-8, 8, 2)
+            plants |= (yy - r0 - dr) ** 2 + (xx - c0 - dc) ** 2 < rng.integers(5, 9) ** 2
+    shade = ((xx + yy) % 23 < 5) & ~plants
+    straw = ((xx - 2 * yy) % 31 < 9) & ~plants & ~shade
+    rgb = np.select(
+        [plants[..., None], shade[..., None], straw[..., None]],
+        [np.array([96.0, 126, 70]), np.array([40.0, 44, 58]), np.array([150.0, 142, 100])],
+        np.array([92.0, 90, 86]),
+    )
+    rgb = rgb * (1 + 0.08 * rng.standard_normal((rows, cols, 1))) + 4 * rng.standard_normal((rows, cols, 3))
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+
+    relief = build_relief(rgb, mesh=None)
+    record = relief.params["threshold"]
+    assert record["source"] == "photo (upper valley)" and record["note"].startswith("undecided:")
+    assert record["value"] > 0.06
+    assert record["note"].endswith(
+        f"only what lies above an empty valley within that class ({record['value']:.3f}) rises"
+    )
+    assert mask_agreement(relief.mask, plants)["iou"] > 0.85
+    assert volume_fraction(relief.heights, plants) > 0.9
+    # Straw rises only as the rims of plants that touch a stalk (the index is blurred by 1 px).
+    from scipy import ndimage
+
+    near_plants = ndimage.binary_dilation(plants, iterations=3)
+    assert not relief.mask[straw & ~near_plants].any()
+    # The floor, last round's threshold for this photo, raised the straw with the plants.
+    floor = segment(rgb, threshold=0.06).labels > 0
+    assert mask_agreement(floor, plants)["iou"] < 0.6 and floor[straw].mean() > 0.05
 
 
 @pytest.mark.parametrize(

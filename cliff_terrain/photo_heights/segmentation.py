@@ -63,7 +63,9 @@ class Segmentation:
         ``"green"``, ``"nir"`` or ``"grey"`` (paper mode).
     threshold_source : str
         ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"photo (colour)"``
-        (the photo's own: its two sides differ plainly in chroma), ``"band"`` (Otsu's
+        (the photo's own: its two sides differ plainly in chroma), ``"photo (upper valley)"`` (the
+        upper class of a split below the floor, split again at its own empty valley: plants among
+        residue), ``"band"`` (Otsu's
         kept within the prior band), ``"otsu"`` (paper mode: Otsu's on the grey level) or
         ``"given"`` (the caller's, see :func:`segment`).
     valley : float

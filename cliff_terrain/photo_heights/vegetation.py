@@ -15,6 +15,7 @@ import numpy as np
 from .._threads import map_row_bands
 from .._validate import check_choice, check_rgb
 from ..errors import CliffTerrainError
+from .histogram import otsu_threshold, valley_ratio
 from .separation import chroma_map, colour_separation, red_separation
 
 INDICES = ("auto", "green", "nir")
@@ -215,7 +216,13 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
     measured with it). The band's lower end is a floor in both cases: soil and grey objects score
     at or below 0. When Otsu's threshold lies *below* the floor and most of its upper class lies
     below the floor too (yellow, senescent canopy over brown soil, or straw and residue over soil),
-    colour alone cannot tell which is plant: the floor stands and ``note`` says so.
+    colour alone cannot tell which is plant: the floor stands and ``note`` says so. That split,
+    below the floor, divides soil from straw, residue, paler soil or shade and says nothing of the
+    plants; so its upper class is split again (multi-level Otsu, one level more), and where that
+    class has an empty valley of its own (the same ``TWO_CLASS_VALLEY`` test, its threshold above the
+    floor and kept within the band unless the band would cut into a class), the plants among residue
+    are a third class and only they rise (``"photo (upper valley)"``). Without such a valley the
+    upper class is one class (pale plants, or residue alone) and the floor stands.
 
     Parameters
     ----------
@@ -235,7 +242,7 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
     -------
     ThresholdRule
         ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"photo (red)"``,
-        ``"band"``, or ``"uniform"`` when the index has no spread: the band's threshold then decides
+        ``"photo (upper valley)"``, ``"band"``, or ``"uniform"`` when the index has no spread: the band's threshold then decides
         alone; for NDVI the floor), ``valley`` (the density ratio; NaN when there is no spread),
         ``separation`` (the chroma's Ashman D, for NDVI the red reflectance's; NaN without `chroma`
         or `red`) and ``note`` (empty, or why the photo could not decide).
@@ -262,6 +269,17 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
     >>> rule = index_threshold(rng.normal(0.5, 0.1, 10000), chroma=rng.normal(40, 8, 10000))
     >>> rule.source, rule.threshold
     ('band', 0.14)
+
+    Shade, residue and a few green plants: Otsu splits shade from residue, below the floor, and the
+    residue's own valley parts the plants from it; without plants the floor stands.
+
+    >>> shade, residue = rng.normal(-0.3, 0.06, 3000), rng.normal(-0.03, 0.04, 6700)
+    >>> rule = index_threshold(np.concatenate([shade, residue, rng.normal(0.35, 0.08, 300)]))
+    >>> rule.source, rule.threshold, rule.note.startswith("undecided")
+    ('photo (upper valley)', 0.14, True)
+    >>> rule = index_threshold(np.concatenate([shade, residue, rng.normal(-0.03, 0.04, 300)]))
+    >>> rule.source, rule.threshold
+    ('band', 0.06)
 
     NDVI: plants and soil blurred into each other, the leaves dark in red and the soil not, then a
     closed canopy whose denser half NDVI would call plant (alike in red):
@@ -306,7 +324,7 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
         )
         return ThresholdRule(value, index, "uniform", float("nan"), float("nan"), note)
     banded = float(np.clip(otsu, low, high))
-    valley, at_band = _valley(flat, otsu, (otsu, banded))
+    valley, at_band = valley_ratio(flat, otsu, (otsu, banded))
     if index == "ndvi":
         separation = float("nan") if colour is None else red_separation(colour, flat > otsu)
         # Clearly two-class wherever Otsu's threshold lies: an NDVI map's soil may lie above the band
@@ -330,13 +348,24 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
             return ThresholdRule(otsu, index, "photo (colour)", valley, separation)
     upper = flat > otsu
     below_floor = float(np.count_nonzero(upper & (flat <= low))) / max(1, int(np.count_nonzero(upper)))
+    # Otsu's split below the floor divides soil from straw, residue or paler soil and says nothing
+    # of the plants. Split its upper class again (multi-level Otsu, one level more) and take that
+    # split where the class has an empty valley of its own (the same test, the same bound): the
+    # plants among residue are a third class. Without such a valley the upper class is one class
+    # (pale plants, or residue alone), and the floor stands.
+    third = _upper_valley(flat[upper], low, high) if otsu < low and index != "ndvi" else None
     if otsu < low and below_floor > 0.5:
+        above = f"the floor ({low})" if third is None else f"an empty valley within that class ({third:.3f})"
         note = (
             "undecided: most of the upper class of the photo's own split lies below the index "
             "floor (yellow, senescent canopy, or straw and residue, over soil?); colour alone "
-            "cannot tell which is plant, so that class stays flat and only what lies above the "
-            f"floor ({low}) rises"
+            "cannot tell which is plant, so that class stays flat and only what lies above "
+            f"{above} rises"
         )
+        if third is not None:
+            return ThresholdRule(third, index, "photo (upper valley)", valley, separation, note)
+    elif third is not None:
+        return ThresholdRule(third, index, "photo (upper valley)", valley, separation)
     elif otsu > high and not at_band <= TWO_CLASS_VALLEY:
         note = (
             "one class: neither an empty valley nor a colour difference splits the photo; the "
@@ -353,27 +382,19 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
     return ThresholdRule(banded, index, "band", valley, separation, note)
 
 
-def _valley(values, split, thresholds):
-    """Histogram density at each of `thresholds` over its mean between the class means of `split`.
-
-    0 is an empty valley, about 1 no valley at all; NaN when the values have no spread.
-    """
-    nan = (float("nan"),) * len(thresholds)
-    below, above = values[values <= split], values[values > split]
-    if below.size == 0 or above.size == 0:
-        return nan
-    lo, hi = np.percentile(values, (0.5, 99.5))
-    if not hi > lo:
-        return nan
-    hist, edges = np.histogram(values, 128, range=(float(lo), float(hi)))
-    # A Gaussian of 2 bins smooths the counts' noise without filling a valley.
-    smooth = np.convolve(hist.astype(np.float64), np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2), "same")
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    between = (centres >= below.mean()) & (centres <= above.mean())
-    if not between.any() or smooth[between].mean() <= 0:
-        return nan
-    mean = smooth[between].mean()
-    return tuple(float(smooth[int(np.argmin(np.abs(centres - t)))] / mean) for t in thresholds)
+def _upper_valley(values, low, high):
+    """The threshold splitting `values` (the upper class of a split below the floor) at an empty
+    valley above `low`, or None: Otsu's threshold of `values` where the density there is at most
+    ``TWO_CLASS_VALLEY`` of its mean between the class means, kept within the band unless the band's
+    own threshold would cut into a class (as :func:`index_threshold` does with the whole photo)."""
+    if values.size < 100:
+        return None
+    split = otsu_threshold(values)
+    banded = float(np.clip(split, low, high))
+    valley, at_band = valley_ratio(values, split, (split, banded))
+    if not (split > low and valley <= TWO_CLASS_VALLEY):
+        return None
+    return split if split > high and not at_band <= TWO_CLASS_VALLEY else banded
 
 
 def photo_threshold(vi, image, *, index, valid=None, red=None):
@@ -449,32 +470,3 @@ def bare_soil(image, *, valid=None, index="auto", threshold=None):
     spread = 1.4826 * float(np.median(mode - lower)) if lower.size else 0.0
     spread = max(spread, float(edges[1] - edges[0]))
     return candidates & (vi <= mode + SOIL_SPREAD * spread)
-
-
-def otsu_threshold(values):
-    """Otsu's threshold of `values` (a sample of large arrays); the value itself when all are equal."""
-    flat = values.ravel()
-    if flat.size == 0:
-        return 0.0
-    if flat.size > 400_000:  # a sample gives the same threshold at a fraction of the cost
-        flat = flat[:: flat.size // 400_000]
-    if float(flat.min()) == float(flat.max()):
-        return float(flat[0])
-    # float64: numpy 2 refuses 256 histogram bins over a float32 range of a few ulps.
-    return _otsu(flat.astype(np.float64))
-
-
-def _otsu(values):
-    """``skimage.filters.threshold_otsu(values)`` for float values not all equal, step for step
-    (tested equal): importing scikit-image's `filters` brings SciPy's `ndimage` with it, 0.16 s of
-    a fresh Blender's first Build, for these few lines.
-    """
-    counts, edges = np.histogram(values, bins=256, range=(values.min(), values.max()))
-    centres = (edges[:-1] + edges[1:]) / 2.0
-    counts = counts.astype(np.float32)
-    weight1 = np.cumsum(counts)
-    weight2 = np.cumsum(counts[::-1])[::-1]
-    mean1 = np.cumsum(counts * centres) / weight1
-    mean2 = (np.cumsum((counts * centres)[::-1]) / weight2[::-1])[::-1]
-    between = weight1[:-1] * weight2[1:] * (mean1[:-1] - mean2[1:]) ** 2
-    return float(centres[np.argmax(between)])
