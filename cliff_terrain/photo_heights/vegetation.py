@@ -242,8 +242,9 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
     -------
     ThresholdRule
         ``threshold``, ``index``, ``source`` (``"photo"``, ``"photo (colour)"``, ``"photo (red)"``,
-        ``"photo (upper valley)"``, ``"band"``, or ``"uniform"`` when the index has no spread: the band's threshold then decides
-        alone; for NDVI the floor), ``valley`` (the density ratio; NaN when there is no spread),
+        ``"photo (upper valley)"``, ``"band"``, or ``"uniform"`` when the index has no spread: the
+        band's threshold then decides alone; for NDVI the floor), ``valley`` (the density ratio of
+        the photo's own split; NaN when there is no spread),
         ``separation`` (the chroma's Ashman D, for NDVI the red reflectance's; NaN without `chroma`
         or `red`) and ``note`` (empty, or why the photo could not decide).
 
