@@ -516,6 +516,18 @@ SOURCES = (
         "here (small plants and holes may be lost; not verified as hand-drawn)",
     ),
     (
+        "`stover_residue` (30)",
+        "handheld nadir photos (0.6-0.9 m, 512 px) of corn, sorghum, soybean, sunflower and wheat among "
+        "straw and stalk residue, from a few stalks to full cover; sun with hard shadows, and diffuse "
+        "(Stover, Kansas State University)",
+        "`soilwater/stover`, `dataset_v2/{image_data,label_data}/` (30 of the 468 frames with more than 1 % "
+        "plant and 10 % residue)",
+        "the repository MIT; its dataset release CC BY 4.0; cite Patrignani, Bisheh and Nahitiya, "
+        "Agronomy Journal (in press)",
+        "the dataset's label maps (soil, green canopy, residue; green canopy is plant), threshold-made "
+        "and edited by hand by their look; senescent plants are labelled residue",
+    ),
+    (
         "`maize_rows_straw` (22)",
         "oblique tractor-camera frames of young maize rows (about V3-V6) on straw-covered no-till soil; "
         "overcast",
