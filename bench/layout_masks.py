@@ -63,6 +63,7 @@ uavbroccoli            UTokyo-FieldPhenomics-Lab/UAVbroccoli @ f30abe2 (the fold
 from __future__ import annotations
 
 import base64
+import csv
 import io
 import json
 import sys
@@ -355,8 +356,6 @@ STOVER_MIN_PLANT, STOVER_MIN_RESIDUE = 1.0, 10.0
 def stover_frames(table):
     """{photo name: row} of Stover's cover table (CSV text) with plants among residue: more than
     STOVER_MIN_PLANT % green canopy and STOVER_MIN_RESIDUE % residue in its label maps."""
-    import csv
-
     return {
         row["name"]: row
         for row in csv.DictReader(io.StringIO(table))

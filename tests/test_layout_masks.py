@@ -38,6 +38,7 @@ def test_stover_frames_keep_plants_among_residue_only(layout):
         "image_0003.jpg,label_0003.png,True,False,False,0.00,85.00,15.00,0.0,85.0,15.0\n"
         "image_0004.jpg,label_0004.png,True,False,False,5.00,90.00,5.00,5.0,90.0,5.0\n"  # little residue
         "image_0005.jpg,label_0005.png,True,False,False,0.00,0.50,99.50,0.0,0.5,99.5\n"  # no plants
+        "image_0006.jpg,label_0006.png,True,False,False,80.00,10.00,10.00,80.0,10.0,10.0\n"  # 10 %: not more
     )
     frames = layout.stover_frames(table)
     assert sorted(frames) == ["image_0001.jpg", "image_0003.jpg"]

@@ -453,7 +453,8 @@ def _canopy_and_soil(rng, shape=(60, 80)):
 def test_a_closed_ndvi_canopy_rises_whole_where_otsu_would_cut_it():
     """Only canopy (the issue's senescent wheat: Otsu's NDVI split called half of it soil): the red
     band does not separate the halves NDVI would make, the prior band keeps the canopy whole."""
-    from cliff_terrain.photo_heights.vegetation import index_threshold, otsu_threshold
+    from cliff_terrain.photo_heights.histogram import otsu_threshold
+    from cliff_terrain.photo_heights.vegetation import index_threshold
 
     rng = np.random.default_rng(1)
     ndvi, red, leaf = _canopy_and_soil(rng)

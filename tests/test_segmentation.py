@@ -1,6 +1,7 @@
 """Segmentation: plants found on the synthetic oracle and on real, georeferenced soybean plots."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -394,7 +395,8 @@ def test_a_closed_canopy_is_not_split_into_sunlit_and_shaded_leaves():
     sunlit, shaded = np.array([150.0, 180.0, 60.0]), np.array([30.0, 90.0, 35.0])
     rgb = sunlit * (1 - shade[..., None]) + shaded * shade[..., None] + rng.normal(0, 3.0, (240, 320, 3))
     image = np.clip(np.round(rgb), 0, 255).astype(np.uint8)
-    from cliff_terrain.photo_heights.vegetation import blurred_index, otsu_threshold
+    from cliff_terrain.photo_heights.histogram import otsu_threshold
+    from cliff_terrain.photo_heights.vegetation import blurred_index
 
     vi, _ = blurred_index(image)
     assert otsu_threshold(vi) > 0.3  # Otsu alone would call the sunlit half of the canopy soil
@@ -508,14 +510,9 @@ def test_yellow_canopy_over_brown_soil_is_undecided_not_guessed():
     assert relief.mask.mean() < 0.05  # nothing raised that the photo cannot justify
 
 
-def test_green_plants_among_straw_residue_rise_and_the_residue_stays_flat():
-    # Stover's frames in small: grey residue, pale straw stalks and their bluish shade (the index's
-    # low tail, where Otsu's split falls: it divides shade from residue), 3 % green plants. The upper
-    # class of that split is mostly residue below the floor (undecided); within it an empty valley
-    # parts the plants from the residue, and only the plants rise. At the floor the pale straw rose.
-    from cliff_terrain.evaluate.mask_quality import mask_agreement, volume_fraction
-
-    rng = np.random.default_rng(5)
+def _residue_photo(rng):
+    """Stover's frames in small: grey residue, pale straw stalks and their bluish shade, and 3 %
+    green plants; returns the photo and the plants', shade's and straw's masks."""
     rows, cols = 240, 320
     yy, xx = np.mgrid[:rows, :cols]
     plants = np.zeros((rows, cols), bool)
@@ -531,15 +528,28 @@ def test_green_plants_among_straw_residue_rise_and_the_residue_stays_flat():
         np.array([92.0, 90, 86]),
     )
     rgb = rgb * (1 + 0.08 * rng.standard_normal((rows, cols, 1))) + 4 * rng.standard_normal((rows, cols, 3))
-    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    return np.clip(rgb, 0, 255).astype(np.uint8), plants, shade, straw
+
+
+def test_green_plants_among_straw_residue_rise_and_the_residue_stays_flat():
+    # The index's low tail is the straw's shade, where Otsu's split falls: it divides shade from
+    # residue. The upper class of that split is mostly residue below the floor (undecided); within it
+    # an empty valley parts the plants from the residue, and only the plants rise. At the floor the
+    # pale straw rose.
+    from cliff_terrain.evaluate.mask_quality import mask_agreement, volume_fraction
+
+    rgb, plants, shade, straw = _residue_photo(np.random.default_rng(5))
 
     relief = build_relief(rgb, mesh=None)
     record = relief.params["threshold"]
     assert record["source"] == "photo (upper valley)" and record["note"].startswith("undecided:")
     assert record["value"] > 0.06
-    assert record["note"].endswith(
-        f"only what lies above an empty valley within that class ({record['value']:.3f}) rises"
+    # The note names the threshold taken and the valley it was accepted on (at most 0.5).
+    found = re.search(
+        r"only what lies above an empty valley within that class \(([\d.]+), valley ([\d.]+)\) rises$",
+        record["note"],
     )
+    assert found and float(found[1]) == pytest.approx(record["value"], abs=5e-4) and float(found[2]) <= 0.5
     assert mask_agreement(relief.mask, plants)["iou"] > 0.85
     assert volume_fraction(relief.heights, plants) > 0.9
     # Straw rises only as the rims of plants that touch a stalk (the index is blurred by 1 px).
@@ -550,6 +560,23 @@ def test_green_plants_among_straw_residue_rise_and_the_residue_stays_flat():
     # The floor, last round's threshold for this photo, raised the straw with the plants.
     floor = segment(rgb, threshold=0.06).labels > 0
     assert mask_agreement(floor, plants)["iou"] < 0.6 and floor[straw].mean() > 0.05
+
+
+def test_a_split_above_the_floor_is_not_split_again():
+    # Dark soil, then sunlit and shaded leaves (two leaf modes with an empty valley between them).
+    # Otsu's split parts soil from leaves below the floor, but its upper class lies above the floor:
+    # it is the plants, and splitting it again would call the shaded leaves soil.
+    from cliff_terrain.photo_heights.vegetation import index_threshold
+
+    rng = np.random.default_rng(2)
+    soil, shaded, sunlit = (
+        rng.normal(-0.25, 0.04, 5000),
+        rng.normal(0.10, 0.02, 2500),
+        rng.normal(0.38, 0.04, 2500),
+    )
+    rule = index_threshold(np.concatenate([soil, shaded, sunlit]))
+    assert rule.source == "band" and rule.threshold == pytest.approx(0.06) and rule.note == ""
+    assert (shaded > rule.threshold).mean() > 0.97 and (soil > rule.threshold).mean() == 0
 
 
 @pytest.mark.parametrize(
@@ -567,7 +594,8 @@ def test_green_plants_among_straw_residue_rise_and_the_residue_stays_flat():
 def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     # None of these photos has a two-class histogram whose own threshold lies above the band: the
     # rule leaves their masks (and every figure checked on them) as they were.
-    from cliff_terrain.photo_heights.vegetation import _GREEN_BAND, _NIR_BAND, blurred_index, otsu_threshold
+    from cliff_terrain.photo_heights.histogram import otsu_threshold
+    from cliff_terrain.photo_heights.vegetation import _GREEN_BAND, _NIR_BAND, blurred_index
 
     image, meta = load_image(uav_image(name), max_size=1000)
     image = resize_longest(image, 1000)
@@ -627,3 +655,49 @@ def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
     else:
         assert record["source"] == "band" and "the DSM does not show it" in record["note"]
         assert relief.mask.mean() < 0.05
+
+
+@pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "residue-on-the-ground"])
+def test_a_dsm_tests_the_class_below_the_upper_valley_without_the_plants(tmp_path, stands):
+    # The residue photo, georeferenced, with a DSM where the green plants stand 0.4 m. The class
+    # between the two splits (grey residue and pale straw) either lies on the ground, with the shade
+    # (the upper valley stands and only the plants rise), or stands 0.6 m (a senescent canopy: the
+    # DSM raises the whole class above the photo's own split, green plants with it).
+    from test_measured_heights import UTM16N, geokeys, write_tiff
+
+    from cliff_terrain.io.raster.geotiff import write_geotiff
+
+    rng = np.random.default_rng(5)
+    rgb, plants, shade, straw = _residue_photo(rng)
+    rows, cols, gsd = *rgb.shape[:2], 0.02
+    write_tiff(
+        tmp_path / "ortho.tif",
+        rgb,
+        scale=(gsd, gsd),
+        tie=(500000.0, 4000000.0),
+        keys=geokeys(UTM16N),
+        photometric="rgb",
+    )
+    rr, cc = np.mgrid[:rows, :cols]
+    middle = ~plants & ~shade
+    dsm = (
+        250.0
+        + 0.004 * rr
+        + 0.4 * plants
+        + (0.6 * middle if stands else 0.0)
+        + rng.normal(0, 0.01, (rows, cols))
+    )
+    transform = [[gsd, 0, 500000.0], [0, -gsd, 4000000.0]]
+    write_geotiff(tmp_path / "dsm.tif", dsm.astype(np.float32), transform=transform, crs=UTM16N)
+
+    alone = build_relief(tmp_path / "ortho.tif", mesh=None).params["threshold"]
+    assert alone["source"] == "photo (upper valley)"
+    relief = build_relief(tmp_path / "ortho.tif", dsm=tmp_path / "dsm.tif", mesh=None)
+    record = relief.params["threshold"]
+    if stands:
+        assert record["source"] == "photo (dsm)" and record["note"].startswith("decided by the DSM")
+        assert relief.mask[middle].mean() > 0.9 and relief.mask[plants].mean() > 0.9
+    else:
+        assert record["source"] == "photo (upper valley)" and record["value"] == alone["value"]
+        assert record["note"].startswith("undecided:") and "the DSM does not show it" in record["note"]
+        assert relief.mask[straw].mean() < 0.05 and relief.mask[plants].mean() > 0.85

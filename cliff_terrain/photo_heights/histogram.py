@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+# The valley is read from a histogram of this many bins between the 0.5th and 99.5th percentiles.
+VALLEY_BINS = 128
+
 
 def otsu_threshold(values):
     """Otsu's threshold of `values` (a sample of large arrays); the value itself when all are equal."""
@@ -59,7 +62,7 @@ def valley_ratio(values, split, thresholds):
     lo, hi = np.percentile(values, (0.5, 99.5))
     if not hi > lo:
         return nan
-    hist, edges = np.histogram(values, 128, range=(float(lo), float(hi)))
+    hist, edges = np.histogram(values, VALLEY_BINS, range=(float(lo), float(hi)))
     # A Gaussian of 2 bins smooths the counts' noise without filling a valley.
     smooth = np.convolve(hist.astype(np.float64), np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2), "same")
     centres = 0.5 * (edges[:-1] + edges[1:])

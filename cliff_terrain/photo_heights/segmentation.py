@@ -37,9 +37,10 @@ import numpy as np
 from .._validate import check_choice, check_float, check_int, check_rgb
 from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
+from .histogram import otsu_threshold
 from .labels import distance_map, inner_boundaries
 from .separation import surface_separation
-from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, otsu_threshold, photo_threshold
+from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, photo_threshold
 from .watershed import colour_edges, split_regions
 
 METHODS = ids(SEGMENTATIONS)
@@ -65,9 +66,9 @@ class Segmentation:
         ``"photo"`` (the photo's own: a clearly two-class index histogram), ``"photo (colour)"``
         (the photo's own: its two sides differ plainly in chroma), ``"photo (upper valley)"`` (the
         upper class of a split below the floor, split again at its own empty valley: plants among
-        residue), ``"band"`` (Otsu's
-        kept within the prior band), ``"otsu"`` (paper mode: Otsu's on the grey level) or
-        ``"given"`` (the caller's, see :func:`segment`).
+        residue), ``"photo (dsm)"`` (see :func:`decide_by_surface`), ``"band"`` (Otsu's kept within
+        the prior band), ``"otsu"`` (paper mode: Otsu's on the grey level) or ``"given"`` (the
+        caller's, see :func:`segment`).
     valley : float
         The histogram at the threshold relative to its mean between the class means (see
         :func:`index_threshold`); NaN in paper mode.
@@ -257,8 +258,10 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None, index_m
     it stand above the others on `surface` by Ashman's D >= ``COLOUR_SEPARATION`` (2), a plane
     fitted to the others (the ground) taken off first (see
     :func:`~cliff_terrain.photo_heights.separation.surface_separation`): senescent canopy stands, straw
-    and residue lie on the ground. Otherwise `seg` is returned with its note saying that the
-    surface did not tell either.
+    and residue lie on the ground. When `seg` split that class again at a valley of its own
+    (``"photo (upper valley)"``: green plants among residue), the class between the two splits is
+    tested, the plants above the upper one left out of both sides. Otherwise `seg` is returned with
+    its note saying that the surface did not tell either.
 
     Parameters
     ----------
@@ -284,7 +287,13 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None, index_m
     else:
         vi, _ = blurred_index(image, index=seg.index)
     split = otsu_threshold(vi if valid is None else vi[valid])
-    d = surface_separation(surface, vi > split, valid=valid)
+    between = valid
+    if seg.threshold_source == "photo (upper valley)":
+        # Three classes: the plants above the upper valley rise already. The question is whether the
+        # class between the two splits (residue or senescent canopy) stands, so the plants are left
+        # out of both sides: their height must not speak for the residue's.
+        between = ~(vi > seg.threshold) if valid is None else valid & ~(vi > seg.threshold)
+    d = surface_separation(surface, vi > split, valid=between)
     if not d >= COLOUR_SEPARATION:
         note = seg.threshold_note + f"; the DSM does not show it standing above the rest either (D {d:.2f})"
         return dataclasses.replace(seg, threshold_note=note)

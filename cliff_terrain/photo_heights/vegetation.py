@@ -15,7 +15,7 @@ import numpy as np
 from .._threads import map_row_bands
 from .._validate import check_choice, check_rgb
 from ..errors import CliffTerrainError
-from .histogram import otsu_threshold, valley_ratio
+from .histogram import VALLEY_BINS, otsu_threshold, valley_ratio
 from .separation import chroma_map, colour_separation, red_separation
 
 INDICES = ("auto", "green", "nir")
@@ -35,6 +35,9 @@ _NDVI_BAND = (NDVI_FLOOR, 0.2)
 # annotated photos (README, "Validation on real fields") dark-soil fields whose own threshold is
 # right measured 0.09-0.38, closed canopies that Otsu splits in two 0.75-1.11.
 TWO_CLASS_VALLEY = 0.5
+# A class is split again at a valley of its own only when it has at least one pixel per bin of the
+# histogram the valley is read from: fewer give no density to read a valley in.
+MIN_CLASS_PIXELS = VALLEY_BINS
 # ...or when its two sides differ plainly in colour (for NDVI: in red reflectance, see
 # separation.red_separation): Ashman's D of the CIELAB chroma C* of the pixels
 # on either side of Otsu's split, D = sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2) (medians, robust
@@ -349,14 +352,19 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
             return ThresholdRule(otsu, index, "photo (colour)", valley, separation)
     upper = flat > otsu
     below_floor = float(np.count_nonzero(upper & (flat <= low))) / max(1, int(np.count_nonzero(upper)))
-    # Otsu's split below the floor divides soil from straw, residue or paler soil and says nothing
-    # of the plants. Split its upper class again (multi-level Otsu, one level more) and take that
-    # split where the class has an empty valley of its own (the same test, the same bound): the
-    # plants among residue are a third class. Without such a valley the upper class is one class
-    # (pale plants, or residue alone), and the floor stands.
-    third = _upper_valley(flat[upper], low, high) if otsu < low and index != "ndvi" else None
     if otsu < low and below_floor > 0.5:
-        above = f"the floor ({low})" if third is None else f"an empty valley within that class ({third:.3f})"
+        # Otsu's split below the floor divides soil from straw, residue or paler soil and says
+        # nothing of the plants. Split its upper class again (multi-level Otsu, one level more) and
+        # take that split where the class has an empty valley of its own (the same test, the same
+        # bound): the plants among residue are a third class. Without such a valley the upper class
+        # is one class (pale plants, or residue alone), and the floor stands. Only here: a split
+        # above the floor's upper class is plants (sunlit and shaded leaves), not to be split again.
+        third = None if index == "ndvi" else _upper_valley(flat[upper], low, high)
+        above = (
+            f"the floor ({low})"
+            if third is None
+            else f"an empty valley within that class ({third[0]:.3f}, valley {third[1]:.2f})"
+        )
         note = (
             "undecided: most of the upper class of the photo's own split lies below the index "
             "floor (yellow, senescent canopy, or straw and residue, over soil?); colour alone "
@@ -364,9 +372,7 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
             f"{above} rises"
         )
         if third is not None:
-            return ThresholdRule(third, index, "photo (upper valley)", valley, separation, note)
-    elif third is not None:
-        return ThresholdRule(third, index, "photo (upper valley)", valley, separation)
+            return ThresholdRule(third[0], index, "photo (upper valley)", valley, separation, note)
     elif otsu > high and not at_band <= TWO_CLASS_VALLEY:
         note = (
             "one class: neither an empty valley nor a colour difference splits the photo; the "
@@ -384,18 +390,19 @@ def index_threshold(values, *, index="green", chroma=None, red=None):
 
 
 def _upper_valley(values, low, high):
-    """The threshold splitting `values` (the upper class of a split below the floor) at an empty
-    valley above `low`, or None: Otsu's threshold of `values` where the density there is at most
-    ``TWO_CLASS_VALLEY`` of its mean between the class means, kept within the band unless the band's
-    own threshold would cut into a class (as :func:`index_threshold` does with the whole photo)."""
-    if values.size < 100:
+    """``(threshold, valley)`` splitting `values` (the upper class of a split below the floor) at an
+    empty valley above `low`, or None: Otsu's threshold of `values` where the density there is at
+    most ``TWO_CLASS_VALLEY`` of its mean between the class means, kept within the band unless the
+    band's own threshold would cut into a class (as :func:`index_threshold` does with the whole
+    photo). ``valley`` is that density ratio, the one the split was accepted on."""
+    if values.size < MIN_CLASS_PIXELS:
         return None
     split = otsu_threshold(values)
     banded = float(np.clip(split, low, high))
     valley, at_band = valley_ratio(values, split, (split, banded))
     if not (split > low and valley <= TWO_CLASS_VALLEY):
         return None
-    return split if split > high and not at_band <= TWO_CLASS_VALLEY else banded
+    return (split if split > high and not at_band <= TWO_CLASS_VALLEY else banded), valley
 
 
 def photo_threshold(vi, image, *, index, valid=None, red=None):
