@@ -19,7 +19,7 @@ from cliff_terrain.measure.ground import fit_ground, naive_block_ground
 from cliff_terrain.measure.ground_check import robust_error, spatial_folds
 from cliff_terrain.measure.ground_detail import canopy_level
 from cliff_terrain.measure.ground_evidence import soil_peak
-from cliff_terrain.measure.ruler import agreement, calibrate, read_ruler
+from cliff_terrain.measure.ruler import Z90, agreement, calibrate, calibrated_err, read_ruler
 
 
 def beds(*, rows=400, cols=600, pixel=0.05, height=0.7, seed=0):
@@ -251,6 +251,63 @@ def test_calibration_recovers_a_line_and_its_leave_one_out_error_is_refitting():
     assert fit["loo_rmse_m"] == pytest.approx(np.sqrt(np.mean(np.square(loo))))
 
 
+def test_the_calibrated_error_is_the_textbook_prediction_error_and_covers_new_plots():
+    rng = np.random.default_rng(8)
+    x = rng.uniform(0.2, 0.8, 40)
+    y = 0.08 + 1.15 * x + rng.normal(0, 0.03, 40)
+    fit = calibrate(x, y)
+    # Independent: the prediction variance s² (1 + x0 (X'X)^-1 x0'), s² on n - 2 degrees of freedom.
+    design = np.column_stack([np.ones_like(x), x])
+    residual = y - design @ np.linalg.lstsq(design, y, rcond=None)[0]
+    s2 = residual @ residual / (x.size - 2)
+    new = np.array([0.1, 0.5, 1.0])
+    x0 = np.column_stack([np.ones_like(new), new])
+    expected = np.sqrt(s2 * (1 + np.einsum("ij,jk,ik->i", x0, np.linalg.inv(design.T @ design), x0)))
+    np.testing.assert_allclose(calibrated_err(fit, new), expected, rtol=1e-10)
+    # Its leave-one-out check, by refitting without each plot.
+    inside = []
+    for i in range(x.size):
+        keep = np.arange(x.size) != i
+        one = calibrate(x[keep], y[keep])
+        miss = y[i] - (one["a_m"] + one["b"] * x[i])
+        inside.append(abs(miss) <= Z90 * calibrated_err(one, x[i : i + 1])[0])
+    assert fit["coverage"] == pytest.approx(np.mean(inside), abs=1e-3)
+    # On plots the ruler did not measure, drawn alike, the error covers about 90 %.
+    more = rng.uniform(0.2, 0.8, 4000)
+    truth = 0.08 + 1.15 * more + rng.normal(0, 0.03, 4000)
+    covered = np.abs(fit["a_m"] + fit["b"] * more - truth) <= Z90 * calibrated_err(fit, more)
+    assert 0.85 < covered.mean() < 0.95
+    # Three plots fit a line but leave no scatter to check it with.
+    three = calibrate(x[:3], y[:3])
+    assert three["coverage"] is None and np.isnan(calibrated_err(three, new)).all()
+
+
+def test_agreement_says_how_many_plots_the_uncertainty_covers():
+    est, truth = np.array([0.5, 0.6, 0.7, 0.8, np.nan]), np.array([0.52, 0.6, 0.8, 0.8, 0.9])
+    a = agreement(est, truth, err=np.array([0.02, 0.02, 0.02, np.nan, 0.02]))
+    # Plots 1-3 have both heights and an error: 0.02 and 0 are within 1.645 x 0.02, 0.1 is not.
+    assert a["coverage"] == pytest.approx(2 / 3, abs=1e-3) and a["n"] == 4
+    assert "coverage" not in agreement(est, truth)
+
+
+def test_the_ruler_chart_draws_each_heights_error_bars_where_they_reach():
+    from cliff_terrain.figures.ruler_chart import CALIBRATED, OURS, ruler_figure
+
+    x = np.array([0.40, 0.50, 0.60, 0.70])
+    y = 0.1 + 1.2 * x
+    fit = calibrate(x, y + np.array([0.01, -0.01, 0.01, -0.01]))
+    kwargs = {"agreement": agreement(x, y), "calibrated": fit["a_m"] + fit["b"] * x, "calibration": fit}
+    plain = np.asarray(ruler_figure(x, y, **kwargs))
+    err = np.full(4, 0.05)
+    barred = np.asarray(ruler_figure(x, y, err=err, calibrated_err=err, **kwargs))
+    for colour in (OURS, CALIBRATED):
+        ink = [np.all(chart[150:] == colour, axis=-1) for chart in (plain, barred)]
+        # +-5 cm bars: about 70 px more ink per plot, and the ink spans further up and down.
+        assert ink[1].sum() - ink[0].sum() > 4 * 50, colour
+        rows = np.flatnonzero(ink[1].any(axis=1))
+        assert np.ptp(rows) > np.ptp(np.flatnonzero(ink[0].any(axis=1))) + 40
+
+
 def _plots(ids):
     square = [np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])]
     return PlotSet(
@@ -359,6 +416,13 @@ def test_heights_reports_its_check_uncertainty_and_the_ruler(trial):
     fit = ruler["calibration"]
     np.testing.assert_allclose(calibrated, fit["a_m"] + fit["b"] * ours, atol=1e-4)
     assert fit["loo_rmse_m"] < 0.5 * ruler["height_p90_m"]["rmse_m"]
+    # Each calibrated height carries its prediction error, and the check of that error on the ruler.
+    calibrated_err = np.array([float(r["height_calibrated_err_m"]) for r in rows])
+    assert np.all(calibrated_err >= fit["residual_sd_m"]) and 0 <= fit["coverage"] <= 1
+    # The ruler reads 5 cm + 10 % above the DSM: the ground's uncertainty cannot cover that, and the
+    # record and the summary line say so instead of claiming it.
+    assert ruler["height_p90_m"]["coverage"] < 0.8 and "covers only" in ruler["warning"]
+    assert "too few: see the ruler's warning" in done.stdout
     # The uncertainty: a column per plot and a raster beside chm.tif, positive where measured.
     err = np.array([float(r["height_p90_err_m"]) for r in rows])
     assert np.all(err > 0) and np.all(err < 0.1)

@@ -149,6 +149,38 @@ def test_the_windowed_command_agrees_with_the_in_memory_one_on_the_real_pair(tmp
     assert both.mean() > 0.7 and np.median(np.abs(chm_m - chm_w)[both]) < 0.002
 
 
+def test_the_windowed_command_reads_a_ruler_as_the_in_memory_one_does(tmp_path):
+    # A field book for the real pair's plots: 8 cm + 10 % above the DSM.
+    need_plots()
+    _, rows_m, _ = run_heights(tmp_path, "memory")
+    p90 = column(rows_m, "height_p90_m")
+    rng = np.random.default_rng(3)
+    measured = 0.08 + 1.1 * p90 + rng.normal(0, 0.02, p90.size)
+    book = tmp_path / "book.csv"
+    known = np.flatnonzero(np.isfinite(measured))  # the last plot lies outside the DSM
+    # By the plots' own ids (their attribute `plot`, 1-based; the table's `plot` is the 0-based index).
+    book.write_text(
+        "plot,height_m\n" + "".join(f"{rows_m[k]['plot_attr']},{measured[k]:.4f}\n" for k in known)
+    )
+    ruler = ("--ruler", str(book), "--calibrate")
+    out_m, rows_m, stdout_m = run_heights(tmp_path, "memory_ruler", *ruler)
+    out_w, rows_w, stdout_w = run_heights(tmp_path, "windowed_ruler", "--windowed", "--window", "128", *ruler)
+    assert list(rows_m[0]) == list(rows_w[0])  # the ruler's columns in the same place
+    for name in ("ruler_height_m", "height_calibrated_m", "height_calibrated_err_m"):
+        assert np.isfinite(column(rows_w, name)[known]).all(), name
+    np.testing.assert_allclose(column(rows_w, "ruler_height_m"), measured, atol=1e-4)  # NaN where none
+    np.testing.assert_allclose(
+        column(rows_w, "height_calibrated_m"), column(rows_m, "height_calibrated_m"), atol=0.01
+    )
+    for out, stdout in ((out_m, stdout_m), (out_w, stdout_w)):
+        record = json.loads((out / "summary.json").read_text())["ruler"]
+        assert record["plots_matched"] == known.size and record["calibration"]["n"] == known.size
+        assert (
+            f"against the ruler ({known.size} plots)" in stdout and "calibrated leave-one-out RMSE" in stdout
+        )
+        assert (out / "ruler.png").is_file()
+
+
 def synthetic_trial(folder):
     """A synthetic field at 1 cm (its ground's grid then 5 cm), a 6 x 9 grid of 1 m plots, and the truth."""
     from cliff_terrain.data.synthetic_surface import synthetic_surface

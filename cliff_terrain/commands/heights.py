@@ -9,10 +9,11 @@ bare soil that carried the ground around each pixel, 0 where it is interpolated 
 ``regions.csv`` and ``regions.geojson`` (one row per plant), with ``--plots`` ``plots.csv`` and
 ``plots.geojson`` (one row per polygon, with ``height_p90_err_m``), with ``--indices NDVI,NDRE`` their
 index columns (``ndvi_mean``, ``ndvi_median``, ``ndvi_plant_mean``, ``ndvi_plant_median`` ...), with
-``--ruler`` the measured heights (``ruler_height_m``; ``height_calibrated_m`` with ``--calibrate``) and
-``ruler.png`` (the plots' heights against the ruler's, with r, RMSE, bias and CCC),
-and ``summary.json`` (the key figures, the ground's source, method and held-out check, the ruler's
-agreement and the plant/soil threshold). All files appear together or none does.
+``--ruler`` the measured heights (``ruler_height_m``; ``height_calibrated_m`` and its standard error
+``height_calibrated_err_m`` with ``--calibrate``) and ``ruler.png`` (the plots' heights against the
+ruler's, with r, RMSE, bias and CCC), and ``summary.json`` (the key figures, the ground's source,
+method and held-out check, the ruler's agreement, the share of its plots the uncertainty covers and
+a warning when too few, and the plant/soil threshold). All files appear together or none does.
 The rasters and plots may be in an EPSG CRS or in a user-defined projected CRS in metres (no EPSG
 code; ``summary.json``'s ``crs_wkt``) when their definitions agree (:mod:`cliff_terrain.io.raster.crs`).
 The run's memory is estimated before the work and refused past ``--max-memory`` (4 GiB) with the
@@ -78,7 +79,8 @@ def configure(parser):
         "--calibrate",
         action="store_true",
         help="fit height = a + b x height_p90 on the ruler's plots, apply it to every plot "
-        "(height_calibrated_m) and report its leave-one-out error",
+        "(height_calibrated_m, with its standard error height_calibrated_err_m) and report its "
+        "leave-one-out error",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     parser.add_argument(
@@ -262,13 +264,9 @@ def run(args):
         from ..measure.ground_evidence import evidence_note
 
         ground += f" ({check['method']}, held-out bare soil within {check['candidates'][check['method']]['error_m'] * 100:.1f} cm{evidence_note(check)})"
-    against = ""
-    if ruler_record:
-        a = ruler_record["height_p90_m"]
-        if a["r"] is not None:
-            against = f"; against the ruler ({a['n']} plots) r {a['r']:.2f}, RMSE {a['rmse_m'] * 100:.1f} cm"
-            if "calibration" in ruler_record:
-                against += f", calibrated leave-one-out RMSE {ruler_record['calibration']['loo_rmse_m'] * 100:.1f} cm"
+    from ..measure.ruler import ruler_line
+
+    against = ruler_line(ruler_record)
     print(
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )

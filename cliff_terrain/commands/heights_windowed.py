@@ -127,10 +127,9 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
         ok = np.isfinite(p90)
         if ok.any():
             measured = f", {int(ok.sum())} of {len(rows)} plots with a height, median p90 {np.median(p90[ok]) * 100:.1f} cm"
-    against = ""
-    if ruler_record and ruler_record["height_p90_m"]["r"] is not None:
-        a = ruler_record["height_p90_m"]
-        against = f"; against the ruler ({a['n']} plots) r {a['r']:.2f}, RMSE {a['rmse_m'] * 100:.1f} cm"
+    from ..measure.ruler import ruler_line
+
+    against = ruler_line(ruler_record)
     print(
         f"{args.ortho}: windowed ({result.windows} windows), ground {ground}, cover "
         f"{result.plant_pixels / max(1, result.valid_pixels):.1%}{measured}{against}; wrote {', '.join(outputs)} into {out}"

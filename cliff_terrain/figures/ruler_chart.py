@@ -16,7 +16,9 @@ OURS = (31, 119, 180)
 CALIBRATED = (214, 39, 40)
 
 
-def ruler_figure(ours, measured, *, err=None, agreement, calibrated=None, calibration=None, size=720):
+def ruler_figure(
+    ours, measured, *, err=None, agreement, calibrated=None, calibration=None, calibrated_err=None, size=720
+):
     """The chart as an RGB Pillow image of `size` x `size` pixels.
 
     Parameters
@@ -30,6 +32,11 @@ def ruler_figure(ours, measured, *, err=None, agreement, calibrated=None, calibr
     calibrated : (n,) float array, optional
         The calibrated heights, drawn in red, with `calibration`
         (:func:`cliff_terrain.measure.ruler.calibrate`) in the title.
+    calibrated_err : (n,) float array, optional
+        The standard error of `calibrated` (drawn as +-1 bars).
+
+    The third line says how many plots each uncertainty covers (``coverage``: within 1.645 standard
+    errors; the calibration's by leave-one-out).
 
     Examples
     --------
@@ -76,12 +83,14 @@ def ruler_figure(ours, measured, *, err=None, agreement, calibrated=None, calibr
     series = [(ours, OURS)]
     if calibrated is not None:
         series.append((np.asarray(calibrated, np.float64), CALIBRATED))
-    for heights, colour in series:
+    bars = [err, None if calibrated is None else calibrated_err]
+    for (heights, colour), sd in zip(series, bars, strict=False):
+        sd = None if sd is None else np.asarray(sd, np.float64)
         for i in np.flatnonzero(both & np.isfinite(heights)):
             x, y = xy(measured[i] * 100, heights[i] * 100)
-            if err is not None and heights is ours and np.isfinite(err[i]):
-                _, y0 = xy(measured[i] * 100, (heights[i] - err[i]) * 100)
-                _, y1 = xy(measured[i] * 100, (heights[i] + err[i]) * 100)
+            if sd is not None and np.isfinite(sd[i]):
+                _, y0 = xy(measured[i] * 100, (heights[i] - sd[i]) * 100)
+                _, y1 = xy(measured[i] * 100, (heights[i] + sd[i]) * 100)
                 draw.line((x, y0, x, y1), fill=colour)
             draw.ellipse((x - radius, y - radius, x + radius, y + radius), fill=colour)
     draw.text(((left + right) / 2, size - 6), "ruler height (cm)", font=font, fill=INK, anchor="md")
@@ -109,19 +118,28 @@ def ruler_figure(ours, measured, *, err=None, agreement, calibrated=None, calibr
             f"leave-one-out RMSE {calibration['loo_rmse_m'] * 100:.1f} cm"
         )
         draw.text((size * 0.04, size * 0.03 + font.size * 1.5), text, font=font, fill=CALIBRATED)
-    draw.text((size * 0.04, size * 0.03 + font.size * 3.0), "black: 1:1", font=small, fill=INK)
+    covers = []
+    if agreement.get("coverage") is not None:
+        covers.append(f"DSM {agreement['coverage']:.0%}")
+    if calibration is not None and calibration.get("coverage") is not None:
+        covers.append(f"calibrated {calibration['coverage']:.0%} (leave-one-out)")
+    legend = "black: 1:1; bars +-1 s.e."
+    if covers:
+        legend += "; within 1.645 s.e. of the ruler: " + ", ".join(covers)
+    draw.text((size * 0.04, size * 0.03 + font.size * 3.0), legend, font=small, fill=INK)
     return image
 
 
 def plot_rows_ruler_figure(rows, record):
     """ruler.png from a plot table's rows (``height_p90_m``, ``ruler_height_m``, ``height_p90_err_m``
-    and, calibrated, ``height_calibrated_m``) and the ruler's record
+    and, calibrated, ``height_calibrated_m`` and ``height_calibrated_err_m``) and the ruler's record
     (:func:`cliff_terrain.measure.ruler.ruler_columns`): :func:`ruler_figure`."""
 
     def column(name):
         return np.array([float(r.get(name, "nan")) for r in rows])
 
     calibrated = column("height_calibrated_m") if "calibration" in record else None
+    calibrated_err = column("height_calibrated_err_m") if "calibration" in record else None
     return ruler_figure(
         column("height_p90_m"),
         column("ruler_height_m"),
@@ -129,4 +147,5 @@ def plot_rows_ruler_figure(rows, record):
         agreement=record["height_p90_m"],
         calibrated=calibrated,
         calibration=record.get("calibration"),
+        calibrated_err=calibrated_err,
     )
