@@ -51,6 +51,7 @@ if str(ROOT) not in sys.path:
 
 from cliff_terrain import CliffTerrainError, build_relief  # noqa: E402
 from cliff_terrain.evaluate.mask_quality import mask_agreement, reference_mask, volume_fraction  # noqa: E402
+from cliff_terrain.measure.ruler import Z90  # noqa: E402
 
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
@@ -408,7 +409,7 @@ def _coverage(ours, err, truth):
     ok = np.isfinite(ours) & np.isfinite(err) & np.isfinite(truth)
     if not ok.any():
         return None
-    return float(np.mean(np.abs(ours[ok] - truth[ok]) <= 1.645 * err[ok]))
+    return float(np.mean(np.abs(ours[ok] - truth[ok]) <= Z90 * err[ok]))
 
 
 def plot_p90(labels, n, heights):

@@ -288,6 +288,8 @@ def test_agreement_says_how_many_plots_the_uncertainty_covers():
     # Plots 1-3 have both heights and an error: 0.02 and 0 are within 1.645 x 0.02, 0.1 is not.
     assert a["coverage"] == pytest.approx(2 / 3, abs=1e-3) and a["n"] == 4
     assert "coverage" not in agreement(est, truth)
+    # A terrain model given: no error to cover with (0 everywhere), no coverage claimed.
+    assert agreement(est, truth, err=np.zeros(5))["coverage"] is None
 
 
 def test_the_ruler_chart_draws_each_heights_error_bars_where_they_reach():

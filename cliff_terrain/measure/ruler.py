@@ -234,8 +234,8 @@ def agreement(estimate, truth, *, err=None):
     """r, RMSE, bias and Lin's CCC of `estimate` against `truth` over the plots where both exist.
 
     With `err` (each plot's standard error, as ``height_p90_err_m``) also ``coverage``: the share of
-    those plots with a finite `err` whose ``|estimate - truth| <= Z90 x err`` (about 0.9 when `err`
-    is right; None without `err`).
+    those plots with a finite, positive `err` whose ``|estimate - truth| <= Z90 x err`` (about 0.9
+    when `err` is right; None without `err`, or when no plot has one: a terrain model given has none).
 
     Examples
     --------
@@ -252,7 +252,7 @@ def agreement(estimate, truth, *, err=None):
     out = {"n": int(a.size), "r": None, "rmse_m": None, "bias_m": None, "ccc": None}
     if err is not None:
         e = np.asarray(err, np.float64)[ok]
-        has = np.isfinite(e)
+        has = np.isfinite(e) & (e > 0)
         covered = np.abs(a - b)[has] <= Z90 * e[has]
         out["coverage"] = round(float(covered.mean()), 3) if has.any() else None
     if a.size < 3:
