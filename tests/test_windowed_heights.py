@@ -181,6 +181,35 @@ def test_the_windowed_command_reads_a_ruler_as_the_in_memory_one_does(tmp_path):
         assert (out / "ruler.png").is_file()
 
 
+@pytest.mark.parametrize("phase", [0, 2, 4, 6])
+def test_a_coarse_block_gives_the_soil_it_shows_wherever_it_falls_on_the_rows(tmp_path, phase):
+    # Rows of green plants 0.5 m tall and furrows of brown soil 0.1 m deep, 3 pixels wide in every
+    # 7, on a level field; the blurred index leaves each furrow's middle pixel bare. Blocks of 8 x 8
+    # pixels hold one or two of those columns depending on where they fall on the rows. Each block
+    # gives its soil's height and colour (the ground's evidence wherever the full grid has some),
+    # never the plants' mean: a share rule ("most of the block") gave the mixed heights, and which
+    # blocks counted as soil moved with the rows' phase.
+    from cliff_terrain.measure.window_tasks import CoarseTask, coarse_window
+
+    rows, cols, gsd, factor = 48, 48, 0.05, 8
+    furrow = (np.arange(cols) + phase) % 7 < 3
+    rgb = np.where(furrow[None, :, None], np.array([120, 90, 60]), np.array([40, 140, 40]))
+    rgb = np.broadcast_to(rgb, (rows, cols, 3)).astype(np.uint8)
+    heights = np.where(furrow[None, :], -0.1, 0.5) + np.zeros((rows, 1))
+    transform = np.array([[gsd, 0, 500_000.0], [0, -gsd, 5_000_000.0], [0, 0, 1]])
+    tifffile.imwrite(tmp_path / "ortho.tif", rgb, photometric="rgb", extratags=geotiff_tags(transform, 32616))
+    write_geotiff(tmp_path / "dsm.tif", heights.astype(np.float32), transform=transform, crs=32616)
+    task = CoarseTask(
+        str(tmp_path / "ortho.tif"), str(tmp_path / "dsm.tif"), transform, (rows, cols), factor, "green", 0.1,
+        (0, rows, 0, cols),
+    )  # fmt: skip
+    coarse = coarse_window(task)
+    assert coarse["dsm"].shape == (6, 6) and coarse["valid"].all()
+    # Every block shows a furrow's middle: its height is the furrow's, its colour the soil's.
+    np.testing.assert_allclose(coarse["dsm"], -0.1, atol=1e-3)
+    assert (np.abs(coarse["rgb"].astype(int) - [120, 90, 60]).max(axis=-1) <= 2).all()
+
+
 def synthetic_trial(folder):
     """A synthetic field at 1 cm (its ground's grid then 5 cm), a 6 x 9 grid of 1 m plots, and the truth."""
     from cliff_terrain.data.synthetic_surface import synthetic_surface

@@ -27,10 +27,6 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
-    "cliff_terrain.measure.window_tasks": (
-        ("test_windowed_heights.py",),
-        "measure_windowed, here and on a Dask cluster",
-    ),
     "cliff_terrain.commands.cluster_options": (
         ("test_windowed_heights.py", "test_season.py"),
         "`heights --windowed --workers/--scheduler`, `season --scheduler`",
@@ -38,10 +34,6 @@ REACHED_THROUGH = {
     "cliff_terrain.commands.heights_windowed": (
         ("test_windowed_heights.py",),
         "`cliff-terrain heights --windowed` (and past the memory cap)",
-    ),
-    "cliff_terrain.figures.ruler_chart": (
-        ("test_ground_check.py",),
-        "`cliff-terrain heights --ruler`'s ruler.png",
     ),
     "cliff_terrain.measure.grid_search": (
         ("test_plot_fit_corners.py", "test_plot_grid.py"),

@@ -94,10 +94,14 @@ def coarse_window(task, *, sources=None):
     """`task`'s window reduced to the ground grid: ``{"at": (row, col), "rgb", "valid", "dsm"}``.
 
     With ``factor`` 1 the grid is the orthophoto's own. Otherwise each ``factor`` x ``factor`` block
-    gives the mean of its pixels with data or, when most of them are not plants (the blurred index
-    at or below the threshold), of those only, so that the plants in a block lift neither the soil
-    it shows nor tint its colour; a block has data when most of its pixels have (the in-memory
-    grid's nearest pixel).
+    gives the mean of its bare-soil pixels (the blurred index at or below the threshold) when it
+    shows any, so that the plants in a block lift neither the soil it shows nor tint its colour,
+    and the mean of its pixels with data when it shows none; a block has data when most of its
+    pixels have (the in-memory grid's nearest pixel). Any soil, not most: the full grid takes every
+    bare pixel as the ground's evidence, and a share threshold aliases with the crop rows (a block
+    holds more or less than half soil depending on where it falls on them): copies of one plot on a
+    tiled trial measured 3.1 cm apart (the interquartile range of their p90) on a 1.6 m grid with
+    "most", 1.9 cm with "any" (`bench/bench_scale.py`).
     """
     from ..photo_heights.vegetation import blurred_index
 
@@ -121,11 +125,11 @@ def coarse_window(task, *, sources=None):
     del vi
     colour, counts = reduce_blocks(rgb, factor, valid)
     colour_bare, n_bare = reduce_blocks(rgb, factor, bare)
-    mostly_bare = n_bare * 2 > counts
-    colour = np.where(mostly_bare[..., None], colour_bare, colour)
+    shows_soil = n_bare > 0
+    colour = np.where(shows_soil[..., None], colour_bare, colour)
     heights, _ = reduce_blocks(surface, factor, valid & np.isfinite(surface))
     heights_bare, _ = reduce_blocks(surface, factor, bare & np.isfinite(surface))
-    heights = np.where(mostly_bare & np.isfinite(heights_bare), heights_bare, heights)
+    heights = np.where(shows_soil & np.isfinite(heights_bare), heights_bare, heights)
     return {
         "at": at,
         "rgb": np.clip(np.nan_to_num(colour) + 0.5, 0, 255).astype(np.uint8),

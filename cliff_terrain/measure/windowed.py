@@ -8,9 +8,10 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
    orthophoto's pixels, as :func:`cliff_terrain.io.raster.geotiff.resample` does) are read window by window
    and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, and no finer
    than `GROUND_PIXEL_M` (5 cm: the ground's finest detail is a Gaussian of 0.15 m): each
-   `factor` x `factor` block gives the mean of its pixels with data or, when most of them are not
-   plants, of those only, so that the plants in a block lift neither the soil it shows nor tint its
-   colour. Plants are the blurred vegetation index above the photo's threshold
+   `factor` x `factor` block gives the mean of its bare-soil pixels when it shows any (the full
+   grid's evidence is every bare pixel; a share threshold would alias with the crop rows), or of
+   all its pixels with data, so that the plants in a block lift neither the soil it shows nor tint
+   its colour. Plants are the blurred vegetation index above the photo's threshold
    (:func:`cliff_terrain.photo_heights.vegetation.photo_threshold`), taken on an overview of the whole
    orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size). On the
    coarse grid the bare soil (:func:`~cliff_terrain.photo_heights.vegetation.bare_soil`, at that
