@@ -42,12 +42,10 @@ def budget(shape, factor):
     return math.ceil(shape[0] / factor) * math.ceil(shape[1] / factor)
 
 
-def measure(folder, factor, shape):
-    """{p90, uids, seconds, method} of the windowed heights with the ground on a `factor` grid."""
-    from cliff_terrain.io.vector.plot_polygons import read_plots
+def measure(folder, plots, factor, shape):
+    """{p90, uids, seconds, method, pixel_m} of the windowed heights with the ground on a `factor` grid."""
     from cliff_terrain.measure.windowed import measure_windowed
 
-    plots = read_plots(folder / "plots.geojson")
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(dir=folder) as spool:
         result = measure_windowed(
@@ -93,9 +91,12 @@ def main(argv=None):
         shape = (field["rows"], field["cols"])
         print(f"field {args.tiles}x{args.tiles}: {field}", flush=True)
         peer = naive_heights(str(base / "ortho.tif"), str(base / "dsm.tif"), str(base / "plots.geojson"))
+        from cliff_terrain.io.vector.plot_polygons import read_plots
+
+        plots = read_plots(base / "plots.geojson")
         reference = None
         for factor in args.factors:
-            run = measure(base, factor, shape)
+            run = measure(base, plots, factor, shape)
             reference = run["p90"] if reference is None else reference
             gap = run["p90"] - reference
             row = {

@@ -611,15 +611,24 @@ def test_the_shared_photos_keep_the_thresholds_they_were_checked_with(name):
     assert seg.threshold == pytest.approx(float(np.clip(otsu, low, high)), abs=1e-6)
 
 
+def _write_georeferenced(folder, rgb, dsm, gsd):
+    """`folder`/ortho.tif and dsm.tif: the photo and its surface on one UTM 16N grid of `gsd` metres."""
+    from test_measured_heights import UTM16N, geokeys, write_tiff
+
+    from cliff_terrain.io.raster.geotiff import write_geotiff
+
+    tie = (500000.0, 4000000.0)
+    write_tiff(folder / "ortho.tif", rgb, scale=(gsd, gsd), tie=tie, keys=geokeys(UTM16N), photometric="rgb")
+    transform = [[gsd, 0, tie[0]], [0, -gsd, tie[1]]]
+    write_geotiff(folder / "dsm.tif", np.asarray(dsm, np.float32), transform=transform, crs=UTM16N)
+
+
 @pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "straw-on-the-ground"])
 def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
     # Yellow canopy (or straw: the same colour) over brown soil, a georeferenced orthophoto and its
     # DSM on a sloping field. Canopy stands 0.7 m above the ground and rises; straw lies on it and
     # stays flat, still undecided.
-    from test_measured_heights import UTM16N, geokeys, write_tiff
-
     from cliff_terrain.evaluate.mask_quality import mask_agreement
-    from cliff_terrain.io.raster.geotiff import write_geotiff
 
     rng = np.random.default_rng(4)
     rows, cols, gsd = 200, 300, 0.02
@@ -629,19 +638,10 @@ def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
     soil, straw = np.array([120.0, 85.0, 60.0]), np.array([200.0, 175.0, 95.0])
     rgb = np.where(truth[..., None], straw, soil) * (1 + 0.05 * rng.standard_normal((rows, cols, 1)))
     rgb = np.clip(rgb, 0, 255).astype(np.uint8)
-    write_tiff(
-        tmp_path / "ortho.tif",
-        rgb,
-        scale=(gsd, gsd),
-        tie=(500000.0, 4000000.0),
-        keys=geokeys(UTM16N),
-        photometric="rgb",
-    )
     rr, cc = np.mgrid[:rows, :cols]
     ground = 250.0 + 0.004 * rr + 0.002 * cc  # a slope of 0.2-0.1 m/m... across the field
     dsm = ground + (0.7 * truth if stands else 0.0) + rng.normal(0, 0.01, (rows, cols))
-    transform = [[gsd, 0, 500000.0], [0, -gsd, 4000000.0]]
-    write_geotiff(tmp_path / "dsm.tif", dsm.astype(np.float32), transform=transform, crs=UTM16N)
+    _write_georeferenced(tmp_path, rgb, dsm, gsd)
 
     alone = build_relief(tmp_path / "ortho.tif", mesh=None)
     assert alone.params["threshold"]["note"].startswith("undecided:")
@@ -663,21 +663,9 @@ def test_a_dsm_tests_the_class_below_the_upper_valley_without_the_plants(tmp_pat
     # between the two splits (grey residue and pale straw) either lies on the ground, with the shade
     # (the upper valley stands and only the plants rise), or stands 0.6 m (a senescent canopy: the
     # DSM raises the whole class above the photo's own split, green plants with it).
-    from test_measured_heights import UTM16N, geokeys, write_tiff
-
-    from cliff_terrain.io.raster.geotiff import write_geotiff
-
     rng = np.random.default_rng(5)
     rgb, plants, shade, straw = _residue_photo(rng)
     rows, cols, gsd = *rgb.shape[:2], 0.02
-    write_tiff(
-        tmp_path / "ortho.tif",
-        rgb,
-        scale=(gsd, gsd),
-        tie=(500000.0, 4000000.0),
-        keys=geokeys(UTM16N),
-        photometric="rgb",
-    )
     rr, cc = np.mgrid[:rows, :cols]
     middle = ~plants & ~shade
     dsm = (
@@ -687,8 +675,7 @@ def test_a_dsm_tests_the_class_below_the_upper_valley_without_the_plants(tmp_pat
         + (0.6 * middle if stands else 0.0)
         + rng.normal(0, 0.01, (rows, cols))
     )
-    transform = [[gsd, 0, 500000.0], [0, -gsd, 4000000.0]]
-    write_geotiff(tmp_path / "dsm.tif", dsm.astype(np.float32), transform=transform, crs=UTM16N)
+    _write_georeferenced(tmp_path, rgb, dsm, gsd)
 
     alone = build_relief(tmp_path / "ortho.tif", mesh=None).params["threshold"]
     assert alone["source"] == "photo (upper valley)"
