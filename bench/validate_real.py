@@ -296,6 +296,7 @@ def field_rows(data_dir, *, ground="auto", colour="photo"):
                 "ground_check_error_cm": 100 * check["candidates"][check["method"]]["error_m"],
                 "evidence": check.get("evidence", {}).get("source"),
                 "colour_contradicted": check.get("evidence", {}).get("colour_contradicted"),
+                "occlusion_rise_cm": _occlusion_cm(check),
                 "against": {},
             }
             for kind, truth in truths.items():
@@ -405,6 +406,19 @@ def _plot_percentile(labels, n, values, q):
     return out
 
 
+def _occlusion_cm(check):
+    """The occlusion check's rise of the narrow openings' soil (cm), None when it was not made."""
+    occlusion = check.get("occlusion") or {}
+    return 100 * occlusion["rise_m"] if occlusion.get("tested") else None
+
+
+def _ground_cell(row):
+    """The table's ground cell: method (held-out error, evidence; the occlusion check's rise)."""
+    rise = row.get("occlusion_rise_cm")
+    narrow = "" if rise is None else f"; narrow openings {rise:+.1f} cm"
+    return f"{row.get('ground_method')} ({_num(row.get('ground_check_error_cm'), 1)} cm, {row.get('evidence')}{narrow})"
+
+
 def _coverage(ours, err, truth):
     ok = np.isfinite(ours) & np.isfinite(err) & np.isfinite(truth)
     if not ok.any():
@@ -426,9 +440,12 @@ def _field_line(row):
             return "n/a"
         return f"r {a['r']:.3f}, RMSE {a['rmse_cm']:.1f} cm, bias {a['bias_cm']:+.1f} cm"
 
+    rise = row["occlusion_rise_cm"]
+    narrow = "not tested" if rise is None else f"{rise:+.1f} cm"
     lines = [
         f"  {row['field']} {row['date']} [{row['half']}], {row['plots']} plots, ground {row['ground_method']} "
-        f"(held-out {row['ground_check_error_cm']:.1f} cm, evidence: {row['evidence']})"
+        f"(held-out {row['ground_check_error_cm']:.1f} cm, evidence: {row['evidence']}, narrow openings' "
+        f"soil {narrow})"
     ]
     for kind, figures in row["against"].items():
         cov = figures["coverage"]
@@ -773,7 +790,7 @@ def docs_page(record):
             f"{r.get('crop', '')}, {r.get('stage', '')}".strip(", "),
             r["date"],
             r["plots"],
-            f"{r.get('ground_method')} ({_num(r.get('ground_check_error_cm'), 1)} cm, {r.get('evidence')})",
+            _ground_cell(r),
             KINDS.get(kind, kind),
             _fit(figures.get("ours")),
             _fit(figures.get("baseline")),
@@ -804,7 +821,7 @@ def docs_page(record):
                 r["field"],
                 r["date"],
                 colour,
-                f"{r.get('ground_method')} ({_num(r.get('ground_check_error_cm'), 1)} cm, {r.get('evidence')})",
+                _ground_cell(r),
                 r.get("colour_contradicted") or "- (the colour was taken)",
                 _fit(figures.get("ours")),
                 _fit(figures.get("baseline")),

@@ -52,6 +52,7 @@ from ..errors import CliffTerrainError
 from .ground_check import check_ground, ground_sigma, ground_support
 from .ground_detail import DETAIL_CONFIDENCE, blur, canopy_level, detail_above
 from .ground_evidence import MIN_SOIL_PIXELS, exposed_soil, ground_evidence
+from .ground_occlusion import occlusion_check
 from .percentiles import nan_percentile
 
 DEFAULT_BLOCK_M = 5.0
@@ -236,8 +237,30 @@ def fit_ground(
     # No held-out soil checks the level under the canopy: it counts in full (on the potato trial's
     # day 55, +2.2 cm, the plots' coverage went from 79 % to 96 %).
     error = sigma.raster if level == 0.0 else np.sqrt(sigma.raster**2 + np.float32(level) ** 2)
-    support = ground_support(evidence, pixel_size=pixel_size, block_m=small_m)
-    guessed = finite & ~evidence
+    # Nor does it check soil the surface model cannot see: narrow openings' soil standing above the
+    # open soil's is said, and counts in full in the error (:mod:`.ground_occlusion`).
+    occlusion, open_soil = occlusion_check(
+        dsm, ground, evidence, pixel_size=pixel_size, block_px=OFFSET_SCALE * small_m / pixel_size,
+        tolerance_m=check["tolerance_m"],
+    )  # fmt: skip
+    check["occlusion"] = occlusion
+    supported = evidence
+    if not occlusion["passed"]:
+        error = np.sqrt(error**2 + np.float32(occlusion["rise_m"]) ** 2)
+        if method == "auto":
+            # The soil between the plots is not the ground: the open soil alone carries it, its
+            # plane across the trial and its local level near it (the smooth ground on it).
+            ground = open_ground(dsm, open_soil, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m)
+            supported = open_soil
+            occlusion["ground"] = "open soil"
+            occlusion["note"] += "; the ground comes from the open soil alone (the rise counted in the error)"
+        else:
+            occlusion["note"] += (
+                f"; the {chosen} ground follows it: heights may read that much low (counted in the error)"
+            )
+        occlusion["note"] += "; give a terrain model (--dtm) or calibrate with --ruler"
+    support = ground_support(supported, pixel_size=pixel_size, block_m=small_m)
+    guessed = finite & ~supported
     check["support_where_guessed"] = float(np.mean(support[guessed])) if guessed.any() else 1.0
     return GroundFit(
         ground, chosen, evidence, evidence_source, support, error.astype(np.float32, copy=False), check
@@ -260,7 +283,20 @@ def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, deta
     return fit_ground(dsm, soil=soil, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m).ground
 
 
-def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M):
+def open_ground(dsm, open_soil, *, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):
+    """The smooth ground from `open_soil` alone: where the soil between the plots is not the ground.
+
+    The lowest surface of the open soil (blocks without any take the plane through those that have
+    some: :func:`lowest_surface` fills them with its median level above that plane), lifted onto the
+    open soil by the smooth offset. See :mod:`.ground_occlusion`.
+    """
+    masked = np.where(open_soil, dsm, np.float32(np.nan))
+    lowest = lowest_surface(masked, pixel_size=pixel_size, block_m=block_m, sparse=True)
+    build = CandidateGrounds(dsm, lowest, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m)
+    return build(("smooth",), open_soil)["smooth"]
+
+
+def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, sparse=False):
     """The DSM's lowest surface: its `BASELINE_PERCENTILE` in blocks above the field's tilt, bilinear.
 
     The naive peer's block percentile, taken after the field's own plane is removed (the plane
@@ -269,30 +305,35 @@ def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M):
     slope times half a block, more than any microrelief. Held flat beyond the outer block
     centres: extending a border block's noisy level linearly was tried and measured worse on a
     real potato trial (day 100: RMSE 2.2 -> 2.3 cm with colour, 2.4 -> 4.5 cm without).
+    With `sparse` (a surface with data in some blocks only: :func:`open_ground`'s), the plane is
+    fitted on the blocks with data alone, and the others take it.
     """
-    plane = _field_plane(dsm, pixel_size=pixel_size, block_m=block_m)
+    plane = _field_plane(dsm, pixel_size=pixel_size, block_m=block_m, sparse=sparse)
     lowest = naive_block_ground(
         dsm - plane, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
     )
     return (lowest + plane).astype(np.float32)
 
 
-def _field_plane(dsm, *, pixel_size, block_m):
+def _field_plane(dsm, *, pixel_size, block_m, sparse=False):
     """The plane z = a + b row + c col through the DSM's block percentiles (robust least squares).
 
     Each block's percentile lies on the ground at its downhill edge, so on a uniform slope the
     levels are the ground shifted by one constant: their plane has the field's slope. A block
     whose level lies more than three robust deviations off the plane (a block of canopy) is
-    dropped and the plane fitted again.
+    dropped and the plane fitted again. With `sparse`, blocks without data take no part.
     """
-    levels, block = _block_levels(dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE)
+    levels, block = _block_levels(
+        dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE, fill=not sparse
+    )
     rows, cols = dsm.shape
-    if levels.size < 3:
-        return np.zeros(dsm.shape, np.float32)
     bi, bj = np.mgrid[: levels.shape[0], : levels.shape[1]]
-    centre_r = np.minimum((bi + 0.5) * block, rows).ravel() / max(rows, 1)
-    centre_c = np.minimum((bj + 0.5) * block, cols).ravel() / max(cols, 1)
-    z = levels.ravel().astype(np.float64)
+    has = np.isfinite(levels).ravel()
+    if has.sum() < 3:
+        return np.zeros(dsm.shape, np.float32)
+    centre_r = np.minimum((bi + 0.5) * block, rows).ravel()[has] / max(rows, 1)
+    centre_c = np.minimum((bj + 0.5) * block, cols).ravel()[has] / max(cols, 1)
+    z = levels.ravel()[has].astype(np.float64)
     design = np.column_stack([np.ones(z.size), centre_r, centre_c])
     keep = np.ones(z.size, bool)
     coef = np.array([np.median(z), 0.0, 0.0])
@@ -420,8 +461,9 @@ def naive_block_ground(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, percentile=5
     return np.ascontiguousarray(big[:rows, :cols])
 
 
-def _block_levels(dsm, *, pixel_size, block_m, percentile):
-    """(levels, block px): the `percentile` of `dsm` in each block (NaN-free: empty blocks take the median)."""
+def _block_levels(dsm, *, pixel_size, block_m, percentile, fill=True):
+    """(levels, block px): the `percentile` of `dsm` in each block (with `fill`, NaN-free: empty
+    blocks take the median; without, they stay NaN)."""
     dsm = np.asarray(dsm, dtype=np.float32)
     block = max(2, round(block_m / pixel_size))
     rows, cols = dsm.shape
@@ -430,7 +472,7 @@ def _block_levels(dsm, *, pixel_size, block_m, percentile):
     pad[:rows, :cols] = dsm
     blocks = pad.reshape(nb_r, block, nb_c, block).transpose(0, 2, 1, 3).reshape(nb_r, nb_c, -1)
     levels = nan_percentile(blocks, percentile).astype(np.float32)  # nanpercentile's, vectorized
-    if np.isnan(levels).any():
+    if fill and np.isnan(levels).any():
         fill = np.nanmedian(levels) if np.isfinite(levels).any() else 0.0
         levels = np.where(np.isnan(levels), fill, levels).astype(np.float32)
     return levels, block

@@ -126,8 +126,12 @@ def soil_peak(above):
 
 
 def evidence_note(check):
-    """``"; soil from the surface: <why>"`` when a ground check's colour was overruled, else ``""``:
-    for the one-line summary, so that the user reads that the photo's colour was not trusted."""
+    """``"; soil from the surface: <why>"`` when a ground check's colour was overruled, and
+    ``"; <occlusion note>"`` when its narrow openings' soil stands above the open soil
+    (:mod:`.ground_occlusion`), else ``""``: for the one-line summary, so that the user reads that
+    the photo's colour, or the soil between the plots, was not trusted."""
     evidence = (check or {}).get("evidence") or {}
     why = evidence.get("colour_contradicted")
-    return f"; soil from the surface: {why}" if why else ""
+    note = f"; soil from the surface: {why}" if why else ""
+    occluded = ((check or {}).get("occlusion") or {}).get("note")
+    return f"{note}; {occluded}" if occluded else note
