@@ -26,6 +26,12 @@ potato_fieldimager_ex2       filipematias23/FIELDimageR-Workshop-10 @ df52c1d: d
                              odm_orthophoto.tif (identical to ../shared/data/dsm/fieldimager_ex2),
                              EX2.Shape.* (588 plots, in FIELDimageR's rotated frame;
                              `ex2_unrotate` puts them back in EPSG:32616); no reference.
+soybean_pliman               cran/pliman @ 49fda6a (the R package pliman 3.1.1's CRAN mirror;
+                             TiagoOlivoto/pliman's snapshot is too large to fetch):
+                             inst/tmp_images/soy_dsm.tif, soy_dtm.tif, soy_ortho.tif (2.2 cm) and
+                             soy_shape.rds (15 plots, a terra PackedSpatVector: `pliman_plots`
+                             writes it as GeoJSON, with the `rdata` package: pip install rdata).
+                             The reference is the package's DTM, made from the same DSM's soil.
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ REPOS = {
     "phenome_force": ("phenome-force/FIELDimageR-workshop", "ea5072efd0d09aca6c22a589efe889ae3cb085cc"),
     "qgis": ("filipematias23/FIELDimageR-QGIS", "40adb5910b4f1879816e99fb67af896a60adb588"),
     "workshop10": ("filipematias23/FIELDimageR-Workshop-10", "df52c1de6038c6d0edb96809dcc05c8318296ed0"),
+    "pliman": ("cran/pliman", "49fda6a611a8ea6bf1242b989ae8bd6909aeec8f"),
 }
 HELD_OUT = re.compile(r"(^|[^0-9])(70|75)([^0-9]|$)")
 SHAPE_PARTS = ("shp", "shx", "dbf", "prj")
@@ -302,6 +309,68 @@ def potato_fieldimager_ex2(base, manifest):
     )
 
 
+def pliman_plots(rds_path, out_path):
+    """soy_shape.rds (a terra PackedSpatVector of polygons, read with `rdata`) as GeoJSON, its CRS
+    as EPSG:32414 (the file's own WKT: WGS 72BE / UTM 14N, as the rasters' GeoKeys say)."""
+    try:
+        import rdata
+    except ImportError:
+        raise SystemExit(
+            "soybean_pliman needs the rdata package to read its plots: pip install rdata"
+        ) from None
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "Missing constructor for R class PackedSpatVector": its parts do
+        packed = rdata.conversion.convert(rdata.parser.parse_file(rds_path), default_encoding="utf8")
+    if 'EPSG",32414]]' not in str(packed.crs[0]).replace(" ", "").replace("\n", ""):
+        raise SystemExit(f"{rds_path}: expected EPSG:32414 polygons")
+    xy = [[float(x), float(y)] for x, y in packed.coordinates.values]
+    index = packed.index.values.astype(int)  # geom, part, hole, start (1-based), one row per ring
+    starts = list(index[:, 3] - 1) + [len(xy)]
+    table = packed.attributes
+    features = []
+    for k, (geom, part, hole, start) in enumerate(index):
+        if part != 1 or hole != 0:
+            raise SystemExit(f"{rds_path}: plot {geom} is not one ring")
+        ring = xy[start - 1 : starts[k + 1]]
+        properties = {c: str(table[c].iloc[k]) for c in table.columns}
+        features.append(
+            {
+                "type": "Feature",
+                "properties": properties,
+                "geometry": {"type": "Polygon", "coordinates": [ring]},
+            }
+        )
+    doc = {
+        "type": "FeatureCollection",
+        "crs": {"type": "name", "properties": {"name": "EPSG:32414"}},
+        "features": features,
+    }
+    out_path.write_text(json.dumps(doc) + "\n")
+    return len(features)
+
+
+def soybean_pliman(base, manifest):
+    folder = base / "soybean_pliman"
+    for name in ["soy_dsm.tif", "soy_dtm.tif", "soy_ortho.tif", "soy_shape.rds"]:
+        f = f"inst/tmp_images/{name}"
+        manifest[f"{folder.name}/{name}"] = ("pliman", f, extract("pliman", f, folder / name))
+    print("  soybean plots:", pliman_plots(folder / "soy_shape.rds", folder / "plots.geojson"))
+    write_json(
+        folder / "field.json",
+        {
+            "crop": "soybean",
+            "stage": "vegetative (pliman's documentation: soybean plots in the vegetative stage; 5 rows x 3 "
+            "columns, data by Arthur Bernardeli)",
+            "plots": "plots.geojson",
+            "reference": "soy_dtm.tif",
+            "reference_label": "DSM minus pliman's DTM (made from the same DSM's soil, not a second flight)",
+            "dates": {"vegetative": {"ortho": "soy_ortho.tif", "dsm": "soy_dsm.tif"}},
+        },
+    )
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     data = Path(argv[0]) if argv else Path(__file__).resolve().parent
@@ -312,6 +381,7 @@ def main(argv=None):
         potato_fieldimager_d55_d90,
         potato_fieldimager_ex1,
         potato_fieldimager_ex2,
+        soybean_pliman,
     ):
         print(make.__name__, flush=True)
         make(base, manifest)

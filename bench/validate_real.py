@@ -297,6 +297,7 @@ def field_rows(data_dir, *, ground="auto", colour="photo"):
                 "evidence": check.get("evidence", {}).get("source"),
                 "colour_contradicted": check.get("evidence", {}).get("colour_contradicted"),
                 "occlusion_rise_cm": _occlusion_cm(check),
+                "reference_label": spec.get("reference_label"),
                 "against": {},
             }
             for kind, truth in truths.items():
@@ -591,11 +592,32 @@ SOURCES = (
         "GPL-2.0 (DSM, orthophoto); none stated (plots)",
         "none: the ground check only",
     ),
+    (
+        "`soybean_pliman`",
+        "soybean plots in the vegetative stage (rows open, about 40 % cover), 2.2 cm DSM, DTM and "
+        "orthophoto, 15 plots of 3.7 m x 0.8 m: the R package pliman's example (data by Arthur Bernardeli)",
+        "`cran/pliman` (`inst/tmp_images/soy_*`; the CRAN mirror of `TiagoOlivoto/pliman`, whose snapshot "
+        "is too large to fetch)",
+        "GPL (>= 3), the package's; the data credited as personal data of its provider",
+        "the DSM minus the package's DTM, which was made from the same DSM's soil (not a second flight; it "
+        "lies 4.5 cm below the soil our ground rests on, median over the pixels it calls soil)",
+    ),
 )
 DOCS_BEGIN = "<!-- written by bench/validate_real.py --docs from its record; not edited by hand -->"
 WEAK_IOU = 0.5  # an image whose mask agrees less than this with its reference is listed as a loss
 # The references of a field, by their record key.
 KINDS = {"aligned": "aligned two-flight difference", "raw": "raw two-flight difference", "ruler": "ruler"}
+
+
+def _kind(row, kind):
+    """What a row's reference `kind` is called: a field whose reference is not a second flight (a
+    terrain model) names it in its field.json's ``reference_label``."""
+    label = row.get("reference_label")
+    if label and kind in ("aligned", "raw"):
+        return f"{label}, aligned" if kind == "aligned" else label
+    return KINDS.get(kind, kind)
+
+
 # The share of plots |error| <= 1.645 x height_p90_err_m should cover (issue 38).
 COVERAGE_GOAL = (0.85, 0.95)
 
@@ -652,7 +674,7 @@ def _losses(fields, images, summary):
             ours = figures.get("ours") or {}
             if ours.get("r") is None:
                 continue
-            where = f"{row['field']} {row['date']} against the {KINDS.get(kind, kind)}"
+            where = f"{row['field']} {row['date']} against the {_kind(row, kind)}"
             for peer, name in names.items():
                 theirs = figures.get(peer) or {}
                 if theirs.get("r") is None:
@@ -791,7 +813,7 @@ def docs_page(record):
             r["date"],
             r["plots"],
             _ground_cell(r),
-            KINDS.get(kind, kind),
+            _kind(r, kind),
             _fit(figures.get("ours")),
             _fit(figures.get("baseline")),
             _fit(figures.get("plantcv")),
