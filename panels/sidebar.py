@@ -83,8 +83,9 @@ def relief_size_lines(record):
 
 
 def key_figure_lines(record):
-    """Plants and cover, and the measured canopy height p50/p90 in cm after a build with a DSM; and
-    why the ground took its soil from the surface when the photo's colour was not trusted."""
+    """Plants and cover, and the measured canopy height p50/p90 in cm after a build with a DSM; why
+    the ground took its soil from the surface when the photo's colour was not trusted; and that the
+    surface model does not see the soil between the plots when the ground's check found so."""
     lines = []
     if record.cover is not None:
         lines.append(f"Plants {record.regions}, cover {float(record.cover):.0%}")
@@ -94,6 +95,8 @@ def key_figure_lines(record):
         )
     if record.soil_note:
         lines.append(f"Soil from the surface: {record.soil_note}")
+    if record.ground_note:
+        lines.append(f"Ground: {record.ground_note}")
     return lines
 
 

@@ -71,6 +71,9 @@ class Record:
     # Why the estimated ground took its soil from the surface, not from the photo's colour ("": it
     # took the colour's, or no ground was estimated).
     soil_note: str = ""
+    # When the surface model does not see the soil between the plots (the ground's occlusion check
+    # failed): that, in one line ("": it passed, or no ground was estimated).
+    ground_note: str = ""
 
     __hash__ = None  # `params` is a dict
 
@@ -200,4 +203,7 @@ def key_figures(relief):
         figures["ground"] = canopy.ground_source
         evidence = (canopy.check or {}).get("evidence") or {}
         figures["soil_note"] = evidence.get("colour_contradicted") or ""
+        from ..cliff_terrain.measure.ground_occlusion import occlusion_line
+
+        figures["ground_note"] = occlusion_line((canopy.check or {}).get("occlusion"))
     return figures

@@ -11,7 +11,7 @@ from test_measured_heights import UTM16N, geokeys, run_cli, write_tiff
 
 from cliff_terrain.io.raster.geotiff import read_surface
 from cliff_terrain.measure.ground import fit_ground
-from cliff_terrain.measure.ground_occlusion import occlusion_check
+from cliff_terrain.measure.ground_occlusion import occlusion_check, occlusion_line
 
 PAIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dsm" / "fieldimager_ex2"
 
@@ -127,7 +127,9 @@ def test_the_real_potato_plots_openings_are_seen():
     assert 0.2 < occlusion["canopy_m"] < 0.6 and abs(occlusion["rise_m"]) < 0.1
 
 
-def test_heights_says_when_the_surface_model_cannot_see_between_the_plots(tmp_path):
+def write_occluded_trial(folder):
+    """`folder`/ortho.tif and dsm.tif of :func:`occluded_trial` (fill 0.3 m): golden plots on brown
+    soil, UTM 16N at 5 cm. Returns the canopy mask."""
     from cliff_terrain.io.raster.geotiff import write_geotiff
 
     dsm, _, canopy = occluded_trial(fill=0.3)
@@ -136,10 +138,13 @@ def test_heights_says_when_the_surface_model_cannot_see_between_the_plots(tmp_pa
     rgb = np.where(canopy[..., None], golden, soil) * (1 + 0.05 * rng.standard_normal((*canopy.shape, 1)))
     tie, gsd = (500000.0, 4000000.0), 0.05
     rgb = np.clip(rgb, 0, 255).astype(np.uint8)
-    write_tiff(
-        tmp_path / "ortho.tif", rgb, scale=(gsd, gsd), tie=tie, keys=geokeys(UTM16N), photometric="rgb"
-    )
-    write_geotiff(tmp_path / "dsm.tif", dsm, transform=[[gsd, 0, tie[0]], [0, -gsd, tie[1]]], crs=UTM16N)
+    write_tiff(folder / "ortho.tif", rgb, scale=(gsd, gsd), tie=tie, keys=geokeys(UTM16N), photometric="rgb")
+    write_geotiff(folder / "dsm.tif", dsm, transform=[[gsd, 0, tie[0]], [0, -gsd, tie[1]]], crs=UTM16N)
+    return canopy
+
+
+def test_heights_says_when_the_surface_model_cannot_see_between_the_plots(tmp_path):
+    canopy = write_occluded_trial(tmp_path)
     out = tmp_path / "out"
     done = run_cli("heights", tmp_path / "ortho.tif", "--dsm", tmp_path / "dsm.tif", "--out", out)
     assert done.returncode == 0, done.stderr
@@ -151,3 +156,33 @@ def test_heights_says_when_the_surface_model_cannot_see_between_the_plots(tmp_pa
     # The canopy stands its 0.8 m again above the open soil's ground.
     chm = read_surface(out / "chm.tif").data
     assert np.median(chm[canopy]) == pytest.approx(0.8, abs=0.03)
+
+
+def test_the_panels_line_says_what_failed_and_nothing_when_it_passed():
+    line = occlusion_line({"passed": False, "rise_m": 0.231, "ground": "open soil"})
+    assert (
+        line
+        == "the DSM does not see the soil between the plots (+23 cm above the open soil); ground from the open soil"
+    )
+    assert occlusion_line({"passed": False, "rise_m": 0.12}).endswith("(+12 cm above the open soil)")
+    assert occlusion_line({"passed": True, "rise_m": 0.3}) == "" and occlusion_line(None) == ""
+
+
+@pytest.mark.blender
+def test_the_sidebar_says_when_the_surface_model_cannot_see_between_the_plots(scene, tmp_path):
+    import bpy
+    from cliff_terrain_addon.panels.sidebar import key_figure_lines, relief_info
+
+    write_occluded_trial(tmp_path)
+    settings = scene.cliff_terrain
+    settings.filepath = str(tmp_path / "ortho.tif")
+    settings.dsm = str(tmp_path / "dsm.tif")
+    settings.height_source = "measured"
+    settings.max_size = 350
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    note = obj["cliff_terrain"]["ground_note"]
+    assert note.startswith("the DSM does not see the soil between the plots (+") and note.endswith(
+        "open soil"
+    )
+    assert key_figure_lines(relief_info(obj))[-1] == f"Ground: {note}"

@@ -142,6 +142,23 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
     return out, evidence & centres
 
 
+def occlusion_line(record):
+    """A short line for a panel when the check of `record` (:func:`occlusion_check`'s, in
+    ``ground_check["occlusion"]``) failed, else ``""``.
+
+    Examples
+    --------
+    >>> occlusion_line({"passed": False, "rise_m": 0.23, "ground": "open soil"})
+    'the DSM does not see the soil between the plots (+23 cm above the open soil); ground from the open soil'
+    >>> occlusion_line({"passed": True, "rise_m": 0.02})
+    ''
+    """
+    if not record or record.get("passed", True):
+        return ""
+    line = f"the DSM does not see the soil between the plots ({record['rise_m'] * 100:+.0f} cm above the open soil)"
+    return line + ("; ground from the open soil" if record.get("ground") == "open soil" else "")
+
+
 def _soil_plane(dsm, mask):
     """``(a, b, c)`` of the robust least-squares plane a + b row + c col of `dsm` over `mask` (3-sigma trimmed)."""
     rows, cols = np.nonzero(mask)
