@@ -62,8 +62,34 @@ def test_when_the_gaps_are_not_the_ground_the_open_soil_alone_carries_it():
     assert "the ground comes from the open soil alone" in occlusion["note"]
     error = (fit.ground - ground)[canopy]
     assert abs(np.median(error)) < 0.01 and np.percentile(np.abs(error), 95) < 0.05
-    # The ground is guessed across the trial: its support falls there, its error keeps the rise.
+    # The ground is guessed across the trial: its support falls there. It was checked as every
+    # ground is, on its own held-out (open) soil, and its uncertainty is that check's: it covers the
+    # ground's real error under the plots.
     assert fit.support[canopy].mean() < 0.15 and fit.check["support_where_guessed"] < 0.15
+    assert occlusion["open_check"]["passed"] and occlusion["open_check"]["folds_used"] >= 3
+    assert occlusion["open_check"]["error_m"] < 0.03 and "held-out open soil within" in occlusion["note"]
+    assert np.mean(np.abs(error) <= 1.645 * fit.sigma[canopy]) > 0.95
+
+
+def test_an_open_soil_ground_that_fails_its_own_check_is_not_taken(monkeypatch):
+    # Whatever makes the open soil's ground miss its own held-out soil (here: a ground built 0.5 m
+    # off), the narrow soil's ground stays, the rise counts in its error, and the note says why.
+    from cliff_terrain.measure import ground as ground_module
+
+    build = ground_module.OpenGrounds.__call__
+    monkeypatch.setattr(
+        ground_module.OpenGrounds,
+        "__call__",
+        lambda self, names, evidence: {"open": build(self, names, evidence)["open"] + np.float32(0.5)},
+    )
+    dsm, ground, canopy = occluded_trial(fill=0.3)
+    fit = fit_ground(dsm, soil=~canopy, pixel_size=0.05)
+    occlusion = fit.check["occlusion"]
+    assert not occlusion["passed"] and "ground" not in occlusion
+    assert not occlusion["open_check"]["passed"] and occlusion["open_check"]["error_m"] > 0.4
+    assert "the open soil cannot carry it either" in occlusion["note"]
+    assert "heights may read that much low" in occlusion["note"]
+    assert np.median((fit.ground - ground)[canopy]) > 0.2  # the filled gaps' ground, as forced
     assert np.median(fit.sigma[canopy]) >= occlusion["rise_m"]
 
 

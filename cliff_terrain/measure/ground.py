@@ -246,18 +246,42 @@ def fit_ground(
     check["occlusion"] = occlusion
     supported = evidence
     if not occlusion["passed"]:
-        error = np.sqrt(error**2 + np.float32(occlusion["rise_m"]) ** 2)
+        fallback = None
         if method == "auto":
-            # The soil between the plots is not the ground: the open soil alone carries it, its
-            # plane across the trial and its local level near it (the smooth ground on it).
-            ground = open_ground(dsm, open_soil, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m)
-            supported = open_soil
+            # The soil between the plots is not the ground: the open soil alone carries it (its
+            # plane across the trial and its local level near it), checked as every ground is, on
+            # its own held-out soil; its uncertainty grows with the distance to that soil.
+            build_open = OpenGrounds(dsm, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m)
+            open_check, open_residuals = check_ground(
+                dsm, open_soil, build_open, pixel_size=pixel_size, block_m=block_m, names=("open",),
+                tolerance_m=check["tolerance_m"], run=run,
+            )  # fmt: skip
+            occlusion["open_check"] = {
+                k: open_check[k]
+                for k in ("folds_used", "fold_block_m", "held_out_pixels", "passed", "reason")
+            }
+            occlusion["open_check"]["error_m"] = open_check["candidates"]["open"]["error_m"]
+            if open_check["passed"]:
+                fallback = build_open(("open",), open_soil)["open"]
+        if fallback is not None:
+            ground, supported = fallback, open_soil
+            sigma = ground_sigma(open_residuals["open"], open_soil, pixel_size=pixel_size)
+            error = sigma.raster
+            check["sigma_model"] = {**sigma.model, "canopy_level_m": 0.0}
             occlusion["ground"] = "open soil"
-            occlusion["note"] += "; the ground comes from the open soil alone (the rise counted in the error)"
-        else:
             occlusion["note"] += (
-                f"; the {chosen} ground follows it: heights may read that much low (counted in the error)"
+                "; the ground comes from the open soil alone (held-out open soil within "
+                f"{occlusion['open_check']['error_m'] * 100:.1f} cm)"
             )
+        else:
+            # Kept: the rise counts in full in the error, and the note says the heights may be low.
+            error = np.sqrt(error**2 + np.float32(occlusion["rise_m"]) ** 2)
+            why = (
+                f"the open soil cannot carry it either ({occlusion['open_check']['reason']})"
+                if "open_check" in occlusion
+                else f"the {chosen} ground follows it"
+            )
+            occlusion["note"] += f"; {why}: heights may read that much low (counted in the error)"
         occlusion["note"] += "; give a terrain model (--dtm) or calibrate with --ruler"
     support = ground_support(supported, pixel_size=pixel_size, block_m=small_m)
     guessed = finite & ~supported
@@ -281,6 +305,25 @@ def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, deta
     True
     """
     return fit_ground(dsm, soil=soil, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m).ground
+
+
+@dataclass(eq=False, frozen=True)
+class OpenGrounds:
+    """``build(names, open soil) -> {"open": ground}``: :func:`open_ground` of one surface, for the
+    held-out check of the ground that rests on the open soil alone (a fold's open soil left out of
+    its lowest surface too, so that nothing of it leaks into the prediction)."""
+
+    dsm: np.ndarray
+    pixel_size: float
+    block_m: float
+    detail_m: float
+
+    def __call__(self, names, evidence):
+        return {
+            "open": open_ground(
+                self.dsm, evidence, pixel_size=self.pixel_size, block_m=self.block_m, detail_m=self.detail_m
+            )
+        }
 
 
 def open_ground(dsm, open_soil, *, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):
