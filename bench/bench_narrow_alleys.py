@@ -143,8 +143,8 @@ def run_layout(folder, spec):
         "held_out_cm": round(
             100 * summary["ground_check"]["candidates"][summary["ground_method"]]["error_m"], 1
         ),
-        "occlusion_rise_cm": round(100 * occlusion["rise_m"], 1),
-        "canopy_from_narrow": round(occlusion["canopy_from_narrow"], 2),
+        "occlusion_rise_cm": None if occlusion["rise_m"] is None else round(100 * occlusion["rise_m"], 1),
+        "canopy_from_narrow": None if not occlusion["tested"] else round(occlusion["canopy_from_narrow"], 2),
         "occlusion_passed": occlusion["passed"],
     }
 

@@ -12,6 +12,7 @@ from test_measured_heights import UTM16N, geokeys, run_cli, write_tiff
 from cliff_terrain.io.raster.geotiff import read_surface
 from cliff_terrain.measure.ground import fit_ground
 from cliff_terrain.measure.ground_occlusion import occlusion_check, occlusion_line
+from cliff_terrain.measure.robust_plane import robust_plane
 
 PAIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dsm" / "fieldimager_ex2"
 
@@ -46,6 +47,7 @@ def test_soil_between_tall_plots_that_the_surface_fills_fails_the_check_and_coun
     occlusion = fit.check["occlusion"]
     assert occlusion["tested"] and not occlusion["passed"] and "ground" not in occlusion
     assert occlusion["rise_m"] == pytest.approx(0.3, abs=0.04)  # less the undulation the plane misses
+    assert 0 < occlusion["spread_m"] < 0.05
     assert occlusion["canopy_from_narrow"] > 0.8  # the ground under the plots comes from the gaps
     note = occlusion["note"]
     assert "does not see the ground between the plots" in note and "heights may read that much low" in note
@@ -54,43 +56,55 @@ def test_soil_between_tall_plots_that_the_surface_fills_fails_the_check_and_coun
     assert np.median(fit.sigma[canopy]) >= 0.9 * missed
 
 
-def test_when_the_gaps_are_not_the_ground_the_open_soil_alone_carries_it():
+def test_when_the_gaps_are_not_the_ground_the_ground_is_lowered_by_what_they_stand_up():
     dsm, ground, canopy = occluded_trial(fill=0.3)
     fit = fit_ground(dsm, soil=~canopy, pixel_size=0.05)
     occlusion = fit.check["occlusion"]
-    assert not occlusion["passed"] and occlusion["ground"] == "open soil"
-    assert "the ground comes from the open soil alone" in occlusion["note"]
+    assert not occlusion["passed"] and occlusion["ground"] == "lowered"
+    assert "the ground is lowered by that much where it rests on that soil" in occlusion["note"]
     error = (fit.ground - ground)[canopy]
-    assert abs(np.median(error)) < 0.01 and np.percentile(np.abs(error), 95) < 0.05
-    # The ground is guessed across the trial: its support falls there. It was checked as every
-    # ground is, on its own held-out (open) soil, and its uncertainty is that check's: it covers the
-    # ground's real error under the plots.
+    # Within the undulation the open soil's plane misses (3 cm): 27 cm of the 30 are taken back
+    # (less at the trial's edges, where the ground rests on open and narrow soil alike).
+    assert abs(np.median(error)) < 0.04 and np.percentile(np.abs(error), 95) < 0.1
+    # The ground is guessed where it rests on the gaps: its support falls there; the narrow soil's
+    # spread about the rise counts in the error, which covers most of the ground's real error (not
+    # all: the plane's 3 cm of undulation and the trial's edges are beyond that spread).
     assert fit.support[canopy].mean() < 0.15 and fit.check["support_where_guessed"] < 0.15
-    assert occlusion["open_check"]["passed"] and occlusion["open_check"]["folds_used"] >= 3
-    assert occlusion["open_check"]["error_m"] < 0.03 and "held-out open soil within" in occlusion["note"]
-    assert np.mean(np.abs(error) <= 1.645 * fit.sigma[canopy]) > 0.95
+    assert np.mean(np.abs(error) <= 1.645 * fit.sigma[canopy]) > 0.75
 
 
-def test_an_open_soil_ground_that_fails_its_own_check_is_not_taken(monkeypatch):
-    # Whatever makes the open soil's ground miss its own held-out soil (here: a ground built 0.5 m
-    # off), the narrow soil's ground stays, the rise counts in its error, and the note says why.
-    from cliff_terrain.measure import ground as ground_module
-
-    build = ground_module.OpenGrounds.__call__
-    monkeypatch.setattr(
-        ground_module.OpenGrounds,
-        "__call__",
-        lambda self, names, evidence: {"open": build(self, names, evidence)["open"] + np.float32(0.5)},
-    )
+def test_a_forced_ground_is_kept_and_the_rise_counts_in_its_error():
     dsm, ground, canopy = occluded_trial(fill=0.3)
-    fit = fit_ground(dsm, soil=~canopy, pixel_size=0.05)
+    for method in ("smooth", "baseline"):
+        fit = fit_ground(dsm, soil=~canopy, pixel_size=0.05, method=method)
+        occlusion = fit.check["occlusion"]
+        assert not occlusion["passed"] and "ground" not in occlusion
+        assert f"the {method} ground follows it" in occlusion["note"]
+        assert np.median(fit.sigma[canopy]) >= occlusion["rise_m"]
+
+
+def test_a_dsm_with_holes_and_a_nan_collar_is_checked_the_same():
+    dsm, ground, canopy = occluded_trial(fill=0.3)
+    holed = dsm.copy()
+    holed[:12] = np.nan  # no data along one edge
+    holed[200:210, 300:330] = np.nan  # a hole in the trial
+    fit = fit_ground(holed, soil=~canopy, pixel_size=0.05)
     occlusion = fit.check["occlusion"]
-    assert not occlusion["passed"] and "ground" not in occlusion
-    assert not occlusion["open_check"]["passed"] and occlusion["open_check"]["error_m"] > 0.4
-    assert "the open soil cannot carry it either" in occlusion["note"]
-    assert "heights may read that much low" in occlusion["note"]
-    assert np.median((fit.ground - ground)[canopy]) > 0.2  # the filled gaps' ground, as forced
-    assert np.median(fit.sigma[canopy]) >= occlusion["rise_m"]
+    assert not occlusion["passed"] and occlusion["rise_m"] == pytest.approx(0.3, abs=0.04)
+    assert np.isfinite(fit.ground).all() and abs(np.median((fit.ground - ground)[canopy])) < 0.04
+
+
+def test_the_one_line_summary_says_both_notes():
+    from cliff_terrain.measure.ground_evidence import evidence_note
+
+    check = {
+        "evidence": {"colour_contradicted": "the photo shows no plants"},
+        "occlusion": {"passed": False, "note": "the surface model does not see the ground between the plots"},
+    }
+    assert evidence_note(check) == (
+        "; soil from the surface: the photo shows no plants; the surface model does not see the ground between the plots"
+    )
+    assert evidence_note({"occlusion": {"passed": True, "note": ""}}) == ""
 
 
 def test_soil_the_surface_sees_between_the_plots_passes_and_leaves_the_error_alone():
@@ -116,17 +130,17 @@ def test_high_narrow_soil_that_little_of_the_canopy_stands_next_to_passes():
     )
     ridge_soil = ~furrow & ((cols % 40) == 30) & ((rows % 30) < 3)  # specks between the plants
     dsm[ridge_soil] = 0.15
-    out, open_soil = occlusion_check(
+    out, resting = occlusion_check(
         dsm, np.zeros_like(dsm), furrow | ridge_soil, pixel_size=0.05, block_px=100, tolerance_m=0.1
     )
     assert out["tested"] and out["rise_m"] > 0.1
     assert out["canopy_from_narrow"] < 0.5 and out["passed"] and out["note"] == ""
-    assert open_soil[:, 10::40].all() and not open_soil[ridge_soil].any()  # furrow centres, not the specks
+    assert resting[:, 10::40].max() < 0.1  # the furrows' plants rest on the furrows
 
 
 def test_a_field_without_narrow_openings_or_without_canopy_is_not_tested():
     dsm = np.zeros((120, 120), np.float32)
-    none, no_soil = occlusion_check(
+    none, no_resting = occlusion_check(
         dsm, np.zeros_like(dsm), np.ones(dsm.shape, bool), pixel_size=0.05, block_px=100, tolerance_m=0.1
     )
     assert (
@@ -134,7 +148,7 @@ def test_a_field_without_narrow_openings_or_without_canopy_is_not_tested():
         and none["passed"]
         and none["rise_m"] is None
         and none["canopy_m"] is None
-        and no_soil is None
+        and no_resting is None
     )
     dsm[40:80, 40:80] = 0.5  # one plot in open soil: no soil is narrow
     soil = dsm == 0
@@ -175,21 +189,32 @@ def test_heights_says_when_the_surface_model_cannot_see_between_the_plots(tmp_pa
     done = run_cli("heights", tmp_path / "ortho.tif", "--dsm", tmp_path / "dsm.tif", "--out", out)
     assert done.returncode == 0, done.stderr
     assert "does not see the ground between the plots" in done.stdout and done.stdout.count("\n") == 1
-    assert "the ground comes from the open soil alone" in done.stdout
+    assert "the ground is lowered by that much" in done.stdout
     occlusion = json.loads((out / "summary.json").read_text())["ground_check"]["occlusion"]
-    assert not occlusion["passed"] and occlusion["ground"] == "open soil"
+    assert not occlusion["passed"] and occlusion["ground"] == "lowered"
     assert occlusion["rise_m"] == pytest.approx(0.3, abs=0.04)  # less the undulation the plane misses
-    # The canopy stands its 0.8 m again above the open soil's ground.
+    # The canopy stands its 0.8 m again (less the 3 cm undulation the rise could not see).
     chm = read_surface(out / "chm.tif").data
-    assert np.median(chm[canopy]) == pytest.approx(0.8, abs=0.03)
+    assert np.median(chm[canopy]) == pytest.approx(0.8, abs=0.04)
+
+
+def test_the_robust_plane_is_least_squares_without_its_outliers():
+    rng = np.random.default_rng(3)
+    rows, cols = rng.uniform(0, 100, 500), rng.uniform(0, 100, 500)
+    design = np.column_stack([np.ones(500), rows, cols])
+    z = 2.0 + 0.01 * rows - 0.02 * cols + rng.normal(0, 0.01, 500)
+    clean, *_ = np.linalg.lstsq(design, z, rcond=None)
+    np.testing.assert_allclose(robust_plane(design, z), clean, atol=1e-3)
+    z[:40] += 0.8  # canopy among the soil: dropped, the plane is the soil's
+    a, b, c = robust_plane(design, z)
+    assert abs(a - 2.0) < 0.005 and abs(b - 0.01) < 1e-4 and abs(c + 0.02) < 1e-4
+    assert abs(np.linalg.lstsq(design, z, rcond=None)[0][0] - 2.0) > 0.03  # plain least squares is not
 
 
 def test_the_panels_line_says_what_failed_and_nothing_when_it_passed():
-    line = occlusion_line({"passed": False, "rise_m": 0.231, "ground": "open soil"})
-    assert (
-        line
-        == "the DSM does not see the soil between the plots (+23 cm above the open soil); ground from the open soil"
-    )
+    line = occlusion_line({"passed": False, "rise_m": 0.231, "ground": "lowered"})
+    expected = "the DSM does not see the soil between the plots (+23 cm above the open soil); ground lowered by that much"
+    assert line == expected
     assert occlusion_line({"passed": False, "rise_m": 0.12}).endswith("(+12 cm above the open soil)")
     assert occlusion_line({"passed": True, "rise_m": 0.3}) == "" and occlusion_line(None) == ""
 
@@ -208,7 +233,6 @@ def test_the_sidebar_says_when_the_surface_model_cannot_see_between_the_plots(sc
     assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
     obj = bpy.context.active_object
     note = obj["cliff_terrain"]["ground_note"]
-    assert note.startswith("the DSM does not see the soil between the plots (+") and note.endswith(
-        "open soil"
-    )
+    assert note.startswith("the DSM does not see the soil between the plots (+")
+    assert note.endswith("ground lowered by that much")
     assert key_figure_lines(relief_info(obj))[-1] == f"Ground: {note}"

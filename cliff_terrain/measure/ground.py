@@ -54,6 +54,7 @@ from .ground_detail import DETAIL_CONFIDENCE, blur, canopy_level, detail_above
 from .ground_evidence import MIN_SOIL_PIXELS, exposed_soil, ground_evidence
 from .ground_occlusion import occlusion_check
 from .percentiles import nan_percentile
+from .robust_plane import robust_plane
 
 DEFAULT_BLOCK_M = 5.0
 DEFAULT_DETAIL_M = 0.15
@@ -239,49 +240,33 @@ def fit_ground(
     error = sigma.raster if level == 0.0 else np.sqrt(sigma.raster**2 + np.float32(level) ** 2)
     # Nor does it check soil the surface model cannot see: narrow openings' soil standing above the
     # open soil's is said, and counts in full in the error (:mod:`.ground_occlusion`).
-    occlusion, open_soil = occlusion_check(
+    occlusion, resting = occlusion_check(
         dsm, ground, evidence, pixel_size=pixel_size, block_px=OFFSET_SCALE * small_m / pixel_size,
         tolerance_m=check["tolerance_m"],
     )  # fmt: skip
     check["occlusion"] = occlusion
     supported = evidence
     if not occlusion["passed"]:
-        fallback = None
+        rise = np.float32(occlusion["rise_m"])
         if method == "auto":
-            # The soil between the plots is not the ground: the open soil alone carries it (its
-            # plane across the trial and its local level near it), checked as every ground is, on
-            # its own held-out soil; its uncertainty grows with the distance to that soil.
-            build_open = OpenGrounds(dsm, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m)
-            open_check, open_residuals = check_ground(
-                dsm, open_soil, build_open, pixel_size=pixel_size, block_m=block_m, names=("open",),
-                tolerance_m=check["tolerance_m"], run=run,
-            )  # fmt: skip
-            occlusion["open_check"] = {
-                k: open_check[k]
-                for k in ("folds_used", "fold_block_m", "held_out_pixels", "passed", "reason")
-            }
-            occlusion["open_check"]["error_m"] = open_check["candidates"]["open"]["error_m"]
-            if open_check["passed"]:
-                fallback = build_open(("open",), open_soil)["open"]
-        if fallback is not None:
-            ground, supported = fallback, open_soil
-            sigma = ground_sigma(open_residuals["open"], open_soil, pixel_size=pixel_size)
-            error = sigma.raster
-            check["sigma_model"] = {**sigma.model, "canopy_level_m": 0.0}
-            occlusion["ground"] = "open soil"
+            # The narrow soil is not the ground: where the ground rests on it, it is lowered by what
+            # that soil stands above the open soil. One measured level, as the canopy's level: its
+            # shape stays the evidence's (the field's tilt and undulation wherever the open soil
+            # lies), the change is bounded by the rise, and how much the narrow soil's height
+            # varies about it counts in the error.
+            ground = (ground - rise * resting).astype(np.float32)
+            error = np.sqrt(error**2 + np.float32(occlusion["spread_m"]) ** 2)
+            supported = evidence & (resting < 0.5)
+            occlusion["ground"] = "lowered"
             occlusion["note"] += (
-                "; the ground comes from the open soil alone (held-out open soil within "
-                f"{occlusion['open_check']['error_m'] * 100:.1f} cm)"
+                f"; the ground is lowered by that much where it rests on that soil (its spread, "
+                f"{occlusion['spread_m'] * 100:.0f} cm, counted in the error)"
             )
         else:
-            # Kept: the rise counts in full in the error, and the note says the heights may be low.
-            error = np.sqrt(error**2 + np.float32(occlusion["rise_m"]) ** 2)
-            why = (
-                f"the open soil cannot carry it either ({occlusion['open_check']['reason']})"
-                if "open_check" in occlusion
-                else f"the {chosen} ground follows it"
+            error = np.sqrt(error**2 + rise**2)
+            occlusion["note"] += (
+                f"; the {chosen} ground follows it: heights may read that much low (counted in the error)"
             )
-            occlusion["note"] += f"; {why}: heights may read that much low (counted in the error)"
         occlusion["note"] += "; give a terrain model (--dtm) or calibrate with --ruler"
     support = ground_support(supported, pixel_size=pixel_size, block_m=small_m)
     guessed = finite & ~supported
@@ -307,39 +292,7 @@ def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, deta
     return fit_ground(dsm, soil=soil, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m).ground
 
 
-@dataclass(eq=False, frozen=True)
-class OpenGrounds:
-    """``build(names, open soil) -> {"open": ground}``: :func:`open_ground` of one surface, for the
-    held-out check of the ground that rests on the open soil alone (a fold's open soil left out of
-    its lowest surface too, so that nothing of it leaks into the prediction)."""
-
-    dsm: np.ndarray
-    pixel_size: float
-    block_m: float
-    detail_m: float
-
-    def __call__(self, names, evidence):
-        return {
-            "open": open_ground(
-                self.dsm, evidence, pixel_size=self.pixel_size, block_m=self.block_m, detail_m=self.detail_m
-            )
-        }
-
-
-def open_ground(dsm, open_soil, *, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):
-    """The smooth ground from `open_soil` alone: where the soil between the plots is not the ground.
-
-    The lowest surface of the open soil (blocks without any take the plane through those that have
-    some: :func:`lowest_surface` fills them with its median level above that plane), lifted onto the
-    open soil by the smooth offset. See :mod:`.ground_occlusion`.
-    """
-    masked = np.where(open_soil, dsm, np.float32(np.nan))
-    lowest = lowest_surface(masked, pixel_size=pixel_size, block_m=block_m, sparse=True)
-    build = CandidateGrounds(dsm, lowest, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m)
-    return build(("smooth",), open_soil)["smooth"]
-
-
-def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, sparse=False):
+def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M):
     """The DSM's lowest surface: its `BASELINE_PERCENTILE` in blocks above the field's tilt, bilinear.
 
     The naive peer's block percentile, taken after the field's own plane is removed (the plane
@@ -348,46 +301,32 @@ def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, sparse=False):
     slope times half a block, more than any microrelief. Held flat beyond the outer block
     centres: extending a border block's noisy level linearly was tried and measured worse on a
     real potato trial (day 100: RMSE 2.2 -> 2.3 cm with colour, 2.4 -> 4.5 cm without).
-    With `sparse` (a surface with data in some blocks only: :func:`open_ground`'s), the plane is
-    fitted on the blocks with data alone, and the others take it.
     """
-    plane = _field_plane(dsm, pixel_size=pixel_size, block_m=block_m, sparse=sparse)
+    plane = _field_plane(dsm, pixel_size=pixel_size, block_m=block_m)
     lowest = naive_block_ground(
         dsm - plane, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
     )
     return (lowest + plane).astype(np.float32)
 
 
-def _field_plane(dsm, *, pixel_size, block_m, sparse=False):
+def _field_plane(dsm, *, pixel_size, block_m):
     """The plane z = a + b row + c col through the DSM's block percentiles (robust least squares).
 
     Each block's percentile lies on the ground at its downhill edge, so on a uniform slope the
     levels are the ground shifted by one constant: their plane has the field's slope. A block
     whose level lies more than three robust deviations off the plane (a block of canopy) is
-    dropped and the plane fitted again. With `sparse`, blocks without data take no part.
+    dropped and the plane fitted again.
     """
-    levels, block = _block_levels(
-        dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE, fill=not sparse
-    )
+    levels, block = _block_levels(dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE)
     rows, cols = dsm.shape
-    bi, bj = np.mgrid[: levels.shape[0], : levels.shape[1]]
-    has = np.isfinite(levels).ravel()
-    if has.sum() < 3:
+    if levels.size < 3:
         return np.zeros(dsm.shape, np.float32)
-    centre_r = np.minimum((bi + 0.5) * block, rows).ravel()[has] / max(rows, 1)
-    centre_c = np.minimum((bj + 0.5) * block, cols).ravel()[has] / max(cols, 1)
-    z = levels.ravel()[has].astype(np.float64)
+    bi, bj = np.mgrid[: levels.shape[0], : levels.shape[1]]
+    centre_r = np.minimum((bi + 0.5) * block, rows).ravel() / max(rows, 1)
+    centre_c = np.minimum((bj + 0.5) * block, cols).ravel() / max(cols, 1)
+    z = levels.ravel().astype(np.float64)
     design = np.column_stack([np.ones(z.size), centre_r, centre_c])
-    keep = np.ones(z.size, bool)
-    coef = np.array([np.median(z), 0.0, 0.0])
-    for _ in range(5):
-        coef, *_ = np.linalg.lstsq(design[keep], z[keep], rcond=None)
-        residual = z - design @ coef
-        spread = max(1.4826 * float(np.median(np.abs(residual[keep] - np.median(residual[keep])))), 1e-3)
-        new_keep = np.abs(residual) <= 3.0 * spread
-        if new_keep.sum() < 3 or np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
+    coef = robust_plane(design, z)
     r = np.arange(rows, dtype=np.float64)[:, None] / max(rows, 1)
     c = np.arange(cols, dtype=np.float64)[None, :] / max(cols, 1)
     return (coef[0] + coef[1] * r + coef[2] * c).astype(np.float32)
@@ -504,9 +443,8 @@ def naive_block_ground(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, percentile=5
     return np.ascontiguousarray(big[:rows, :cols])
 
 
-def _block_levels(dsm, *, pixel_size, block_m, percentile, fill=True):
-    """(levels, block px): the `percentile` of `dsm` in each block (with `fill`, NaN-free: empty
-    blocks take the median; without, they stay NaN)."""
+def _block_levels(dsm, *, pixel_size, block_m, percentile):
+    """(levels, block px): the `percentile` of `dsm` in each block (NaN-free: empty blocks take the median)."""
     dsm = np.asarray(dsm, dtype=np.float32)
     block = max(2, round(block_m / pixel_size))
     rows, cols = dsm.shape
@@ -515,7 +453,7 @@ def _block_levels(dsm, *, pixel_size, block_m, percentile, fill=True):
     pad[:rows, :cols] = dsm
     blocks = pad.reshape(nb_r, block, nb_c, block).transpose(0, 2, 1, 3).reshape(nb_r, nb_c, -1)
     levels = nan_percentile(blocks, percentile).astype(np.float32)  # nanpercentile's, vectorized
-    if fill and np.isnan(levels).any():
+    if np.isnan(levels).any():
         fill = np.nanmedian(levels) if np.isfinite(levels).any() else 0.0
         levels = np.where(np.isnan(levels), fill, levels).astype(np.float32)
     return levels, block
