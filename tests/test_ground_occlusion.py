@@ -73,6 +73,28 @@ def test_when_the_gaps_are_not_the_ground_the_ground_is_lowered_by_what_they_sta
     assert np.mean(np.abs(error) <= 1.645 * fit.sigma[canopy]) > 0.75
 
 
+def test_open_soil_on_one_side_only_lowers_the_ground_by_the_rise_and_no_more():
+    # A headland below the trial is its only open soil; thin strips of soil run along the raster's
+    # other edges (beyond them: no data, no obstacle). A plane through the open soil alone would
+    # be metres off here; the rise bounds the change wherever the open soil cannot tell.
+    rng = np.random.default_rng(0)
+    rr, cc = np.mgrid[:360, :700]
+    ground = 50.0 + 0.0005 * cc + 0.00025 * rr
+    trial = (rr >= 6) & (rr < 306) & (cc >= 6) & (cc < 694)
+    canopy = trial & ((cc - 6) % 36 < 30) & ((rr - 6) % 110 < 100)
+    soil_noise = rng.normal(0, 0.01, canopy.shape)
+    dsm = (
+        ground
+        + np.where(canopy, 0.8 + rng.normal(0, 0.02, canopy.shape), soil_noise)
+        + 0.3 * (trial & ~canopy)
+    )
+    fit = fit_ground(dsm.astype(np.float32), soil=~canopy, pixel_size=0.05)
+    assert fit.check["occlusion"]["ground"] == "lowered"
+    error = (fit.ground - ground)[canopy]
+    assert abs(np.median(error)) < 0.02
+    assert np.percentile(error, 5) > -0.2 and np.percentile(error, 95) < 0.06
+
+
 def test_a_forced_ground_is_kept_and_the_rise_counts_in_its_error():
     dsm, ground, canopy = occluded_trial(fill=0.3)
     for method in ("smooth", "baseline"):

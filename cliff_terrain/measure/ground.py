@@ -240,7 +240,7 @@ def fit_ground(
     error = sigma.raster if level == 0.0 else np.sqrt(sigma.raster**2 + np.float32(level) ** 2)
     # Nor does it check soil the surface model cannot see: narrow openings' soil standing above the
     # open soil's is said, and counts in full in the error (:mod:`.ground_occlusion`).
-    occlusion, resting = occlusion_check(
+    occlusion, lowering = occlusion_check(
         dsm, ground, evidence, pixel_size=pixel_size, block_px=OFFSET_SCALE * small_m / pixel_size,
         tolerance_m=check["tolerance_m"],
     )  # fmt: skip
@@ -250,13 +250,14 @@ def fit_ground(
         rise = np.float32(occlusion["rise_m"])
         if method == "auto":
             # The narrow soil is not the ground: where the ground rests on it, it is lowered by what
-            # that soil stands above the open soil. One measured level, as the canopy's level: its
-            # shape stays the evidence's (the field's tilt and undulation wherever the open soil
-            # lies), the change is bounded by the rise, and how much the narrow soil's height
-            # varies about it counts in the error.
-            ground = (ground - rise * resting).astype(np.float32)
+            # that soil stands above the open soil (near open soil, down to the open soil's level
+            # and no further). One measured level, as the canopy's level: its shape stays the
+            # evidence's (the field's tilt and undulation wherever the open soil lies), the change
+            # is bounded by the rise, and how much the narrow soil's height varies about it counts
+            # in the error.
+            ground = (ground - lowering).astype(np.float32)
             error = np.sqrt(error**2 + np.float32(occlusion["spread_m"]) ** 2)
-            supported = evidence & (resting < 0.5)
+            supported = evidence & (lowering < 0.5 * rise)
             occlusion["ground"] = "lowered"
             occlusion["note"] += (
                 f"; the ground is lowered by that much where it rests on that soil (its spread, "

@@ -63,9 +63,10 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
         ``canopy_from_narrow`` the share of the canopy whose nearest soil is narrow. It fails when
         the rise passes `tolerance_m` and most of the canopy's ground comes from narrow soil; then
         ``note`` says so (else it is empty).
-    resting : (rows, cols) float32 array or None
-        When the check was made: how much each pixel's ground rests on narrow soil (1 where its
-        nearest soil is narrow, 0 where it is open, blurred over the discs' radius).
+    lowering : (rows, cols) float32 array or None
+        When the check was made: how much the ground would be lowered where it rests on narrow soil
+        (each pixel's nearest soil, blurred over the discs' radius): the rise, or where open soil is
+        near enough to trust its level, what the ground stands above that level (0 to the rise).
 
     Examples
     --------
@@ -76,9 +77,10 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
     >>> trial = np.zeros((200, 200), bool); trial[40:160, 40:160] = True
     >>> canopy = trial.copy(); canopy[:, 58:62] = canopy[:, 98:102] = canopy[:, 138:142] = False
     >>> dsm[canopy] = 0.8; dsm[trial & ~canopy] = 0.3
-    >>> out, resting = occlusion_check(dsm, np.zeros_like(dsm), ~canopy, pixel_size=0.05, block_px=100, tolerance_m=0.1)
-    >>> out["passed"], round(out["rise_m"], 2), round(float(resting[100, 80]), 1), round(float(resting[10, 10]), 1)
-    (False, 0.3, 1.0, 0.0)
+    >>> ground = np.where(trial & ~canopy, 0.3, 0.0).astype(np.float32)   # a ground on the alleys
+    >>> out, lowering = occlusion_check(dsm, ground, ~canopy, pixel_size=0.05, block_px=100, tolerance_m=0.1)
+    >>> out["passed"], round(out["rise_m"], 2), round(float(lowering[100, 100]), 2), round(float(lowering[10, 10]), 2)
+    (False, 0.3, 0.3, 0.0)
     """
     import cv2
 
@@ -109,13 +111,17 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
     out["canopy_m"] = height
     if not height > 0:
         return out, None
-    # Open soil: within a disc of radius `height` that holds no canopy (no data is no obstacle):
-    # the discs' centres lie that far from the canopy, their discs reach that far from the centres.
+    # Open soil: within a disc of radius `height` that holds no canopy (no data is no obstacle, nor
+    # is what lies beyond the raster's edge: a strip of soil along it is open, not a gap): the
+    # discs' centres lie that far from the canopy, their discs reach that far from the centres.
     radius = height / pixel_size
-    reach = cv2.distanceTransform((~canopy).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    pad = int(np.ceil(radius)) + 1
+    free = np.pad(~canopy, pad, constant_values=True).astype(np.uint8)
+    reach = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    del free
     cover = cv2.distanceTransform((reach < radius).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     del reach
-    wide = evidence & (cover <= radius)
+    wide = evidence & (cover[pad:-pad, pad:-pad] <= radius)
     del cover
     narrow = evidence & ~wide
     out["open_pixels"], out["narrow_pixels"] = int(np.count_nonzero(wide)), int(np.count_nonzero(narrow))
@@ -127,20 +133,19 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
     a, b, c = _soil_plane(dsm, wide)
     rows = np.arange(dsm.shape[0], dtype=np.float32)[:, None]
     cols = np.arange(dsm.shape[1], dtype=np.float32)[None, :]
-    off = np.where(
-        finite, dsm - (np.float32(a) + np.float32(b) * rows + np.float32(c) * cols), np.float32(0.0)
-    )
+    plane = np.float32(a) + np.float32(b) * rows + np.float32(c) * cols
+    off = np.where(finite, dsm - plane, np.float32(0.0))
     weight = wide.astype(np.float32)
     den = blur(weight, block_px)
     with np.errstate(invalid="ignore", divide="ignore"):
-        off -= blur(off * weight, block_px) / np.maximum(den, np.float32(1e-6))
+        plane += blur(off * weight, block_px) / np.maximum(den, np.float32(1e-6))  # the open soil's level
+    del off, weight
     near = narrow & (den >= DETAIL_CONFIDENCE)
-    del den, weight
     out["narrow_pixels"] = int(np.count_nonzero(near))
     if out["narrow_pixels"] < MIN_SOIL_PIXELS:
         return out, None
-    heights = off[near] - np.median(off[wide])
-    del off
+    plane += np.float32(np.median((dsm - plane)[wide]))
+    heights = (dsm - plane)[near]
     rise = float(np.median(heights))
     spread = float(1.4826 * np.median(np.abs(heights - rise)))
     # Which soil the ground under the canopy comes from: each pixel's nearest soil (looked up by
@@ -163,7 +168,17 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
             f"{share:.0%} of the canopy, stands {rise * 100:.0f} cm above the open soil: the surface "
             "model does not see the ground between the plots"
         )
-    return out, blur(on_narrow.astype(np.float32), radius)
+    # How much to lower the ground where it rests on narrow soil: the rise, or, where the open soil
+    # is near enough to trust its level, what the ground stands above that level (never more than
+    # the rise, never less than 0): near a headland the ground is the open soil's already.
+    resting = blur(on_narrow.astype(np.float32), radius)
+    del on_narrow
+    excess = np.clip(ground - plane, 0.0, rise, dtype=np.float32)
+    # Trusted as the smooth ground trusts its evidence (kernel weight over DETAIL_CONFIDENCE), at the
+    # scale of the openings themselves: a strip of open soil beside the plots tells their ground.
+    trust = np.clip(blur(wide.astype(np.float32), 2 * radius) / DETAIL_CONFIDENCE, 0.0, 1.0)
+    lowering = resting * (trust * excess + (1 - trust) * np.float32(rise))
+    return out, np.where(finite, lowering, np.float32(0.0)).astype(np.float32)
 
 
 def occlusion_line(record):
