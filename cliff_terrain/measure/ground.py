@@ -30,6 +30,11 @@ with the photo's colour as evidence, never as the gate (:func:`fit_ground`):
    (:func:`canopy_level`): under a canopy the fine detail is extrapolation from the soil beside
    the plants, and it varied from plot to plot more than the ground does.
 
+**What the check cannot see** (:mod:`.ground_occlusion`): soil in openings narrower than the canopy
+is tall, which a photogrammetric DSM fills between tall plots. Where it stands more than the check's
+tolerance above the open soil around it and most of the canopy rests on it, ``method="auto"``
+lowers the ground by that rise where it rests on that soil, and the record says so.
+
 **The check** (:mod:`cliff_terrain.measure.ground_check`): the evidence is split into five
 spatial folds of `block_m` blocks; each candidate is built without a fold and predicts its
 evidence. ``method="auto"`` takes the candidate with the smallest held-out error, refuses the
@@ -239,7 +244,8 @@ def fit_ground(
     # day 55, +2.2 cm, the plots' coverage went from 79 % to 96 %).
     error = sigma.raster if level == 0.0 else np.sqrt(sigma.raster**2 + np.float32(level) ** 2)
     # Nor does it check soil the surface model cannot see: narrow openings' soil standing above the
-    # open soil's is said, and counts in full in the error (:mod:`.ground_occlusion`).
+    # open soil's is said, and the ground lowered by that much where it rests on it
+    # (:mod:`.ground_occlusion`).
     occlusion, lowering = occlusion_check(
         dsm, ground, evidence, pixel_size=pixel_size, block_px=OFFSET_SCALE * small_m / pixel_size,
         tolerance_m=check["tolerance_m"],

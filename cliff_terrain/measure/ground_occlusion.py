@@ -133,19 +133,19 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
     a, b, c = _soil_plane(dsm, wide)
     rows = np.arange(dsm.shape[0], dtype=np.float32)[:, None]
     cols = np.arange(dsm.shape[1], dtype=np.float32)[None, :]
-    plane = np.float32(a) + np.float32(b) * rows + np.float32(c) * cols
-    off = np.where(finite, dsm - plane, np.float32(0.0))
+    level = np.float32(a) + np.float32(b) * rows + np.float32(c) * cols
+    off = np.where(finite, dsm - level, np.float32(0.0))
     weight = wide.astype(np.float32)
     den = blur(weight, block_px)
     with np.errstate(invalid="ignore", divide="ignore"):
-        plane += blur(off * weight, block_px) / np.maximum(den, np.float32(1e-6))  # the open soil's level
+        level += blur(off * weight, block_px) / np.maximum(den, np.float32(1e-6))
     del off, weight
     near = narrow & (den >= DETAIL_CONFIDENCE)
     out["narrow_pixels"] = int(np.count_nonzero(near))
     if out["narrow_pixels"] < MIN_SOIL_PIXELS:
         return out, None
-    plane += np.float32(np.median((dsm - plane)[wide]))
-    heights = (dsm - plane)[near]
+    level += np.float32(np.median((dsm - level)[wide]))  # on the open soil, as its median is
+    heights = (dsm - level)[near]
     rise = float(np.median(heights))
     spread = float(1.4826 * np.median(np.abs(heights - rise)))
     # Which soil the ground under the canopy comes from: each pixel's nearest soil (looked up by
@@ -173,11 +173,12 @@ def occlusion_check(dsm, ground, evidence, *, pixel_size, block_px, tolerance_m)
     # the rise, never less than 0): near a headland the ground is the open soil's already.
     resting = blur(on_narrow.astype(np.float32), radius)
     del on_narrow
-    excess = np.clip(ground - plane, 0.0, rise, dtype=np.float32)
+    cap = np.float32(max(rise, 0.0))
+    excess = np.clip(ground - level, 0.0, cap, dtype=np.float32)
     # Trusted as the smooth ground trusts its evidence (kernel weight over DETAIL_CONFIDENCE), at the
     # scale of the openings themselves: a strip of open soil beside the plots tells their ground.
     trust = np.clip(blur(wide.astype(np.float32), 2 * radius) / DETAIL_CONFIDENCE, 0.0, 1.0)
-    lowering = resting * (trust * excess + (1 - trust) * np.float32(rise))
+    lowering = resting * (trust * excess + (1 - trust) * cap)
     return out, np.where(finite, lowering, np.float32(0.0)).astype(np.float32)
 
 
