@@ -111,11 +111,14 @@ def make_trial(folder, *, gap, alley, plot_l, sfm_sigma, soil, seed=0, plot_w=1.
 
 
 def agreement(values, truth):
-    error = values - truth
+    """r, RMSE and bias (cm) of `values` against the ruler: the ruler's own (`measure.ruler.agreement`)."""
+    from cliff_terrain.measure.ruler import agreement as in_metres
+
+    a = in_metres(values, truth)
     return {
-        "r": round(float(np.corrcoef(values, truth)[0, 1]), 3),
-        "rmse_cm": round(float(100 * np.sqrt(np.mean(error**2))), 1),
-        "bias_cm": round(float(100 * np.mean(error)), 1),
+        "r": round(a["r"], 3),
+        "rmse_cm": round(100 * a["rmse_m"], 1),
+        "bias_cm": round(100 * a["bias_m"], 1),
     }
 
 

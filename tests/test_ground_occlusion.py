@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_measured_heights import UTM16N, geokeys, run_cli, write_tiff
+from test_measured_heights import run_cli
 
 from cliff_terrain.io.raster.geotiff import read_surface
 from cliff_terrain.measure.ground import fit_ground
@@ -152,17 +152,17 @@ def test_high_narrow_soil_that_little_of_the_canopy_stands_next_to_passes():
     )
     ridge_soil = ~furrow & ((cols % 40) == 30) & ((rows % 30) < 3)  # specks between the plants
     dsm[ridge_soil] = 0.15
-    out, resting = occlusion_check(
+    out, lowering = occlusion_check(
         dsm, np.zeros_like(dsm), furrow | ridge_soil, pixel_size=0.05, block_px=100, tolerance_m=0.1
     )
     assert out["tested"] and out["rise_m"] > 0.1
     assert out["canopy_from_narrow"] < 0.5 and out["passed"] and out["note"] == ""
-    assert resting[:, 10::40].max() < 0.1  # the furrows' plants rest on the furrows
+    assert lowering[:, 10::40].max() < 0.1  # the furrows' plants rest on the furrows: not lowered
 
 
 def test_a_field_without_narrow_openings_or_without_canopy_is_not_tested():
     dsm = np.zeros((120, 120), np.float32)
-    none, no_resting = occlusion_check(
+    none, no_lowering = occlusion_check(
         dsm, np.zeros_like(dsm), np.ones(dsm.shape, bool), pixel_size=0.05, block_px=100, tolerance_m=0.1
     )
     assert (
@@ -170,7 +170,7 @@ def test_a_field_without_narrow_openings_or_without_canopy_is_not_tested():
         and none["passed"]
         and none["rise_m"] is None
         and none["canopy_m"] is None
-        and no_resting is None
+        and no_lowering is None
     )
     dsm[40:80, 40:80] = 0.5  # one plot in open soil: no soil is narrow
     soil = dsm == 0
@@ -192,16 +192,13 @@ def test_the_real_potato_plots_openings_are_seen():
 def write_occluded_trial(folder):
     """`folder`/ortho.tif and dsm.tif of :func:`occluded_trial` (fill 0.3 m): golden plots on brown
     soil, UTM 16N at 5 cm. Returns the canopy mask."""
-    from cliff_terrain.io.raster.geotiff import write_geotiff
+    from test_segmentation import _write_georeferenced
 
     dsm, _, canopy = occluded_trial(fill=0.3)
     rng = np.random.default_rng(1)
     golden, soil = np.array([200.0, 170.0, 100.0]), np.array([110.0, 90.0, 70.0])
     rgb = np.where(canopy[..., None], golden, soil) * (1 + 0.05 * rng.standard_normal((*canopy.shape, 1)))
-    tie, gsd = (500000.0, 4000000.0), 0.05
-    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
-    write_tiff(folder / "ortho.tif", rgb, scale=(gsd, gsd), tie=tie, keys=geokeys(UTM16N), photometric="rgb")
-    write_geotiff(folder / "dsm.tif", dsm, transform=[[gsd, 0, tie[0]], [0, -gsd, tie[1]]], crs=UTM16N)
+    _write_georeferenced(folder, np.clip(rgb, 0, 255).astype(np.uint8), dsm, 0.05)
     return canopy
 
 
