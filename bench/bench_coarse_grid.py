@@ -1,7 +1,7 @@
 """Benchmark: how the windowed ground's coarse grid moves the plots' heights (issue 40).
 
 A big field's ground is fitted on a grid `factor` times coarser than the orthophoto
-(:func:`cliff_terrain.measure.windowed.ground_factor`). This measures what that costs, on the
+(:func:`cliff_terrain.measure.ground_grid.ground_factor`). This measures what that costs, on the
 shared OpenDroneMap pair tiled n x n with its plots copied onto every tile
 (:func:`bench_scale.build_field`): for each factor, how far the copies of each plot agree (the
 median over the plots of the interquartile range of their copies' p90, as ``bench_scale.py``

@@ -83,10 +83,12 @@ def test_block_means_of_a_photo_are_exact_and_of_heights_within_float_rounding(f
 
 
 def general_bilinear(source, y, x):
-    """The separable bilinear written out with its gathers (NaN in any neighbour gives NaN)."""
+    """The separable bilinear written out with its four gathers, in float64 (NaN in any neighbour
+    gives NaN)."""
     rows, cols = source.shape
+    source = source.astype(np.float64)
     y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
-    fy, fx = (y - y0).astype(np.float32)[:, None], (x - x0).astype(np.float32)[None, :]
+    fy, fx = (y - y0)[:, None], (x - x0)[None, :]
     y1, x1 = np.minimum(y0 + 1, rows - 1), np.minimum(x0 + 1, cols - 1)
     top, bottom = source[y0], source[y1]
     upper = top[:, x0] * (1 - fx) + top[:, x1] * fx
@@ -114,7 +116,8 @@ def test_a_surface_on_the_orthophotos_own_grid_is_read_as_the_bilinear_reads_it(
     np.testing.assert_array_equal(got, expected)
     # Fractional coordinates still take the general path.
     y, x = np.arange(0, 20) * 0.5 + 0.25, np.arange(0, 30) * 0.75
-    np.testing.assert_array_equal(_bilinear(dsm, y, x), general_bilinear(dsm, y, x))
+    # (rows first, then columns, in float32: the same to its rounding)
+    np.testing.assert_allclose(_bilinear(dsm, y, x), general_bilinear(dsm, y, x), rtol=2e-7, atol=0)
 
 
 def test_the_local_quadratic_solved_band_by_band_is_the_weighted_least_squares_fit():

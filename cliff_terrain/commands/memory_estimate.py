@@ -123,7 +123,7 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     """
     from .._validate import check_float
     from ..io.raster.geotiff import COG_TILE, raster_size, read_georeference, write_buffer_bytes
-    from ..measure.windowed import ground_factor
+    from ..measure.ground_grid import ground_factor
 
     cap_gib = check_float("--max-memory", cap_gib, minimum=0.0, strict_minimum=True)
     rows, cols = raster_size(ortho)

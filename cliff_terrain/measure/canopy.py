@@ -21,7 +21,8 @@ from ..io.raster.geotiff import (
     read_surface,
     resample,
 )
-from .ground import DEFAULT_BLOCK_M, canopy_height, fit_ground
+from .ground import DEFAULT_BLOCK_M, canopy_height
+from .ground_grid import fit_on_ground_grid, ground_factor
 
 
 @dataclass
@@ -188,15 +189,17 @@ def measure_canopy(
     else:
         has_data = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
         soil = ~plants if soil is None else np.asarray(soil, dtype=bool)
-        fit = fit_ground(
-            np.where(has_data, surface, np.nan),
-            soil=soil & has_data,
+        # On a grid no finer than 5 cm, as the windowed path's: the ground has no finer detail.
+        ground, sigma, support, check = fit_on_ground_grid(
+            surface,
+            soil=soil,
+            has_data=has_data,
             pixel_size=pixel_size,
+            factor=ground_factor(shape, pixel_size),
             block_m=block_m,
             method=ground_method,
             source=f"{dsm.path!r} over {grid_name}",
         )
-        ground, support, sigma, check = fit.ground, fit.support, fit.sigma, fit.check
         source = "estimated"
     chm = canopy_height(surface, ground)
     if valid is not None:  # where the photo has no data, nothing tells plant from soil

@@ -26,6 +26,7 @@ from ..io.raster.blocks import reduce_blocks
 from ..io.raster.transform import affine_inverse, apply_affine
 from .field_plots import table_columns
 from .ground import canopy_height
+from .ground_grid import reduce_for_ground
 from .window_reading import BLUR_REACH, WindowSources, upsample, windows
 
 _LOCAL = threading.local()
@@ -97,11 +98,12 @@ def coarse_window(task, *, sources=None):
     gives the mean of its bare-soil pixels (the blurred index at or below the threshold) when it
     shows any, so that the plants in a block lift neither the soil it shows nor tint its colour,
     and the mean of its pixels with data when it shows none; a block has data when most of its
-    pixels have (the in-memory grid's nearest pixel). Any soil, not most: the full grid takes every
-    bare pixel as the ground's evidence, and a share threshold aliases with the crop rows (a block
-    holds more or less than half soil depending on where it falls on them): copies of one plot on a
-    tiled trial measured 3.1 cm apart (the interquartile range of their p90) on a 1.6 m grid with
-    "most", 1.9 cm with "any" (`bench/bench_coarse_grid.py`).
+    pixels inside the raster have (:func:`~cliff_terrain.measure.ground_grid.reduce_for_ground`,
+    as in memory). Any soil, not most: the full grid takes every bare pixel as the ground's
+    evidence, and a share threshold aliases with the crop rows (a block holds more or less than
+    half soil depending on where it falls on them): copies of one plot on a tiled trial measured
+    3.1 cm apart (the interquartile range of their p90) on a 1.6 m grid with "most", 1.9 cm with
+    "any" (`bench/bench_coarse_grid.py`).
     """
     from ..photo_heights.vegetation import blurred_index
 
@@ -123,18 +125,15 @@ def coarse_window(task, *, sources=None):
     rgb, valid, vi = rgb[core], valid[core], vi[core]
     bare = valid & (vi <= task.threshold)
     del vi
-    colour, counts = reduce_blocks(rgb, factor, valid)
+    colour, _ = reduce_blocks(rgb, factor, valid)
     colour_bare, n_bare = reduce_blocks(rgb, factor, bare)
-    shows_soil = n_bare > 0
-    colour = np.where(shows_soil[..., None], colour_bare, colour)
-    heights, _ = reduce_blocks(surface, factor, valid & np.isfinite(surface))
-    heights_bare, _ = reduce_blocks(surface, factor, bare & np.isfinite(surface))
-    heights = np.where(shows_soil & np.isfinite(heights_bare), heights_bare, heights)
+    colour = np.where((n_bare > 0)[..., None], colour_bare, colour)
+    heights, _ = reduce_for_ground(surface, bare, valid, factor)  # the in-memory path's reduction
     return {
         "at": at,
         "rgb": np.clip(np.nan_to_num(colour) + 0.5, 0, 255).astype(np.uint8),
-        "valid": counts * 2 > factor * factor,
-        "dsm": heights.astype(np.float32),
+        "valid": np.isfinite(heights),
+        "dsm": heights,
     }
 
 

@@ -7,7 +7,7 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
 1. **The ground, on a coarse grid.** The orthophoto and the DSM (resampled bilinearly onto the
    orthophoto's pixels, as :func:`cliff_terrain.io.raster.geotiff.resample` does) are read window by window
    and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, and no finer
-   than `GROUND_PIXEL_M` (5 cm: the ground's finest detail is a Gaussian of 0.15 m): each
+   than 5 cm (:mod:`cliff_terrain.measure.ground_grid`; the ground's finest detail is a Gaussian of 0.15 m): each
    `factor` x `factor` block gives the mean of its bare-soil pixels when it shows any (the full
    grid's evidence is every bare pixel; a share threshold would alias with the crop rows), or of
    all its pixels with data, so that the plants in a block lift neither the soil it shows nor tint
@@ -41,7 +41,6 @@ photo's threshold here, the segmentation's watershed there).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,6 +50,7 @@ from .._progress import StageClock
 from .._validate import check_float, check_int
 from ..errors import GeoreferenceError
 from .ground import DEFAULT_BLOCK_M, fit_ground
+from .ground_grid import ground_factor
 from .window_reading import WindowSources, windows
 from .window_tasks import (
     OverviewTask,
@@ -62,8 +62,6 @@ from .window_tasks import (
     window_tasks,
 )
 
-#: The ground grid's finest pixel (metres): the ground's finest detail is a Gaussian of 0.15 m.
-GROUND_PIXEL_M = 0.05
 #: Default side (pixels) of a window's core; a multiple of the output's 512-pixel tiles.
 WINDOW_PX = 2048
 #: Default budget of the ground grid (pixels); :mod:`cliff_terrain.commands.memory_estimate` sets
@@ -132,25 +130,6 @@ class WindowedCanopy:
         """Remove the spooled rasters."""
         for spool in self.spools.values():
             spool.close()
-
-
-def ground_factor(shape, pixel_size, *, ground_pixels=GROUND_PIXELS):
-    """Orthophoto pixels per ground-grid pixel: the grid within `ground_pixels`, no finer than 5 cm.
-
-    Examples
-    --------
-    >>> ground_factor((20000, 20000), 0.01, ground_pixels=8_000_000)   # 400 MP at 1 cm: 8 cm
-    8
-    >>> ground_factor((535, 550), 0.2)                                 # a small field: its own grid
-    1
-    """
-    rows, cols = shape
-    by_detail = max(1, math.floor(GROUND_PIXEL_M / pixel_size + 1e-9))
-    by_budget = max(1, math.ceil(math.sqrt(rows * cols / ground_pixels)))
-    factor = max(by_detail, by_budget)
-    while math.ceil(rows / factor) * math.ceil(cols / factor) > ground_pixels:
-        factor += 1
-    return factor
 
 
 def measure_windowed(
