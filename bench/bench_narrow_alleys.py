@@ -18,7 +18,7 @@ For each: ``cliff-terrain heights --ruler`` (r, RMSE, bias of ``height_p90_m`` a
 the uncertainty's coverage, the occlusion check), and the naive baseline's p90 (the DSM's 2nd
 percentile in 5 m blocks, as in ``bench_scale.py``) in the same run.
 
-    python bench/bench_narrow_alleys.py [--folder DIR]
+    python bench/bench_narrow_alleys.py [--folder DIR] [--gsd 0.03] [--layouts open narrow]
 """
 
 from __future__ import annotations
@@ -47,7 +47,9 @@ TIE = (500000.0, 4000000.0)
 CRS = 32616
 
 
-def make_trial(folder, *, gap, alley, plot_l, sfm_sigma, soil, seed=0, plot_w=1.5, n_cols=20, n_ranges=11):
+def make_trial(
+    folder, *, gap, alley, plot_l, sfm_sigma, soil, seed=0, plot_w=1.5, n_cols=20, n_ranges=11, gsd=GSD
+):
     """Write ortho.tif, dsm.tif, plots.geojson and ruler.csv into `folder`; return the plot count."""
     import cv2
 
@@ -57,8 +59,8 @@ def make_trial(folder, *, gap, alley, plot_l, sfm_sigma, soil, seed=0, plot_w=1.
     margin = 2.0
     width = 2 * margin + n_cols * plot_w + (n_cols - 1) * gap
     length = 2 * margin + n_ranges * plot_l + (n_ranges - 1) * alley
-    rows, cols = int(length / GSD), int(width / GSD)
-    y, x = np.mgrid[:rows, :cols].astype(np.float32) * GSD
+    rows, cols = int(length / gsd), int(width / gsd)
+    y, x = np.mgrid[:rows, :cols].astype(np.float32) * gsd
     ground = 100 + 0.01 * x + 0.02 * y + 0.05 * np.sin(2 * np.pi * x / 23) * np.cos(2 * np.pi * y / 31)
     surface = ground.copy()
     canopy = np.zeros((rows, cols), bool)
@@ -67,7 +69,7 @@ def make_trial(folder, *, gap, alley, plot_l, sfm_sigma, soil, seed=0, plot_w=1.
     for i in range(n_ranges):
         for j in range(n_cols):
             x0, y0 = margin + j * (plot_w + gap), margin + i * (plot_l + alley)
-            r0, r1, c0, c1 = int(y0 / GSD), int((y0 + plot_l) / GSD), int(x0 / GSD), int((x0 + plot_w) / GSD)
+            r0, r1, c0, c1 = int(y0 / gsd), int((y0 + plot_l) / gsd), int(x0 / gsd), int((x0 + plot_w) / gsd)
             yy, xx = y[r0:r1, c0:c1] - y0, x[r0:r1, c0:c1] - x0
             edge = np.minimum.reduce([xx, plot_w - xx, yy, plot_l - yy])
             lean = np.clip(0.6 + 0.4 * edge / 0.2, 0.6, 1.0)
@@ -85,19 +87,19 @@ def make_trial(folder, *, gap, alley, plot_l, sfm_sigma, soil, seed=0, plot_w=1.
                 }
             )
             ruler.append((k, float(heights[i, j])))
-    sigma = sfm_sigma / GSD
+    sigma = sfm_sigma / gsd
     dsm = cv2.GaussianBlur(surface.astype(np.float32), (0, 0), sigma)
     lifted = cv2.GaussianBlur(
-        cv2.dilate(surface.astype(np.float32), np.ones((int(0.15 / GSD) | 1,) * 2, np.uint8)), (0, 0), sigma
+        cv2.dilate(surface.astype(np.float32), np.ones((int(0.15 / gsd) | 1,) * 2, np.uint8)), (0, 0), sigma
     )
     dsm = np.maximum(dsm, 0.5 * (dsm + lifted)) + rng.normal(0, 0.01, dsm.shape).astype(np.float32)
     texture = 1 + 0.08 * rng.standard_normal((rows, cols, 1))
     rgb = np.where(canopy[..., None], np.array([205.0, 178.0, 110.0]), np.array(soil, float)) * texture
-    shade = cv2.dilate(canopy.astype(np.uint8), np.ones((int(0.4 / GSD), 1), np.uint8), anchor=(0, 0)).astype(
+    shade = cv2.dilate(canopy.astype(np.uint8), np.ones((int(0.4 / gsd), 1), np.uint8), anchor=(0, 0)).astype(
         bool
     )
     rgb[shade & ~canopy] *= 0.55  # each plot's shadow on the soil north of it
-    transform = [[GSD, 0, TIE[0]], [0, -GSD, TIE[1]]]
+    transform = [[gsd, 0, TIE[0]], [0, -gsd, TIE[1]]]
     write_geotiff(folder / "ortho.tif", np.clip(rgb, 0, 255).astype(np.uint8), transform=transform, crs=CRS)
     write_geotiff(folder / "dsm.tif", dsm.astype(np.float32), transform=transform, crs=CRS)
     doc = {
@@ -122,12 +124,12 @@ def agreement(values, truth):
     }
 
 
-def run_layout(folder, spec):
+def run_layout(folder, spec, gsd=GSD):
     from bench_scale import naive_heights
 
     from cliff_terrain.cli import main as cli
 
-    make_trial(folder, **spec)
+    make_trial(folder, **spec, gsd=gsd)
     files = [str(folder / f) for f in ("ortho.tif", "dsm.tif", "plots.geojson")]
     code = cli(["heights", files[0], "--dsm", files[1], "--plots", files[2], "--ruler", str(folder / "ruler.csv"),
                 "--out", str(folder / "out"), "--no-progress"])  # fmt: skip
@@ -157,14 +159,21 @@ def main(argv=None):
     parser.add_argument(
         "--folder", type=Path, default=None, help="where the trials are written (a temporary folder)"
     )
+    parser.add_argument(
+        "--gsd",
+        type=float,
+        default=GSD,
+        help=f"metres per pixel (default {GSD}; finer ones fit the ground on ~5 cm)",
+    )
+    parser.add_argument("--layouts", nargs="+", default=list(LAYOUTS), choices=list(LAYOUTS))
     args = parser.parse_args(argv)
     base = Path(tempfile.mkdtemp(prefix="bench_narrow_alleys-", dir=args.folder))
     rows = {}
     try:
-        for name, spec in LAYOUTS.items():
+        for name in args.layouts:
             folder = base / name
             folder.mkdir()
-            rows[name] = run_layout(folder, spec)
+            rows[name] = run_layout(folder, LAYOUTS[name], gsd=args.gsd)
             print(name, json.dumps(rows[name]), flush=True)
     finally:
         shutil.rmtree(base, ignore_errors=True)

@@ -113,7 +113,10 @@ def main(argv=None):
         print(f"\nfailed: {', '.join(failed)}; the benchmark page is left as it was", file=sys.stderr)
         return 1
     if not argv:
-        rows = [tuple(row) for figures in results.values() for row in figures.get("rows", [])]
+        # Some benchmarks return their rows of figures as a list (the memory and coarse-grid ones):
+        # only a dict's "rows" go into the page's table.
+        tables = [figures.get("rows", []) for figures in results.values() if isinstance(figures, dict)]
+        rows = [tuple(row) for table_rows in tables for row in table_rows]
         write_page(rows, start_load=start_load)
     return 0
 

@@ -41,7 +41,9 @@ class Canopy:
         Metres per pixel (mean of x and y).
     support : (rows, cols) float32 or None
         With an estimated ground, the share of bare soil around each pixel that carried it
-        (:func:`cliff_terrain.measure.ground_check.ground_support`; 0: interpolated only); None with a DTM.
+        (:func:`cliff_terrain.measure.ground_check.ground_support`; 0: interpolated only), counted
+        on the ground's grid (:mod:`cliff_terrain.measure.ground_grid`: a block that shows bare
+        soil counts whole); None with a DTM.
     sigma : (rows, cols) float32 or None
         With an estimated ground, its standard error in metres at each pixel, from the held-out
         check (:func:`cliff_terrain.measure.ground_check.ground_sigma`); None with a DTM.

@@ -181,9 +181,7 @@ def fit_ground(
     block_m = check_float("block_m", block_m, minimum=0.0, strict_minimum=True)
     detail_m = check_float("detail_m", detail_m, minimum=0.0)
     check_choice("method", method, GROUND_METHODS)
-    # No surface on Earth lies 100 km from sea level: such values are a no-data marker the file did
-    # not declare (OpenDroneMap's -3.4e38), and one of them would drag every lower percentile.
-    finite = np.isfinite(dsm) & (np.abs(dsm) < 1e5)
+    finite = surface_data(dsm)
     if not finite.all():
         dsm = np.where(finite, dsm, np.float32(np.nan))
     if not finite.any():
@@ -281,6 +279,20 @@ def fit_ground(
     return GroundFit(
         ground, chosen, evidence, evidence_source, support, error.astype(np.float32, copy=False), check
     )
+
+
+def surface_data(dsm):
+    """Where `dsm` has a surface: finite, and within 100 km of sea level.
+
+    No surface on Earth lies 100 km from it: such values are a no-data marker the file did not
+    declare (OpenDroneMap's -3.4e38), and one of them would drag every lower percentile.
+
+    Examples
+    --------
+    >>> surface_data(np.array([101.5, np.nan, -3.4e38], np.float32)).tolist()
+    [True, False, False]
+    """
+    return np.isfinite(dsm) & (np.abs(dsm) < 1e5)
 
 
 def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):

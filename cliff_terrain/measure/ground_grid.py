@@ -1,4 +1,4 @@
-"""The grid the ground is fitted on: no finer than 5 cm, whether the orthophoto is read whole or in windows.
+"""The grid the ground is fitted on: whole orthophoto pixels up to 5 cm, in memory as in windows.
 
 The ground's finest detail is a Gaussian of 0.15 m (:data:`cliff_terrain.measure.ground.DEFAULT_DETAIL_M`)
 and its checks work in blocks of metres: a 1 cm orthophoto holds 25 times the pixels the ground
@@ -6,8 +6,8 @@ can use. :func:`fit_on_ground_grid` reduces the surface and its bare-soil eviden
 grid as the windowed path's first pass does (:func:`cliff_terrain.measure.window_tasks.coarse_window`),
 fits the ground there (:func:`cliff_terrain.measure.ground.fit_ground`), and brings the ground, its
 standard error and its support back bilinearly, pixel centres aligned
-(:func:`cliff_terrain.measure.window_reading.upsample`). On a 12 MP orthophoto at 1 cm this took
-the ground from 18 s to about 1 s (``bench/bench_canopy.py``).
+(:func:`cliff_terrain.measure.window_reading.upsample`). On a 12 MP orthophoto at 1 cm the ground,
+CHM and plot table took 18 s on the full grid and 1.75-2.3 s on the 5 cm grid (``bench/bench_canopy.py``).
 """
 
 from __future__ import annotations
@@ -17,15 +17,23 @@ import math
 import numpy as np
 
 from ..io.raster.blocks import reduce_blocks
-from .ground import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, fit_ground, naive_block_ground
+from .ground import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, fit_ground, naive_block_ground, surface_data
 from .window_reading import upsample
 
-#: The ground grid's finest pixel (metres): the ground's finest detail is a Gaussian of 0.15 m.
+#: The ground grid's coarsest pixel (metres) for the detail's sake: the ground's finest detail is
+#: a Gaussian of 0.15 m.
 GROUND_PIXEL_M = 0.05
+#: The ground grid keeps at least this many pixels across: its minimums of bare soil (100 pixels,
+#: :func:`cliff_terrain.measure.ground.check_enough_soil`) count its pixels.
+MIN_GROUND_SIDE = 100
 
 
 def ground_factor(shape, pixel_size, *, ground_pixels=None):
-    """Orthophoto pixels per ground-grid pixel: the grid within `ground_pixels`, no finer than 5 cm.
+    """Orthophoto pixels per ground-grid pixel: the most whole pixels up to 5 cm, within `ground_pixels`.
+
+    The ground grid's pixel is the largest whole multiple of the orthophoto's that is at most
+    `GROUND_PIXEL_M` (a 2.2 cm orthophoto: 4.4 cm; 3.1 cm: its own), on a grid at least
+    `MIN_GROUND_SIDE` pixels across; then coarser if `ground_pixels` asks for it.
 
     Parameters
     ----------
@@ -33,7 +41,7 @@ def ground_factor(shape, pixel_size, *, ground_pixels=None):
     pixel_size : float
         Metres per orthophoto pixel.
     ground_pixels : int, optional
-        Budget of the ground grid (pixels); default none, the 5 cm floor alone.
+        Budget of the ground grid (pixels); default none.
 
     Examples
     --------
@@ -43,9 +51,12 @@ def ground_factor(shape, pixel_size, *, ground_pixels=None):
     5
     >>> ground_factor((535, 550), 0.2)                                  # a small field: its own grid
     1
+    >>> ground_factor((300, 400), 0.005)                                # 1.5 m at 5 mm: 100 across
+    3
     """
     rows, cols = shape
     by_detail = max(1, math.floor(GROUND_PIXEL_M / pixel_size + 1e-9))
+    by_detail = max(1, min(by_detail, min(rows, cols) // MIN_GROUND_SIDE))
     if ground_pixels is None:
         return by_detail
     by_budget = max(1, math.ceil(math.sqrt(rows * cols / ground_pixels)))
@@ -61,27 +72,47 @@ def reduce_for_ground(surface, soil, has_data, factor):
     Each ``factor`` x ``factor`` block gives the mean of its bare-soil pixels when it shows any
     (so that its plants do not lift the soil it shows; any, not most, since a share threshold
     aliases with the crop rows), else the mean of its pixels with data; it has data when most of
-    its pixels inside the raster have. Returns ``(surface, soil)`` of the ground grid, NaN where
-    it has no data.
+    its pixels inside the raster have.
+
+    Returns
+    -------
+    surface : float32 array
+        The ground grid's heights, NaN where it has no data or no finite height.
+    soil, data : bool arrays
+        Blocks that show bare soil (and have data), and blocks with data.
 
     Examples
     --------
     >>> surface = np.array([[0.0, 1.0, 5.0, 5.0], [0.0, 1.0, 5.0, 5.0]], np.float32)
     >>> soil = np.array([[True, False, False, False]] * 2)
-    >>> coarse, bare = reduce_for_ground(surface, soil, np.ones((2, 4), bool), 2)
-    >>> coarse.tolist(), bare.tolist()
-    ([[0.0, 5.0]], [[True, False]])
+    >>> coarse, bare, data = reduce_for_ground(surface, soil, np.ones((2, 4), bool), 2)
+    >>> coarse.tolist(), bare.tolist(), data.tolist()
+    ([[0.0, 5.0]], [[True, False]], [[True, True]])
     """
     finite = has_data & np.isfinite(surface)
-    heights, counts = reduce_blocks(surface, factor, finite)
+    heights, _ = reduce_blocks(surface, factor, finite)
     heights_bare, n_bare = reduce_blocks(surface, factor, soil & finite)
     shows_soil = n_bare > 0
     heights = np.where(shows_soil, heights_bare, heights)
-    zeros = np.zeros(has_data.shape, np.float32)
-    _, with_data = reduce_blocks(zeros, factor, has_data)
-    _, pixels = reduce_blocks(zeros, factor, np.ones(has_data.shape, bool))  # fewer where the edge cuts
-    data = with_data * 2 > pixels
-    return np.where(data, heights, np.nan).astype(np.float32), shows_soil & data
+    data = _block_count(has_data, factor) * 2 > _block_pixels(has_data.shape, factor)
+    return np.where(data, heights, np.nan).astype(np.float32), shows_soil & data, data
+
+
+def _block_count(mask, factor):
+    """True pixels of `mask` in each `factor` x `factor` block (edge blocks cut by the raster)."""
+    rows, cols = mask.shape
+    nr, nc = -(-rows // factor), -(-cols // factor)
+    padded = np.zeros((nr * factor, nc * factor), np.uint16)
+    padded[:rows, :cols] = mask
+    return padded.reshape(nr, factor, nc, factor).sum(axis=(1, 3), dtype=np.int64)
+
+
+def _block_pixels(shape, factor):
+    """Pixels of each block inside a raster of `shape` (fewer in the blocks the edge cuts)."""
+    rows, cols = shape
+    in_rows = np.minimum(factor, rows - np.arange(0, rows, factor))
+    in_cols = np.minimum(factor, cols - np.arange(0, cols, factor))
+    return np.outer(in_rows, in_cols)
 
 
 def fit_on_ground_grid(surface, *, soil, has_data, pixel_size, factor, **options):
@@ -103,6 +134,8 @@ def fit_on_ground_grid(surface, *, soil, has_data, pixel_size, factor, **options
     Returns
     -------
     ground, sigma, support : (rows, cols) float32 arrays
+        The support is the share of the ground grid's blocks around each pixel that carried the
+        ground (a block carries it when it shows bare soil).
     check : dict
         The fit's held-out check, with ``ground_pixel_m``, the ground grid's pixel.
 
@@ -117,29 +150,25 @@ def fit_on_ground_grid(surface, *, soil, has_data, pixel_size, factor, **options
     >>> bool(np.abs(fit[0] - ground).max() < 0.01), fit[3]["ground_pixel_m"]
     (True, 0.05)
     """
+    has_data = has_data & surface_data(surface)
     surface = np.where(has_data, surface, np.float32(np.nan))
     if factor == 1:
         fit = fit_ground(surface, soil=soil & has_data, pixel_size=pixel_size, **options)
         fit.check["ground_pixel_m"] = pixel_size
         return fit.ground, fit.sigma, fit.support, fit.check
-    coarse, bare = reduce_for_ground(surface, soil & has_data, has_data, factor)
+    coarse, bare, _ = reduce_for_ground(surface, soil & has_data, has_data, factor)
     fit = fit_ground(coarse, soil=bare, pixel_size=pixel_size * factor, **options)
     fit.check["ground_pixel_m"] = pixel_size * factor
     rows, cols = surface.shape
-    ground, sigma, support = (
-        upsample(a, factor, 0, rows, 0, cols) for a in (fit.ground, fit.sigma, fit.support)
-    )
-    if fit.method == "baseline":
-        # The baseline is the naive peer, the DSM's own block percentile: taken on the full grid
-        # (a percentile of the reduced grid's soil means is not the peer's), with what the fit
-        # changed on it (the occlusion's lowering) carried over.
+    if options.get("method") == "baseline":
+        # Asked for by name, the baseline is the naive peer, the DSM's own block percentile: on
+        # the full grid (a percentile of the ground grid's soil means is not the peer's). Chosen by
+        # the check, it is the candidate the check measured, on the ground grid.
         block_m = options.get("block_m", DEFAULT_BLOCK_M)
-        peer = naive_block_ground(
+        ground = naive_block_ground(
             surface, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
         )
-        change = fit.ground - naive_block_ground(
-            coarse, pixel_size=pixel_size * factor, block_m=block_m, percentile=BASELINE_PERCENTILE
-        )
-        changed = np.abs(np.nan_to_num(change)).max(initial=0.0) > 0
-        ground = peer + upsample(change, factor, 0, rows, 0, cols) if changed else peer
+    else:
+        ground = upsample(fit.ground, factor, 0, rows, 0, cols)
+    sigma, support = (upsample(a, factor, 0, rows, 0, cols) for a in (fit.sigma, fit.support))
     return ground, sigma, support, fit.check

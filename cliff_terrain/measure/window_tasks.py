@@ -128,11 +128,11 @@ def coarse_window(task, *, sources=None):
     colour, _ = reduce_blocks(rgb, factor, valid)
     colour_bare, n_bare = reduce_blocks(rgb, factor, bare)
     colour = np.where((n_bare > 0)[..., None], colour_bare, colour)
-    heights, _ = reduce_for_ground(surface, bare, valid, factor)  # the in-memory path's reduction
+    heights, _, data = reduce_for_ground(surface, bare, valid, factor)  # the in-memory path's reduction
     return {
         "at": at,
         "rgb": np.clip(np.nan_to_num(colour) + 0.5, 0, 255).astype(np.uint8),
-        "valid": np.isfinite(heights),
+        "valid": data,
         "dsm": heights,
     }
 

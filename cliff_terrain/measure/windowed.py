@@ -6,12 +6,13 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
 
 1. **The ground, on a coarse grid.** The orthophoto and the DSM (resampled bilinearly onto the
    orthophoto's pixels, as :func:`cliff_terrain.io.raster.geotiff.resample` does) are read window by window
-   and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, and no finer
-   than 5 cm (:mod:`cliff_terrain.measure.ground_grid`; the ground's finest detail is a Gaussian of 0.15 m): each
-   `factor` x `factor` block gives the mean of its bare-soil pixels when it shows any (the full
-   grid's evidence is every bare pixel; a share threshold would alias with the crop rows), or of
-   all its pixels with data, so that the plants in a block lift neither the soil it shows nor tint
-   its colour. Plants are the blurred vegetation index above the photo's threshold
+   and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, each as many
+   orthophoto pixels as fit in 5 cm or more (:mod:`cliff_terrain.measure.ground_grid`; the
+   ground's finest detail is a Gaussian of 0.15 m): each `factor` x `factor` block gives the mean
+   of its bare-soil pixels when it shows any (the full grid's evidence is every bare pixel; a share
+   threshold would alias with the crop rows), or of all its pixels with data, so that the plants
+   in a block lift neither the soil it shows nor tint its colour. Plants are the blurred
+   vegetation index above the photo's threshold
    (:func:`cliff_terrain.photo_heights.vegetation.photo_threshold`), taken on an overview of the whole
    orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size). On the
    coarse grid the bare soil (:func:`~cliff_terrain.photo_heights.vegetation.bare_soil`, at that
@@ -327,6 +328,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
             run=fit_run,  # the check's five folds on a remote scheduler's workers, or here
         )
         ground_c, support_c, sigma_c, check = fit.ground, fit.support, fit.sigma, fit.check
+        check["ground_pixel_m"] = pixel_size * factor  # as in memory (:mod:`.ground_grid`)
         del fit, soil_c
     del dsm_c, has_data, plant_c, valid_c
     clock.start("windows")
