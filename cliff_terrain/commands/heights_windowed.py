@@ -168,7 +168,13 @@ def _files(args, result, ruler, window, estimate_gib):
         "ground_support": check.get("support_where_guessed"),
         "ground_check": check or None,
         "ruler": ruler_record or None,
-        "threshold": {"index": result.index, "threshold": result.threshold, "source": "photo (ground grid)"},
+        "threshold": {
+            "index": result.index,
+            "threshold": result.threshold,
+            "source": result.threshold_rule.get("source", "photo"),
+            "note": result.threshold_rule.get("note", ""),
+            "taken_on": "an overview of the orthophoto",
+        },
         "grid": {"rows": rows, "cols": cols, "pixel_size_m": result.pixel_size},
         "windowed": {
             "window_px": window,

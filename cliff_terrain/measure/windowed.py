@@ -14,7 +14,9 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
    in a block lift neither the soil it shows nor tint its colour. Plants are the blurred
    vegetation index above the photo's threshold
    (:func:`cliff_terrain.photo_heights.vegetation.photo_threshold`), taken on an overview of the whole
-   orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size). On the
+   orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size); where the
+   colour leaves it undecided, the DSM sampled at the overview's pixels decides it, as the
+   in-memory segmentation's :func:`~cliff_terrain.photo_heights.segmentation.decide_by_surface` does. On the
    coarse grid the bare soil (:func:`~cliff_terrain.photo_heights.vegetation.bare_soil`, at that
    threshold) is taken as :func:`cliff_terrain.measure.canopy.measure_orthophoto` takes it, and
    :func:`cliff_terrain.measure.ground.fit_ground` fits and checks the ground (its held-out check,
@@ -89,6 +91,9 @@ class WindowedCanopy:
     threshold : float
         The plant/soil threshold of the vegetation index (``index``).
     index : str
+    threshold_rule : dict
+        How the threshold was chosen: ``source`` (:class:`~cliff_terrain.photo_heights.vegetation.ThresholdRule`'s,
+        or ``"photo (dsm)"`` when the surface model decided an undecided photo) and ``note``.
     check : dict or None
         The ground's held-out check (:func:`cliff_terrain.measure.ground.fit_ground`).
     rows : list of dict or None
@@ -126,6 +131,7 @@ class WindowedCanopy:
     valid_pixels: int = 0
     seconds: dict = field(default_factory=dict)
     table_text: dict | None = None
+    threshold_rule: dict = field(default_factory=dict)
 
     def close(self):
         """Remove the spooled rasters."""
@@ -290,7 +296,12 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     # read band by band where the windows are (decoding the photo is most of it).
     overview, valid_o = _overview(sources, run)
     vi_o, index = blurred_index(overview)
-    threshold = float(photo_threshold(vi_o, overview, index=index, valid=valid_o).threshold)
+    rule = photo_threshold(vi_o, overview, index=index, valid=valid_o)
+    threshold, decision = float(rule.threshold), {"source": rule.source, "note": rule.note}
+    if rule.note.startswith("undecided"):
+        # As the in-memory segmentation does (decide_by_surface): a class the colour cannot place
+        # (a senescent canopy, straw) is plant when it stands above the rest on the DSM.
+        threshold, decision = _decide_by_surface(sources, vi_o, valid_o, rule)
     del overview, valid_o, vi_o
     clock.start("ground_grid")
 
@@ -336,7 +347,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     # 2. and 3. The full grid, window by window: CHM, its error and support, and the plots.
     result = WindowedCanopy(
         transform, sources.ortho.crs, shape, pixel_size, "dtm" if sources.dtm else "estimated",
-        factor, threshold, index, check, seconds=seconds,
+        factor, threshold, index, check, seconds=seconds, threshold_rule=decision,
     )  # fmt: skip
     names = ["chm"] + (["chm_err", "ground_support"] if ground_c is not None else [])
     spool = TileSpool if encoded_windows(window) else RasterSpool
@@ -349,6 +360,36 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
         result.close()
         raise
     return result
+
+
+def _decide_by_surface(sources, vi, valid, rule, *, band_rows=256):
+    """The overview's undecided threshold decided by the DSM: ``(threshold, {"source", "note"})``.
+
+    The DSM is sampled at the overview's pixels (every step-th pixel's centre), a band of rows at
+    a time so that only a band of it is read; the photo's own split is taken when the class above
+    it stands above the rest by Ashman's D >= ``COLOUR_SEPARATION``
+    (:func:`~cliff_terrain.photo_heights.segmentation.surface_split`).
+    """
+    from ..photo_heights.segmentation import surface_split
+    from ..photo_heights.vegetation import COLOUR_SEPARATION
+
+    step = sources.ortho.overview_bands()[0]
+    offset = 0.5 - 0.5 * step  # overview pixel j's centre is full pixel j * step's centre
+    grid = sources.ortho.transform @ np.array([[step, 0.0, offset], [0.0, step, offset], [0.0, 0.0, 1.0]])
+    rows, cols = vi.shape
+    surface = np.concatenate(
+        [
+            sources.dsm.on_grid(grid, r0, min(rows, r0 + band_rows), 0, cols)
+            for r0 in range(0, rows, band_rows)
+        ]
+    )
+    upper = rule.threshold if rule.source == "photo (upper valley)" else None
+    split, d = surface_split(vi, surface, valid=valid, upper=upper)
+    if d >= COLOUR_SEPARATION:
+        note = f"decided by the DSM: the class above the photo's own split stands above the rest (D {d:.2f})"
+        return float(split), {"source": "photo (dsm)", "note": note}
+    note = f"{rule.note}; the DSM does not show it standing above the rest either (D {d:.2f})"
+    return float(rule.threshold), {"source": rule.source, "note": note}
 
 
 def _overview(sources, run):
