@@ -7,7 +7,8 @@ the shared OpenDroneMap pair tiled 4 x 4 and 7 x 7, peak RSS by ``/usr/bin/time 
 
 =============================  =========  ===========  ==========  ==========
 orthophoto (MP) / grid (MP)    4.7 / 4.7  14.4 / 14.4  14.4 / 3.9  14.4 / 1.0
-measured peak (GiB)            2.08       5.98         1.79        0.76
+measured peak (GiB), 12-03     2.08       5.98         1.79        0.76
+measured peak (GiB), 12-05     1.31       3.58         1.18        0.76
 estimate (GiB)                 2.45       6.97         2.55        1.33
 =============================  =========  ===========  ==========  ==========
 
@@ -15,7 +16,10 @@ estimate (GiB)                 2.45       6.97         2.55        1.33
 megapixel of each file (the orthophoto, DSM and DTM are decoded whole); the measuring grid about
 0.37 GiB per megapixel (the relief's stages, the ground and its held-out check, the CHM and the
 tables), taken as 0.42 for a margin (measured 2026-12-03 after the checked ground, which raised the
-14.4 MP peak from 5.25 to 5.98 GiB). These are the
+14.4 MP peak from 5.25 to 5.98 GiB). Re-measured 2026-12-05: 0.18 GiB per megapixel of grid (why it
+fell since 12-03 at this 20 cm pixel, where the ground's grid is the orthophoto's own, was not
+traced); the coefficient is kept at 0.42, an estimate 1.75-2.2 times the peak, until it is measured with plots and on finer
+orthophotos, whose ground now has its own, coarser grid. These are the
 current code's figures: re-measure them with the bench when the ground estimator or the readers
 change.
 """

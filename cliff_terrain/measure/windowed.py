@@ -368,9 +368,9 @@ def _decide_by_surface(sources, vi, valid, rule, *, band_rows=256):
     The DSM is sampled at the overview's pixels (every step-th pixel's centre), a band of rows at
     a time so that only a band of it is read; the photo's own split is taken when the class above
     it stands above the rest by Ashman's D >= ``COLOUR_SEPARATION``
-    (:func:`~cliff_terrain.photo_heights.segmentation.surface_split`).
+    (:func:`~cliff_terrain.photo_heights.separation.surface_split`).
     """
-    from ..photo_heights.segmentation import surface_split
+    from ..photo_heights.separation import surface_split
     from ..photo_heights.vegetation import COLOUR_SEPARATION
 
     step = sources.ortho.overview_bands()[0]

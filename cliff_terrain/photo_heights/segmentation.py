@@ -39,7 +39,7 @@ from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
 from .histogram import otsu_threshold
 from .labels import distance_map, inner_boundaries
-from .separation import surface_separation
+from .separation import surface_split
 from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, photo_threshold
 from .watershed import colour_edges, split_regions
 
@@ -308,33 +308,6 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None, index_m
         separation=seg.separation,
         threshold_note=note,
     )
-
-
-def surface_split(vi, surface, *, valid=None, upper=None):
-    """The photo's own split of index `vi` (Otsu's) and how far its upper side stands on `surface`.
-
-    Returns ``(split, d)``: Otsu's threshold of `vi` (on the `valid` pixels) and Ashman's D of the
-    pixels above it against the others on `surface`
-    (:func:`~cliff_terrain.photo_heights.separation.surface_separation`). With `upper` (the
-    threshold of plants already above an upper valley), those plants are left out of both sides:
-    the question is whether the class between the two splits (residue or senescent canopy) stands,
-    and the plants' height must not speak for it. The split decides when ``d >=
-    COLOUR_SEPARATION`` (:func:`decide_by_surface`, and the windowed path's threshold).
-
-    Examples
-    --------
-    >>> rr, cc = np.mgrid[:60, :80]
-    >>> vi = np.where(cc > 40, 0.3, 0.1) + 0.01 * np.sin(rr)     # two classes by the index
-    >>> dsm = 100 + 0.01 * rr + 0.7 * (cc > 40)                   # the upper one stands 0.7 m
-    >>> split, d = surface_split(vi.astype(np.float32), dsm)
-    >>> bool(0.1 < split < 0.3), bool(d >= COLOUR_SEPARATION)
-    (True, True)
-    """
-    split = otsu_threshold(vi if valid is None else vi[valid])
-    between = valid
-    if upper is not None:
-        between = ~(vi > upper) if valid is None else valid & ~(vi > upper)
-    return split, surface_separation(surface, vi > split, valid=between)
 
 
 def vegetation_mask(

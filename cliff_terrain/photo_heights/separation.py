@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from .._validate import check_rgb
+from .histogram import otsu_threshold
 
 
 def chroma_map(image):
@@ -121,3 +122,31 @@ def surface_separation(surface, upper, *, valid=None):
     s_hi = max(1.4826 * float(np.median(np.abs(hi - m_hi))), 0.01)
     s_lo = max(1.4826 * float(np.median(np.abs(lo - m_lo))), 0.01)
     return float(np.sqrt(2.0) * (m_hi - m_lo) / np.hypot(s_hi, s_lo))
+
+
+def surface_split(vi, surface, *, valid=None, upper=None):
+    """The photo's own split of index `vi` (Otsu's) and how far its upper side stands on `surface`.
+
+    Returns ``(split, d)``: Otsu's threshold of `vi` (on the `valid` pixels) and Ashman's D of the
+    pixels above it against the others on `surface`
+    (:func:`~cliff_terrain.photo_heights.separation.surface_separation`). With `upper` (the
+    threshold of plants already above an upper valley), those plants are left out of both sides:
+    the question is whether the class between the two splits (residue or senescent canopy) stands,
+    and the plants' height must not speak for it. The split decides when ``d >=
+    COLOUR_SEPARATION`` (2) (:func:`~cliff_terrain.photo_heights.segmentation.decide_by_surface`, and the
+    windowed path's threshold).
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[:60, :80]
+    >>> vi = np.where(cc > 40, 0.3, 0.1) + 0.01 * np.sin(rr)     # two classes by the index
+    >>> dsm = 100 + 0.01 * rr + 0.7 * (cc > 40)                   # the upper one stands 0.7 m
+    >>> split, d = surface_split(vi.astype(np.float32), dsm)
+    >>> bool(0.1 < split < 0.3), bool(d >= 2)
+    (True, True)
+    """
+    split = otsu_threshold(vi if valid is None else vi[valid])
+    between = valid
+    if upper is not None:
+        between = ~(vi > upper) if valid is None else valid & ~(vi > upper)
+    return split, surface_separation(surface, vi > split, valid=between)
