@@ -141,3 +141,12 @@ def test_the_baseline_chosen_by_the_check_is_the_candidate_it_measured(field, mo
     coarse, _, _ = reduce_for_ground(np.where(has, dsm, np.nan), ~plants & has, has, 5)
     expected = naive_block_ground(coarse, pixel_size=0.05, percentile=2.0)
     np.testing.assert_array_equal(ground, upsample(expected, 5, 0, *dsm.shape[:1], 0, dsm.shape[1]))
+
+
+def test_a_block_leaves_out_an_undeclared_no_data_marker():
+    # The windowed path's first pass reduces the DSM as read (coarse_window): a -3.4e38 pixel the
+    # file does not declare is left out of its block's mean, not averaged into it.
+    surface = np.array([[1.0, 3.0, 2.0, 2.0], [-3.4e38, 2.0, 2.0, 2.0]], np.float32)
+    coarse, _, data = reduce_for_ground(surface, np.zeros((2, 4), bool), np.ones((2, 4), bool), 2)
+    np.testing.assert_array_equal(coarse, [[2.0, 2.0]])
+    assert data.all()

@@ -191,7 +191,7 @@ def measure_canopy(
     else:
         has_data = np.isfinite(surface) if valid is None else np.isfinite(surface) & np.asarray(valid, bool)
         soil = ~plants if soil is None else np.asarray(soil, dtype=bool)
-        # On a grid no finer than 5 cm, as the windowed path's: the ground has no finer detail.
+        # On a grid of about 5 cm (.ground_grid), as the windowed path's: the ground has no finer detail.
         ground, sigma, support, check = fit_on_ground_grid(
             surface,
             soil=soil,

@@ -77,7 +77,8 @@ def reduce_for_ground(surface, soil, has_data, factor):
     Returns
     -------
     surface : float32 array
-        The ground grid's heights, NaN where it has no data or no finite height.
+        The ground grid's heights, NaN where it has no data or no surface
+        (:func:`~cliff_terrain.measure.ground.surface_data`).
     soil, data : bool arrays
         Blocks that show bare soil (and have data), and blocks with data.
 
@@ -89,7 +90,7 @@ def reduce_for_ground(surface, soil, has_data, factor):
     >>> coarse.tolist(), bare.tolist(), data.tolist()
     ([[0.0, 5.0]], [[True, False]], [[True, True]])
     """
-    finite = has_data & np.isfinite(surface)
+    finite = has_data & surface_data(surface)  # an undeclared -3.4e38 would swamp its block's mean
     heights, _ = reduce_blocks(surface, factor, finite)
     heights_bare, n_bare = reduce_blocks(surface, factor, soil & finite)
     shows_soil = n_bare > 0

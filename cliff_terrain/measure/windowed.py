@@ -52,7 +52,7 @@ from .._dask import in_order
 from .._progress import StageClock
 from .._validate import check_float, check_int
 from ..errors import GeoreferenceError
-from .ground import DEFAULT_BLOCK_M, fit_ground
+from .ground import DEFAULT_BLOCK_M, fit_ground, surface_data
 from .ground_grid import ground_factor
 from .window_reading import WindowSources, windows
 from .window_tasks import (
@@ -383,6 +383,7 @@ def _decide_by_surface(sources, vi, valid, rule, *, band_rows=256):
             for r0 in range(0, rows, band_rows)
         ]
     )
+    surface[~surface_data(surface)] = np.nan  # an undeclared -3.4e38 would tilt the ground's plane
     upper = rule.threshold if rule.source == "photo (upper valley)" else None
     split, d = surface_split(vi, surface, valid=valid, upper=upper)
     if d >= COLOUR_SEPARATION:
