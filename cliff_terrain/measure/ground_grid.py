@@ -7,7 +7,7 @@ grid as the windowed path's first pass does (:func:`cliff_terrain.measure.window
 fits the ground there (:func:`cliff_terrain.measure.ground.fit_ground`), and brings the ground, its
 standard error and its support back bilinearly, pixel centres aligned
 (:func:`cliff_terrain.measure.window_reading.upsample`). On a 12 MP orthophoto at 1 cm the ground,
-CHM and plot table took 18 s on the full grid and 1.75-2.3 s on the 5 cm grid (``bench/bench_canopy.py``).
+CHM and plot table took 18 s on the full grid and 1.6-2.3 s on the 5 cm grid (``bench/bench_canopy.py``).
 """
 
 from __future__ import annotations
