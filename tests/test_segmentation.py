@@ -623,13 +623,10 @@ def _write_georeferenced(folder, rgb, dsm, gsd):
     write_geotiff(folder / "dsm.tif", np.asarray(dsm, np.float32), transform=transform, crs=UTM16N)
 
 
-@pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "straw-on-the-ground"])
-def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
-    # Yellow canopy (or straw: the same colour) over brown soil, a georeferenced orthophoto and its
-    # DSM on a sloping field. Canopy stands 0.7 m above the ground and rises; straw lies on it and
-    # stays flat, still undecided.
-    from cliff_terrain.evaluate.mask_quality import mask_agreement
-
+def _write_yellow_field(folder, stands):
+    """`folder`/ortho.tif and dsm.tif: yellow canopy (or straw: the same colour) in strips over brown
+    soil on a sloping field, 2 cm pixels; the canopy stands 0.7 m, straw lies on the ground.
+    Returns the strips' mask."""
     rng = np.random.default_rng(4)
     rows, cols, gsd = 200, 300, 0.02
     truth = np.zeros((rows, cols), bool)
@@ -641,7 +638,18 @@ def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
     rr, cc = np.mgrid[:rows, :cols]
     ground = 250.0 + 0.004 * rr + 0.002 * cc  # a slope of 0.2-0.1 m/m... across the field
     dsm = ground + (0.7 * truth if stands else 0.0) + rng.normal(0, 0.01, (rows, cols))
-    _write_georeferenced(tmp_path, rgb, dsm, gsd)
+    _write_georeferenced(folder, rgb, dsm, gsd)
+    return truth
+
+
+@pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "straw-on-the-ground"])
+def test_a_dsm_decides_what_colour_cannot(tmp_path, stands):
+    # Yellow canopy (or straw: the same colour) over brown soil, a georeferenced orthophoto and its
+    # DSM on a sloping field. Canopy stands 0.7 m above the ground and rises; straw lies on it and
+    # stays flat, still undecided.
+    from cliff_terrain.evaluate.mask_quality import mask_agreement
+
+    truth = _write_yellow_field(tmp_path, stands)
 
     alone = build_relief(tmp_path / "ortho.tif", mesh=None)
     assert alone.params["threshold"]["note"].startswith("undecided:")

@@ -531,22 +531,11 @@ def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, sta
     # test_segmentation's yellow canopy (or straw) over brown soil, the colour undecided: measured
     # in windows, the DSM decides as the in-memory segmentation does. A standing canopy is plant
     # (cover near the truth's share, its CHM about its 0.7 m); straw on the ground stays soil.
-    from test_segmentation import _write_georeferenced
+    from test_segmentation import _write_yellow_field
 
     from cliff_terrain.cli import main as cli
 
-    rng = np.random.default_rng(4)
-    rows, cols, gsd = 200, 300, 0.02
-    truth = np.zeros((rows, cols), bool)
-    for c0 in range(20, cols, 70):
-        truth[:, c0 : c0 + 40] = True
-    soil, straw = np.array([120.0, 85.0, 60.0]), np.array([200.0, 175.0, 95.0])
-    rgb = np.where(truth[..., None], straw, soil) * (1 + 0.05 * rng.standard_normal((rows, cols, 1)))
-    rr, cc = np.mgrid[:rows, :cols]
-    dsm = (
-        250.0 + 0.004 * rr + 0.002 * cc + (0.7 * truth if stands else 0.0) + rng.normal(0, 0.01, (rows, cols))
-    )
-    _write_georeferenced(tmp_path, np.clip(rgb, 0, 255).astype(np.uint8), dsm, gsd)
+    truth = _write_yellow_field(tmp_path, stands)
     out = tmp_path / "out"
     code = cli(["heights", str(tmp_path / "ortho.tif"), "--dsm", str(tmp_path / "dsm.tif"), "--windowed",
                 "--window", "64", "--out", str(out), "--no-progress"])  # fmt: skip
