@@ -108,3 +108,44 @@ def test_an_orthophoto_past_the_readers_limit_is_refused_whatever_the_grid(tmp_p
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert f"'{path}' is 12300 x 12300 pixels (151 MP), more than the 150 MP" in done.stderr
     assert "even with --max-size or --resolution; crop or split it" in done.stderr
+
+
+def test_both_suggestions_fit_where_a_coarser_grid_would_need_more(tmp_path):
+    # The ground's grid gathers whole pixels up to 5 cm: a 1.24 cm grid's ground is 4.96 cm, a
+    # 1.3 cm grid's 3.9 cm, so a coarser grid can need more memory. Under every cap of a range
+    # that crosses such steps, both the --max-size and the --resolution (rounded up to the
+    # millimetre) that the message suggests are measured.
+    import numpy as np
+    import tifffile
+
+    from cliff_terrain.commands.heights import grid_size
+    from cliff_terrain.commands.memory_estimate import check_heights_memory, grid_estimate
+    from cliff_terrain.errors import CliffTerrainError
+    from cliff_terrain.io.raster.geotiff import geotiff_tags
+
+    def empty(path, side, pixel, bands, dtype):
+        transform = np.array([[pixel, 0, 500_000.0], [0, -pixel, 5_000_000.0], [0, 0, 1]])
+        shape, tile = (side, side, bands)[: 2 + (bands > 1)], (1024, 1024, bands)[: 2 + (bands > 1)]
+        with tifffile.TiffWriter(path) as tif:
+            tif.write(
+                shape=shape, dtype=dtype, tile=(1024, 1024), compression="zlib",
+                extratags=geotiff_tags(transform, 32616),
+                data=iter([np.zeros(tile, dtype)] * (-(-side // 1024)) ** 2),
+            )  # fmt: skip
+        return path
+
+    ortho = empty(tmp_path / "ortho.tif", 4000, 0.007, 3, np.uint8)  # 16 MP at 7 mm
+    dsm = empty(tmp_path / "dsm.tif", 1334, 0.021, 1, np.float32)
+    files = [16.0, 1334**2 / 1e6]
+    assert grid_estimate(ortho, files, 2154)[0] > grid_estimate(ortho, files, 2264)[0]  # 1.3 and 1.24 cm
+    for cap in np.arange(1.10, 1.30, 0.01):
+        with pytest.raises(CliffTerrainError) as refused:
+            check_heights_memory(ortho, (dsm,), longest=4000, cap_gib=cap)
+        size, resolution = re.search(
+            r"use --max-size (\d+) or --resolution ([\d.]+)", str(refused.value)
+        ).groups()
+        assert check_heights_memory(ortho, (dsm,), longest=int(size), cap_gib=cap) <= cap
+        longest = grid_size(ortho, resolution=float(resolution))
+        assert (
+            longest <= int(size) and check_heights_memory(ortho, (dsm,), longest=longest, cap_gib=cap) <= cap
+        )

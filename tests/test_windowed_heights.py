@@ -360,16 +360,31 @@ def test_the_ground_is_upsampled_with_its_pixel_centres_aligned():
     np.testing.assert_array_equal(upsample(coarse, 4, 5, 9, 3, 14), full[5:9, 3:14])
 
 
+def empty_raster(path, rows, cols, pixel, *, bands=3, dtype=np.uint8):
+    """A tiled GeoTIFF header of `rows` x `cols` pixels whose tiles are zeros (they compress to
+    nothing and are never decoded by the memory plan)."""
+    transform = np.array([[pixel, 0, 500_000.0], [0, -pixel, 5_000_000.0], [0, 0, 1]])
+    shape = (rows, cols, bands) if bands > 1 else (rows, cols)
+    tile = np.zeros((1024, 1024, bands) if bands > 1 else (1024, 1024), dtype)
+    with tifffile.TiffWriter(path, bigtiff=True) as tif:
+        tif.write(
+            shape=shape, dtype=dtype, tile=(1024, 1024), compression="zlib",
+            extratags=geotiff_tags(transform, 32616),
+            data=iter([tile] * (-(-rows // 1024) * -(-cols // 1024))),
+        )  # fmt: skip
+    return path
+
+
 def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_path):
-    from cliff_terrain.commands.memory_estimate import heights_estimate, windowed_plan
+    from cliff_terrain.cli import build_parser
+    from cliff_terrain.commands.heights import _windowed
+    from cliff_terrain.commands.memory_estimate import grid_estimate, windowed_plan
     from cliff_terrain.io.raster.geotiff import raster_size
 
     synthetic_trial(tmp_path)
     ortho, dsm, plots = tmp_path / "ortho.tif", tmp_path / "dsm.tif", tmp_path / "plots.geojson"
     rows, cols = raster_size(ortho)
-    in_memory = heights_estimate([rows * cols / 1e6] * 2, rows * cols / 1e6)
     _, needs = windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=4.0)
-    assert needs < in_memory  # at 1 cm the ground's grid (5 cm) is 25 times smaller
     # A second thread holds its own window and readers: counted.
     _, needs_two = windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=4.0, threads=2)
     assert needs_two > needs
@@ -383,14 +398,35 @@ def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_pa
     # Parallelism that does not fit beside that ground is refused, naming what to change.
     with pytest.raises(CliffTerrainError, match="use fewer --workers"):
         windowed_plan(ortho, (dsm,), window_px=2100, cap_gib=needs + 0.05, workers=8)
-    # A cap between the two: measured in windows, not refused.
-    cap = round((needs + in_memory) / 2, 3)
-    out, table, stdout = run_heights(
-        tmp_path, "auto", "--max-memory", str(cap), ortho=ortho, dsm=dsm, plots=plots
+    # A 100 MP orthophoto at 1 cm (its DSM at 3 cm): in memory it would pass the 4 GiB cap, in
+    # windows it fits, and that is how it is measured; asked for on a coarser grid, in memory.
+    big = empty_raster(tmp_path / "big.tif", 10_000, 10_000, 0.01)
+    big_dsm = empty_raster(tmp_path / "big_dsm.tif", 3334, 3334, 0.03, bands=1, dtype=np.float32)
+    in_memory, *_ = grid_estimate(big, [100.0, 3334**2 / 1e6], 10_000)
+    _, in_windows = windowed_plan(big, (big_dsm,), window_px=2048, cap_gib=4.0)
+    assert in_windows < 4.0 < in_memory
+    parser = build_parser()
+
+    def decide(*extra):
+        return _windowed(
+            parser.parse_args(["heights", str(big), "--dsm", str(big_dsm), "--out", "x", *extra])
+        )
+
+    assert decide() is True
+    assert decide("--max-size", "6000") is False
+    # A 12 MP orthophoto at 1 cm is measured in memory (its regions.csv with it): its ground is
+    # fitted on 5 cm, so its estimate is 1.6 GiB (1.22 GiB measured, bench/bench_heights_memory.py).
+    small = empty_raster(tmp_path / "small.tif", 3000, 4000, 0.01)
+    small_dsm = empty_raster(tmp_path / "small_dsm.tif", 1000, 1334, 0.03, bands=1, dtype=np.float32)
+    assert (
+        _windowed(parser.parse_args(["heights", str(small), "--dsm", str(small_dsm), "--out", "x"])) is False
     )
+    assert grid_estimate(small, [12.0, 1.334], 4000)[0] == pytest.approx(1.58, abs=0.01)
+    # The synthetic field in windows when asked: the summary's estimate and ground grid.
+    out, table, stdout = run_heights(tmp_path, "auto", "--windowed", ortho=ortho, dsm=dsm, plots=plots)
     assert "windowed (1 windows)" in stdout and len(table) == 54
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["windowed"]["memory_estimate_gib"] <= cap
+    assert needs <= summary["windowed"]["memory_estimate_gib"] <= 4.0  # one window or more at once
     assert summary["windowed"]["ground_grid_pixel_m"] == pytest.approx(0.05)
     assert not (out / "regions.csv").exists()
     # Under what even the windowed run needs: refused in one line, with the in-memory run's advice.

@@ -57,7 +57,6 @@ REACHED_THROUGH = {
         ("test_pipeline.py", "test_bad_input_table.py"),
         "every entry point's checks",
     ),
-    "cliff_terrain.commands.heights": (("test_measured_heights.py",), "`cliff-terrain heights`"),
     "cliff_terrain.commands.index_options": (("test_multispectral.py",), "`--indices` of the commands"),
     "cliff_terrain.commands.plots": (
         ("test_plot_grid.py", "test_plot_fit_reference.py"),

@@ -2,26 +2,29 @@
 never kills it: a run that would pass the cap is refused in one line naming the file and the
 ``--max-size`` / ``--resolution`` that would fit.
 
-The estimate is linear in the pixels, with coefficients measured (``bench/bench_heights_memory.py``,
-the shared OpenDroneMap pair tiled 4 x 4 and 7 x 7, peak RSS by ``/usr/bin/time -v``) and rounded up:
+The estimate is linear in the pixels, with coefficients measured (``bench/bench_heights_memory.py``:
+the shared OpenDroneMap pair at 20 cm tiled 4 x 4 and 7 x 7, whose ground grid is the measuring
+grid, and the synthetic 1 cm field with 80 plots, whose ground is fitted on 5 cm; peak RSS, VmHWM)
+and rounded up. Peaks measured 2026-12-06 (Intel Xeon, 2 cores), and the estimate:
 
-=============================  =========  ===========  ==========  ==========
-orthophoto (MP) / grid (MP)    4.7 / 4.7  14.4 / 14.4  14.4 / 3.9  14.4 / 1.0
-measured peak (GiB), 12-03     2.08       5.98         1.79        0.76
-measured peak (GiB), 12-05     1.31       3.58         1.18        0.76
-estimate (GiB)                 2.45       6.97         2.55        1.33
-=============================  =========  ===========  ==========  ==========
+=====================================  =========  ==========  =========  ===========  ==========  ==========  ==========  ==========
+orthophoto / grid / ground grid (MP)   4.7/4.7/   4.7/3.9/    4.7/1.0/   14.4/14.4/   14.4/3.9/   14.4/1.0/   12/12/      27/27/
+                                       4.7        3.9         1.0        14.4         3.9         1.0         0.48        1.08
+measured peak (GiB)                    1.30       1.12        0.41       3.58         1.18        0.76        1.22        2.50
+estimate (GiB)                         1.65       1.44        0.71       4.52         1.89        1.16        1.58        3.23
+=====================================  =========  ==========  =========  ===========  ==========  ==========  ==========  ==========
 
-(issue 40 measured 25.7 MP: 9.66 GB; the estimate says 10.8 GiB). Reading costs about 0.03 GiB per
-megapixel of each file (the orthophoto, DSM and DTM are decoded whole); the measuring grid about
-0.37 GiB per megapixel (the relief's stages, the ground and its held-out check, the CHM and the
-tables), taken as 0.42 for a margin (measured 2026-12-03 after the checked ground, which raised the
-14.4 MP peak from 5.25 to 5.98 GiB). Re-measured 2026-12-05: 0.18 GiB per megapixel of grid (why it
-fell since 12-03 at this 20 cm pixel, where the ground's grid is the orthophoto's own, was not
-traced); the coefficient is kept at 0.42, an estimate 1.75-2.2 times the peak, until it is measured with plots and on finer
-orthophotos, whose ground now has its own, coarser grid. These are the
-current code's figures: re-measure them with the bench when the ground estimator or the readers
-change.
+Reading costs about 0.03 GiB per megapixel of each file (the orthophoto, DSM and DTM are decoded
+whole). The measuring grid costs about 0.05 GiB per megapixel (the relief's stages, the CHM and the
+tables; the fine field's two sizes) and the ground's grid about 0.12 (fitting the ground and its
+held-out check; the pair's peaks less the grid's share), taken as 0.07 and 0.18: the estimate is
+1.27-1.75 times the peak. Until 2026-12-05 one coefficient, 0.42 per megapixel of the grid, counted
+the ground at the measuring grid's size: it estimated 5.7 GiB for the 12 MP field (measured 1.22),
+so the command measured it in windows (without regions.csv) or refused it with --indices. The 20 cm
+pair's peaks fell from 2.08 and 5.98 GiB (2026-12-03) to 1.31 and 3.58 when the ground detail's
+local quadratics were solved a band of rows at a time instead of holding their normal equations for
+every pixel (36 float32 planes, 2 GiB at 14.4 MP). Re-measure with the bench when the ground
+estimator, the segmentation or the readers change.
 """
 
 from __future__ import annotations
@@ -34,12 +37,46 @@ from ..errors import CliffTerrainError
 DEFAULT_CAP_GIB = 4.0
 BASE_GIB = 0.25  # the interpreter, NumPy, OpenCV and the readers' libraries
 READ_GIB_PER_MP = 0.03  # decoding a file, per megapixel of the file
-GRID_GIB_PER_MP = 0.42  # measuring, per megapixel of the grid (0.37 measured)
+GRID_GIB_PER_MP = 0.07  # measuring, per megapixel of the grid (0.05 measured)
+GROUND_FIT_GIB_PER_MP = 0.18  # fitting the ground, per megapixel of its grid (0.12 measured)
 
 
-def heights_estimate(files_mp, grid_mp):
-    """Peak memory (GiB) of a heights run reading files of `files_mp` megapixels on a grid of `grid_mp`."""
-    return BASE_GIB + READ_GIB_PER_MP * sum(files_mp) + GRID_GIB_PER_MP * grid_mp
+def heights_estimate(files_mp, grid_mp, ground_mp=None):
+    """Peak memory (GiB) of a heights run reading files of `files_mp` megapixels on a grid of
+    `grid_mp`, its ground fitted on a grid of `ground_mp` (default `grid_mp`: pixels of 5 cm or more
+    are their own ground grid, :func:`cliff_terrain.measure.ground_grid.ground_factor`).
+
+    Examples
+    --------
+    >>> round(heights_estimate([12.0, 1.3], 12.0, 0.48), 2)    # 12 MP at 1 cm, its DSM at 3 cm
+    1.58
+    """
+    ground_mp = grid_mp if ground_mp is None else ground_mp
+    return (
+        BASE_GIB
+        + READ_GIB_PER_MP * sum(files_mp)
+        + GRID_GIB_PER_MP * grid_mp
+        + GROUND_FIT_GIB_PER_MP * ground_mp
+    )
+
+
+def grid_estimate(ortho, files_mp, longest):
+    """(estimate GiB, grid columns, grid rows) of measuring `ortho` on a grid `longest` pixels across."""
+    from ..io.raster.geotiff import raster_size, read_georeference
+
+    transform, _ = read_georeference(ortho)
+    return _grid_estimate(raster_size(ortho), math.hypot(*transform[:2, 0]), files_mp, longest)
+
+
+def _grid_estimate(shape, pixel, files_mp, longest):
+    from ..measure.ground_grid import ground_factor
+
+    rows, cols = shape
+    scale = min(1.0, longest / max(rows, cols))
+    g_rows, g_cols = max(1, round(rows * scale)), max(1, round(cols * scale))
+    factor = ground_factor((g_rows, g_cols), pixel / scale)
+    ground_mp = math.ceil(g_rows / factor) * math.ceil(g_cols / factor) / 1e6
+    return heights_estimate(files_mp, g_rows * g_cols / 1e6, ground_mp), g_cols, g_rows
 
 
 def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
@@ -62,28 +99,41 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
             "crop or split it and its DSM into parts"
         )
     files_mp = [rows * cols / 1e6] + [math.prod(raster_size(p)) / 1e6 for p in others if p is not None]
-    scale = min(1.0, longest / max(rows, cols))
-    grid_mp = rows * cols * scale**2 / 1e6
-    estimate = heights_estimate(files_mp, grid_mp)
+    estimate, g_cols, g_rows = grid_estimate(ortho, files_mp, longest)
     if estimate <= cap_gib:
         return estimate
-    room = cap_gib - heights_estimate(files_mp, 0.0)
     what = (
-        f"measuring {str(ortho)!r} ({cols} x {rows} pixels) on a {round(cols * scale)} x {round(rows * scale)} grid "
+        f"measuring {str(ortho)!r} ({cols} x {rows} pixels) on a {g_cols} x {g_rows} grid "
         f"needs about {estimate:.1f} GiB, more than the {cap_gib:g} GiB cap"
     )
-    if room <= GRID_GIB_PER_MP * 0.01:
+    if cap_gib - heights_estimate(files_mp, 0.0) <= (GRID_GIB_PER_MP + GROUND_FIT_GIB_PER_MP) * 0.01:
         raise CliffTerrainError(
             f"{what}, and reading the files alone needs {heights_estimate(files_mp, 0.0):.1f} GiB; crop or "
             "split the orthophoto and its DSM, or raise --max-memory"
         )
-    fit = math.floor(max(rows, cols) * math.sqrt(room / GRID_GIB_PER_MP / (rows * cols / 1e6)))
     transform, _ = read_georeference(ortho)
     pixel = math.hypot(*transform[:2, 0])
-    metres = pixel * max(rows, cols) / fit
+    longest_o = max(rows, cols)
+
+    def fits(side):
+        return _grid_estimate((rows, cols), pixel, files_mp, side)[0] <= cap_gib
+
+    # The longest side that fits, by bisection. The estimate is not monotonic in the side: the
+    # ground's grid gathers whole pixels up to 5 cm, so a 2.6 cm grid is its own ground grid while
+    # a 2.4 cm one gathers 2 x 2. Both suggestions must fit, so the side steps down until the
+    # coarser grid that --resolution gives (its metres rounded up to the millimetre) fits too.
+    low, high = 1, min(longest, longest_o)
+    while high - low > 1:
+        middle = (low + high) // 2
+        low, high = (middle, high) if fits(middle) else (low, middle)
+    fit = low
+    while True:
+        metres = math.ceil(pixel * longest_o / fit * 1000) / 1000
+        if fit <= 1 or (fits(fit) and fits(min(longest_o, round(longest_o * pixel / metres)))):
+            break
+        fit -= 1
     raise CliffTerrainError(
-        f"{what}; use --max-size {fit} or --resolution {math.ceil(metres * 1000) / 1000:g} (metres per pixel), "
-        "or raise --max-memory"
+        f"{what}; use --max-size {fit} or --resolution {metres:g} (metres per pixel), or raise --max-memory"
     )
 
 
