@@ -18,12 +18,13 @@ Reading costs about 0.03 GiB per megapixel of each file (the orthophoto, DSM and
 whole). The measuring grid costs about 0.05 GiB per megapixel (the relief's stages, the CHM and the
 tables; the fine field's two sizes) and the ground's grid about 0.12 (fitting the ground and its
 held-out check; the pair's peaks less the grid's share), taken as 0.07 and 0.18: the estimate is
-1.27-1.75 times the peak. Until 2026-12-05 one coefficient, 0.42 per megapixel of the grid, counted
+1.26-1.75 times the peak. Until 2026-12-05 one coefficient, 0.42 per megapixel of the grid, counted
 the ground at the measuring grid's size: it estimated 5.7 GiB for the 12 MP field (measured 1.22),
 so the command measured it in windows (without regions.csv) or refused it with --indices. The 20 cm
-pair's peaks fell from 2.08 and 5.98 GiB (2026-12-03) to 1.31 and 3.58 when the ground detail's
-local quadratics were solved a band of rows at a time instead of holding their normal equations for
-every pixel (36 float32 planes, 2 GiB at 14.4 MP). Re-measure with the bench when the ground
+pair's peaks fell from 2.08 and 5.98 GiB (measured the morning of 2026-12-03) to 1.31 and 3.58 after
+the ground detail's local quadratics were solved a band of rows at a time (that evening) instead of
+holding their normal equations for every pixel: 42 float32 planes, 2.3 GiB at 14.4 MP, about what
+the peak fell by. Re-measure with the bench when the ground
 estimator, the segmentation or the readers change.
 """
 
