@@ -32,7 +32,7 @@ if str(ROOT) not in sys.path:
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from cliff_terrain.commands.memory_estimate import grid_estimate  # noqa: E402
-from cliff_terrain.io.raster.geotiff import read_surface, write_geotiff  # noqa: E402
+from cliff_terrain.io.raster.geotiff import geotiff_tags, read_surface, write_geotiff  # noqa: E402
 
 PAIR = ROOT.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 RUN = (
@@ -67,24 +67,19 @@ def tiled_pair(n, folder):
 def fine_field(size, folder):
     """The synthetic 1 cm field of bench/bench_canopy.py as files: orthophoto, DSM (3 cm), plots."""
     import tifffile
-    from bench_canopy import CRS, GSD, field
+    from bench_canopy import CRS, field
 
     from cliff_terrain.io.vector.plot_files import write_plots
 
     cols, rows = (int(v) for v in size.lower().split("x"))
-    image, _, dsm, _, plots, _ = field(rows, cols)
-    extratags = [
-        (33550, 12, 3, (GSD, GSD, 0.0), True),
-        (33922, 12, 6, (0, 0, 0, 500000.0, 4000000.0, 0), True),
-        (34735, 3, 16, (1, 1, 0, 3, 1024, 0, 1, 1, 3072, 0, 1, CRS, 3076, 0, 1, 9001), True),
-    ]
+    image, transform, dsm, _, plots, _ = field(rows, cols)
     tifffile.imwrite(
         folder / "ortho.tif",
         image,
         photometric="rgb",
         compression="zlib",
         tile=(256, 256),
-        extratags=extratags,
+        extratags=geotiff_tags(transform, CRS),
     )
     write_geotiff(
         folder / "dsm.tif",

@@ -182,3 +182,24 @@ def pytest_unconfigure(config):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)
+
+
+def empty_raster(path, rows, cols, pixel, *, bands=3, dtype="uint8"):
+    """A tiled GeoTIFF (EPSG:32616, `pixel` metres) of `rows` x `cols` pixels whose tiles are zeros:
+    they compress to nothing, so a header of any size is written in a moment and read by the
+    commands' size checks and memory plans without decoding."""
+    import numpy as np
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags
+
+    transform = np.array([[pixel, 0, 500_000.0], [0, -pixel, 5_000_000.0], [0, 0, 1]])
+    shape = (rows, cols, bands) if bands > 1 else (rows, cols)
+    tile = np.zeros((1024, 1024, bands) if bands > 1 else (1024, 1024), dtype)
+    with tifffile.TiffWriter(path, bigtiff=True) as tif:
+        tif.write(
+            shape=shape, dtype=dtype, tile=(1024, 1024), compression="zlib",
+            extratags=geotiff_tags(transform, 32616),
+            data=iter([tile] * (-(-rows // 1024) * -(-cols // 1024))),
+        )  # fmt: skip
+    return path

@@ -12,7 +12,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import REPO
+from conftest import REPO, empty_raster
 
 from cliff_terrain.commands.memory_estimate import GRID_GIB_PER_MP, heights_estimate
 from cliff_terrain.io.raster.geotiff import raster_size
@@ -75,22 +75,12 @@ def test_the_default_cap_lets_the_shared_pair_through_and_refuses_a_nonsense_cap
 
 def test_an_orthophoto_past_the_readers_limit_is_refused_whatever_the_grid(tmp_path):
     # A 151 MP header with almost no data (tiles of zeros compress to nothing; never decoded).
-    import numpy as np
-    import tifffile
 
     from cliff_terrain.io.photo import MAX_PIXELS
 
     rows, cols = 12_300, 12_300
     assert rows * cols > MAX_PIXELS
-    path = tmp_path / "huge.tif"
-    keys = (1, 1, 0, 3, 1024, 0, 1, 1, 3072, 0, 1, 32616, 3076, 0, 1, 9001)
-    geo = [(33550, 12, 3, (0.01, 0.01, 0.0), True), (33922, 12, 6, (0, 0, 0, 5e5, 4e6, 0), True)]
-    with tifffile.TiffWriter(path, bigtiff=True) as tif:
-        tif.write(
-            shape=(rows, cols, 3), dtype=np.uint8, tile=(1024, 1024), compression="zlib",
-            extratags=[*geo, (34735, 3, len(keys), keys, True)],
-            data=iter([np.zeros((1024, 1024, 3), np.uint8)] * (((rows + 1023) // 1024) ** 2)),
-        )  # fmt: skip
+    path = empty_raster(tmp_path / "huge.tif", rows, cols, 0.01)
     command = [
         sys.executable,
         "-m",
@@ -116,26 +106,13 @@ def test_both_suggestions_fit_where_a_coarser_grid_would_need_more(tmp_path):
     # that crosses such steps, both the --max-size and the --resolution (rounded up to the
     # millimetre) that the message suggests are measured.
     import numpy as np
-    import tifffile
 
     from cliff_terrain.commands.heights import grid_size
     from cliff_terrain.commands.memory_estimate import check_heights_memory, grid_estimate
     from cliff_terrain.errors import CliffTerrainError
-    from cliff_terrain.io.raster.geotiff import geotiff_tags
 
-    def empty(path, side, pixel, bands, dtype):
-        transform = np.array([[pixel, 0, 500_000.0], [0, -pixel, 5_000_000.0], [0, 0, 1]])
-        shape, tile = (side, side, bands)[: 2 + (bands > 1)], (1024, 1024, bands)[: 2 + (bands > 1)]
-        with tifffile.TiffWriter(path) as tif:
-            tif.write(
-                shape=shape, dtype=dtype, tile=(1024, 1024), compression="zlib",
-                extratags=geotiff_tags(transform, 32616),
-                data=iter([np.zeros(tile, dtype)] * (-(-side // 1024)) ** 2),
-            )  # fmt: skip
-        return path
-
-    ortho = empty(tmp_path / "ortho.tif", 4000, 0.007, 3, np.uint8)  # 16 MP at 7 mm
-    dsm = empty(tmp_path / "dsm.tif", 1334, 0.021, 1, np.float32)
+    ortho = empty_raster(tmp_path / "ortho.tif", 4000, 4000, 0.007)  # 16 MP at 7 mm
+    dsm = empty_raster(tmp_path / "dsm.tif", 1334, 1334, 0.021, bands=1, dtype=np.float32)
     files = [16.0, 1334**2 / 1e6]
     assert grid_estimate(ortho, files, 2154)[0] > grid_estimate(ortho, files, 2264)[0]  # 1.3 and 1.24 cm
     for cap in np.arange(1.10, 1.30, 0.01):

@@ -24,7 +24,7 @@ import sys
 import numpy as np
 import pytest
 import tifffile
-from conftest import REPO
+from conftest import REPO, empty_raster
 
 from cliff_terrain.build import build_relief
 from cliff_terrain.errors import CliffTerrainError
@@ -358,21 +358,6 @@ def test_the_ground_is_upsampled_with_its_pixel_centres_aligned():
     np.testing.assert_allclose(full, 4 * v[:, None] + u[None, :], atol=1e-6)
     # A window's values are the whole grid's, to the bit.
     np.testing.assert_array_equal(upsample(coarse, 4, 5, 9, 3, 14), full[5:9, 3:14])
-
-
-def empty_raster(path, rows, cols, pixel, *, bands=3, dtype=np.uint8):
-    """A tiled GeoTIFF header of `rows` x `cols` pixels whose tiles are zeros (they compress to
-    nothing and are never decoded by the memory plan)."""
-    transform = np.array([[pixel, 0, 500_000.0], [0, -pixel, 5_000_000.0], [0, 0, 1]])
-    shape = (rows, cols, bands) if bands > 1 else (rows, cols)
-    tile = np.zeros((1024, 1024, bands) if bands > 1 else (1024, 1024), dtype)
-    with tifffile.TiffWriter(path, bigtiff=True) as tif:
-        tif.write(
-            shape=shape, dtype=dtype, tile=(1024, 1024), compression="zlib",
-            extratags=geotiff_tags(transform, 32616),
-            data=iter([tile] * (-(-rows // 1024) * -(-cols // 1024))),
-        )  # fmt: skip
-    return path
 
 
 def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_path):

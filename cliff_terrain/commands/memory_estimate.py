@@ -100,7 +100,9 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
             "crop or split it and its DSM into parts"
         )
     files_mp = [rows * cols / 1e6] + [math.prod(raster_size(p)) / 1e6 for p in others if p is not None]
-    estimate, g_cols, g_rows = grid_estimate(ortho, files_mp, longest)
+    transform, _ = read_georeference(ortho)
+    pixel = math.hypot(*transform[:2, 0])
+    estimate, g_cols, g_rows = _grid_estimate((rows, cols), pixel, files_mp, longest)
     if estimate <= cap_gib:
         return estimate
     what = (
@@ -112,8 +114,6 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
             f"{what}, and reading the files alone needs {heights_estimate(files_mp, 0.0):.1f} GiB; crop or "
             "split the orthophoto and its DSM, or raise --max-memory"
         )
-    transform, _ = read_georeference(ortho)
-    pixel = math.hypot(*transform[:2, 0])
     longest_o = max(rows, cols)
 
     def fits(side):
