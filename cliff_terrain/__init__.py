@@ -8,8 +8,7 @@ or too old library is reported by name and version (:class:`DependencyError`) ra
 whichever module happens to import it first. The exceptions are always at hand.
 """
 
-import importlib
-
+from ._lazy import attach
 from .errors import CliffTerrainError, DependencyError, ImageReadError, ImageTooLargeError
 
 __version__ = "0.1.0"
@@ -47,27 +46,18 @@ _EXPORTS = {
 }
 
 
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+def _check_required():
     from ._deps import check_required
 
     check_required()
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
 
 
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
-
-
+__getattr__, __dir__, _lazy_names = attach(__name__, _EXPORTS, before=_check_required)
 __all__ = [
     "CliffTerrainError",
     "DependencyError",
     "ImageReadError",
     "ImageTooLargeError",
     "__version__",
-    *sorted(_EXPORTS),
+    *_lazy_names,
 ]

@@ -24,7 +24,18 @@ STAGES = (
     "season",
     "commands",
 )
-SHARED = {"errors", "settings", "_validate", "_deps", "_memory", "_threads", "_dask", "_progress", "params"}
+SHARED = {
+    "errors",
+    "settings",
+    "_validate",
+    "_deps",
+    "_lazy",
+    "_memory",
+    "_threads",
+    "_dask",
+    "_progress",
+    "params",
+}
 
 
 def _modules():

@@ -4,6 +4,7 @@ never the photo, naming the package and its version."""
 from __future__ import annotations
 
 import importlib
+import json
 import subprocess
 import sys
 import textwrap
@@ -248,6 +249,27 @@ def test_package_import_is_cheap_and_lists_its_public_names():
         assert getattr(cliff_terrain, name) is not None
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         cliff_terrain.nonexistent  # noqa: B018
+
+def test_the_io_packages_load_a_module_only_when_one_of_its_names_is_used():
+    # cliff_terrain._lazy.attach, shared by the package and its io subpackages: importing
+    # io.raster imports none of its modules; asking for MosaicReader imports mosaic (and what it
+    # needs) but not bands; dir() lists the lazy names; an unknown name is an AttributeError.
+    code = (
+        "import sys, json\nimport cliff_terrain.io.raster as r, cliff_terrain.io.vector as v\n"
+        "loaded = lambda: sorted(m for m in ('cliff_terrain.io.raster.mosaic', 'cliff_terrain.io.raster.bands',"
+        " 'cliff_terrain.io.vector.plot_polygons') if m in sys.modules)\n"
+        "before = loaded()\nreader = r.MosaicReader\nafter = loaded()\n"
+        "try:\n    r.nonexistent\n    missing = ''\nexcept AttributeError as e:\n    missing = str(e)\n"
+        "print(json.dumps([before, after, 'MosaicReader' in dir(r), 'MosaicReader' in vars(r),"
+        " sorted(v.__all__) == v.__all__ and 'PlotSet' in v.__all__, missing]))"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    before, after, listed, kept, all_names, missing = json.loads(run.stdout.strip().splitlines()[-1])
+    assert before == []
+    assert after == ["cliff_terrain.io.raster.mosaic"]
+    assert listed and kept and all_names
+    assert missing == "module 'cliff_terrain.io.raster' has no attribute 'nonexistent'"
+
 
 
 @pytest.mark.blender

@@ -27,6 +27,10 @@ MAP = TESTS / "TEST_MAP.md"
 
 # Modules no test file imports, with the test files that run them and the way in.
 REACHED_THROUGH = {
+    "cliff_terrain._lazy": (
+        ("test_environment.py",),
+        "the package's and the io subpackages' names, loaded when first used",
+    ),
     "cliff_terrain.commands.cluster_options": (
         ("test_windowed_heights.py", "test_season.py"),
         "`heights --windowed --workers/--scheduler`, `season --scheduler`",

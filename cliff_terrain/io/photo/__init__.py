@@ -6,7 +6,7 @@ and tifffile's (:class:`TiffPhoto`) for the TIFF orthophotos Pillow cannot read.
 the names below are the package's API, loaded when first used.
 """
 
-import importlib
+from ..._lazy import attach
 
 # Public name -> the module of this package that defines it (imported when the name is first used).
 _EXPORTS = {
@@ -24,18 +24,4 @@ _EXPORTS = {
     "read_metadata": "_open",
 }
 
-
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
-
-
-__all__ = sorted(_EXPORTS)
+__getattr__, __dir__, __all__ = attach(__name__, _EXPORTS)
