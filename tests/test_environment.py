@@ -250,6 +250,7 @@ def test_package_import_is_cheap_and_lists_its_public_names():
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         cliff_terrain.nonexistent  # noqa: B018
 
+
 def test_the_io_packages_load_a_module_only_when_one_of_its_names_is_used():
     # cliff_terrain._lazy.attach, shared by the package and its io subpackages: importing
     # io.raster imports none of its modules; asking for MosaicReader imports mosaic (and what it
@@ -269,7 +270,6 @@ def test_the_io_packages_load_a_module_only_when_one_of_its_names_is_used():
     assert after == ["cliff_terrain.io.raster.mosaic"]
     assert listed and kept and all_names
     assert missing == "module 'cliff_terrain.io.raster' has no attribute 'nonexistent'"
-
 
 
 @pytest.mark.blender

@@ -345,6 +345,29 @@ def test_rasterize_matches_point_in_polygon():
     np.testing.assert_array_equal(labels, brute_force_labels(plots, transform, (120, 150)))
 
 
+def test_every_plot_burnt_at_once_matches_point_in_polygon_where_plots_overlap_or_leave_the_grid():
+    # All plots are filled together (one scanline pass): overlapping plots (the later wins),
+    # two-part plots, plots partly and wholly off the grid. (No vertex on a pixel-centre line:
+    # matplotlib's test is ambiguous on the boundary, where the half-open rule decides.)
+    pytest.importorskip("matplotlib", reason="matplotlib (a dev requirement) is the independent reference")
+    rng = np.random.default_rng(11)
+    polygons = []
+    for k in range(60):
+        cx, cy, r = rng.uniform(-10, 110), rng.uniform(-90, 10), rng.uniform(1, 12)
+        angles = np.sort(rng.uniform(0, 2 * np.pi, int(rng.integers(3, 10))))
+        outer = np.column_stack([cx + r * np.cos(angles), cy + r * np.sin(angles)])
+        rings = [outer]
+        if k % 4 == 1:
+            rings.append(outer + rng.uniform(-20, 20, 2))  # a second part
+        polygons.append(rings)
+    polygons.append([np.array([[500.0, -500.0], [510.0, -500.0], [510.0, -510.0]])])  # off the grid
+    plots = PlotSet(polygons, [{}] * len(polygons), (), None, "")
+    transform = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0, 0, 1]])
+    labels = rasterize_plots(plots, transform=transform, shape=(80, 100))
+    assert len(np.unique(labels)) > 40
+    np.testing.assert_array_equal(labels, brute_force_labels(plots, transform, (80, 100)))
+
+
 def test_plot_table_equals_direct_computation():
     img, dsm, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=4)
     gsd = 0.02

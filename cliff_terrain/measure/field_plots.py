@@ -83,49 +83,62 @@ def rasterize_plots(plots, *, transform, shape):
     rows, cols = (int(n) for n in shape)
     if rows < 1 or cols < 1:
         raise CliffTerrainError(f"`shape` must be (rows, cols) >= 1, got {tuple(shape)}")
-    inverse = affine_inverse(t)
+    rings = [ring for polygon in plots.polygons for ring in polygon]
+    owners = np.repeat(np.arange(1, len(plots.polygons) + 1), [len(polygon) for polygon in plots.polygons])
     labels = np.zeros((rows, cols), dtype=np.int32)
-    for index, rings in enumerate(plots.polygons):
-        pixel_rings = [apply_affine(inverse, ring) for ring in rings]
-        inside = _fill_even_odd(pixel_rings, rows, cols)
-        if inside is not None:
-            r0, c0, block = inside
-            labels[r0 : r0 + block.shape[0], c0 : c0 + block.shape[1]][block] = index + 1
+    if rings:
+        # One affine over every vertex (row by row, the numbers each ring alone gives).
+        points = apply_affine(affine_inverse(t), np.concatenate(rings))
+        sizes = np.fromiter((len(ring) for ring in rings), np.int64, len(rings))
+        _burn_even_odd(labels, points, sizes, owners)
     return labels
 
 
-def _fill_even_odd(rings, rows, cols):
-    """Pixels whose centre is inside `rings` (pixel coordinates): (row0, col0, bool block) or None."""
-    points = np.concatenate(rings)
-    # Rows and columns whose centres (index + 0.5) can lie inside the bounding box.
-    r0 = max(0, math.ceil(points[:, 1].min() - 0.5))
-    r1 = min(rows - 1, math.floor(points[:, 1].max() - 0.5))
-    c0 = max(0, math.ceil(points[:, 0].min() - 0.5))
-    c1 = min(cols - 1, math.floor(points[:, 0].max() - 0.5))
-    if r1 < r0 or c1 < c0:
-        return None
-    starts = points
-    ends = np.concatenate([np.roll(ring, -1, axis=0) for ring in rings])
-    x0, y0, x1, y1 = starts[:, 0], starts[:, 1], ends[:, 0], ends[:, 1]
-    # Each edge crosses the centre lines y = r + 0.5 with min(y0, y1) <= y < max(y0, y1) (half-open,
-    # so a vertex on a centre line counts once).
-    low, high = np.minimum(y0, y1), np.maximum(y0, y1)
-    first = np.maximum(np.ceil(low - 0.5), r0).astype(np.int64)
-    last = np.minimum(np.ceil(high - 0.5) - 1, r1).astype(np.int64)
+def _burn_even_odd(labels, points, sizes, owners):
+    """Burn into `labels` the pixels whose centre is inside each owner's rings (even-odd rule over
+    all its rings; a higher owner wins where they overlap), every plot at once.
+
+    `points` (pixel coordinates) holds the rings one after another, `sizes` their vertex counts,
+    `owners` the label (>= 1, non-decreasing) of each ring. A scanline fill: each edge crosses the
+    centre lines y = r + 0.5 with min(y0, y1) <= y < max(y0, y1) (half-open, so a vertex on a
+    centre line counts once); a crossing at x starts or ends a run at column floor(x - 0.5) + 1;
+    each owner's crossings on a row, sorted, pair into runs. Per plot (a Python loop of numpy
+    calls) this took 45 ms for a window's 460 plots, a tenth of the windows' work.
+    """
+    rows, cols = labels.shape
+    x, y = points[:, 0], points[:, 1]
+    starts = np.cumsum(sizes) - sizes
+    # Each owner's vertices are contiguous: its first ring's first vertex starts its group.
+    first_ring = np.flatnonzero(np.r_[True, owners[1:] != owners[:-1]])
+    at = starts[first_ring]
+    # Rows and columns whose centres (index + 0.5) can lie inside each owner's bounding box.
+    r0 = np.maximum(0, np.ceil(np.minimum.reduceat(y, at) - 0.5))
+    r1 = np.minimum(rows - 1, np.floor(np.maximum.reduceat(y, at) - 0.5))
+    c0 = np.maximum(0, np.ceil(np.minimum.reduceat(x, at) - 0.5)).astype(np.int64)
+    c1 = np.minimum(cols - 1, np.floor(np.maximum.reduceat(x, at) - 0.5)).astype(np.int64)
+    group = np.repeat(np.repeat(np.arange(len(at)), np.diff(np.r_[first_ring, len(sizes)])), sizes)
+    following = np.arange(len(x)) + 1
+    wraps = following == np.repeat(starts + sizes, sizes)
+    following[wraps] = np.repeat(starts, sizes)[wraps]
+    x1, y1 = x[following], y[following]
+    first = np.maximum(np.ceil(np.minimum(y, y1) - 0.5), r0[group]).astype(np.int64)
+    last = np.minimum(np.ceil(np.maximum(y, y1) - 0.5) - 1, r1[group]).astype(np.int64)
     counts = np.maximum(last - first + 1, 0)
-    edge = np.repeat(np.arange(len(x0)), counts)
+    counts[((r1 < r0) | (c1 < c0))[group]] = 0  # an owner wholly off the grid
+    edge = np.repeat(np.arange(len(x)), counts)
     if edge.size == 0:
-        return None
-    offsets = np.arange(edge.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    row = first[edge] + offsets
-    yc = row + 0.5
-    x = x0[edge] + (yc - y0[edge]) * (x1[edge] - x0[edge]) / (y1[edge] - y0[edge])
-    # A crossing at x toggles every centre to its right: the first such column is floor(x - 0.5) + 1.
-    col = np.clip(np.floor(x - 0.5).astype(np.int64) + 1, c0, c1 + 1)
-    height, width = r1 - r0 + 1, c1 - c0 + 2
-    toggles = np.bincount((row - r0) * width + (col - c0), minlength=height * width).reshape(height, width)
-    block = (np.cumsum(toggles[:, :-1], axis=1) & 1).astype(bool)
-    return r0, c0, block
+        return
+    row = first[edge] + (np.arange(edge.size) - np.repeat(np.cumsum(counts) - counts, counts))
+    cross = x[edge] + (row + 0.5 - y[edge]) * (x1[edge] - x[edge]) / (y1[edge] - y[edge])
+    owner = group[edge]
+    col = np.clip(np.floor(cross - 0.5).astype(np.int64) + 1, c0[owner], c1[owner] + 1)
+    order = np.lexsort((col, row, owner))  # an even number of crossings per owner and row
+    owner, row, col = owner[order][0::2], row[order][0::2], col[order]
+    begin, length = col[0::2], col[1::2] - col[0::2]
+    pixels = np.repeat(row * cols + begin - (np.cumsum(length) - length), length) + np.arange(
+        int(length.sum())
+    )
+    np.maximum.at(labels.reshape(-1), pixels, np.repeat(owners[first_ring][owner].astype(np.int32), length))
 
 
 def plot_table(
