@@ -345,11 +345,19 @@ def test_rasterize_matches_point_in_polygon():
     np.testing.assert_array_equal(labels, brute_force_labels(plots, transform, (120, 150)))
 
 
-def test_every_plot_burnt_at_once_matches_point_in_polygon_where_plots_overlap_or_leave_the_grid():
-    # All plots are filled together (one scanline pass): overlapping plots (the later wins),
-    # two-part plots, plots partly and wholly off the grid. (No vertex on a pixel-centre line:
-    # matplotlib's test is ambiguous on the boundary, where the half-open rule decides.)
+@pytest.mark.parametrize("batch_pixels", [None, 60])
+def test_every_plot_burnt_at_once_matches_point_in_polygon_where_plots_overlap_or_leave_the_grid(
+    batch_pixels, monkeypatch
+):
+    # All plots are filled together (one scanline pass), or in batches of plots (a large grid's):
+    # overlapping plots (the later wins, across batches too), two-part plots, plots partly and
+    # wholly off the grid. (No vertex on a pixel-centre line: matplotlib's test is ambiguous on the
+    # boundary, where the half-open rule decides.)
     pytest.importorskip("matplotlib", reason="matplotlib (a dev requirement) is the independent reference")
+    if batch_pixels is not None:
+        import cliff_terrain.measure.field_plots as field_plots
+
+        monkeypatch.setattr(field_plots, "_BURN_PIXELS", batch_pixels)
     rng = np.random.default_rng(11)
     polygons = []
     for k in range(60):

@@ -86,12 +86,32 @@ def rasterize_plots(plots, *, transform, shape):
     rings = [ring for polygon in plots.polygons for ring in polygon]
     owners = np.repeat(np.arange(1, len(plots.polygons) + 1), [len(polygon) for polygon in plots.polygons])
     labels = np.zeros((rows, cols), dtype=np.int32)
-    if rings:
-        # One affine over every vertex (row by row, the numbers each ring alone gives).
-        points = apply_affine(affine_inverse(t), np.concatenate(rings))
-        sizes = np.fromiter((len(ring) for ring in rings), np.int64, len(rings))
-        _burn_even_odd(labels, points, sizes, owners)
+    if not rings:
+        return labels
+    # One affine over every vertex (row by row, the numbers each ring alone gives).
+    points = apply_affine(affine_inverse(t), np.concatenate(rings))
+    sizes = np.fromiter((len(ring) for ring in rings), np.int64, len(rings))
+    starts = np.cumsum(sizes) - sizes
+    # Plots in batches of about _BURN_PIXELS pixels of bounding box (a plot's rings together), so
+    # that the runs' pixel indices stay a few tens of MB however much of a large grid the plots cover.
+    span_y = np.maximum.reduceat(points[:, 1], starts) - np.minimum.reduceat(points[:, 1], starts)
+    span_x = np.maximum.reduceat(points[:, 0], starts) - np.minimum.reduceat(points[:, 0], starts)
+    area = np.minimum(span_y + 1, rows) * np.minimum(span_x + 1, cols)
+    batch = (np.cumsum(area) // _BURN_PIXELS).astype(np.int64)
+    batch = batch[np.searchsorted(owners, owners)]  # each ring in its plot's first ring's batch
+    for r0, r1 in zip(*_runs(batch), strict=True):
+        v0, v1 = starts[r0], starts[r1 - 1] + sizes[r1 - 1]
+        _burn_even_odd(labels, points[v0:v1], sizes[r0:r1], owners[r0:r1])
     return labels
+
+
+_BURN_PIXELS = 1 << 22
+
+
+def _runs(values):
+    """(starts, ends) of the runs of equal neighbours in `values` (non-empty)."""
+    cut = np.flatnonzero(values[1:] != values[:-1]) + 1
+    return np.r_[0, cut], np.r_[cut, len(values)]
 
 
 def _burn_even_odd(labels, points, sizes, owners):
