@@ -148,3 +148,25 @@ def test_the_local_quadratic_solved_band_by_band_is_the_weighted_least_squares_f
         normal[np.arange(1, 6), np.arange(1, 6)] += ground_detail._QUADRATIC_DAMPING * max(normal[0, 0], 1e-6)
         normal[0, 0] += 1e-9
         assert estimate[r, c] == pytest.approx(np.linalg.solve(normal, right)[0], abs=2e-4)
+
+
+@pytest.mark.parametrize("sigma", [0.3, 1.2, 4.0])
+def test_the_local_quadratic_in_chunks_on_threads_gives_the_whole_grids_numbers(monkeypatch, sigma):
+    # The moments are filtered a chunk of rows at a time with a halo, the chunks on threads: the
+    # same bits as one chunk of the whole grid in one thread (the zero border only at its edges).
+    from cliff_terrain import _threads
+    from cliff_terrain.measure import ground_detail
+
+    rng = np.random.default_rng(2)
+    rows, cols = 157, 90
+    values = rng.normal(size=(rows, cols)).astype(np.float32)
+    weight = (rng.random((rows, cols)) < 0.3).astype(np.float32)
+    monkeypatch.setattr(ground_detail, "_BAND_PIXELS", 10**9)
+    monkeypatch.setattr(_threads, "MAX_THREADS", 1)
+    whole = _local_quadratic(values, weight, sigma)
+    monkeypatch.setattr(ground_detail, "_BAND_PIXELS", 2 * cols)  # bands of 2 rows, many chunks
+    monkeypatch.setattr(_threads, "MAX_THREADS", 4)
+    monkeypatch.setattr(_threads, "usable_cores", lambda: 4)
+    chunked = _local_quadratic(values, weight, sigma)
+    for got, expected in zip(chunked, whole, strict=True):
+        np.testing.assert_array_equal(got, expected)

@@ -116,7 +116,7 @@ def _runs(values):
 
 def _burn_even_odd(labels, points, sizes, owners):
     """Burn into `labels` the pixels whose centre is inside each owner's rings (even-odd rule over
-    all its rings; a higher owner wins where they overlap), every plot at once.
+    all its rings; a higher owner wins where they overlap), every plot of the batch at once.
 
     `points` (pixel coordinates) holds the rings one after another, `sizes` their vertex counts,
     `owners` the label (>= 1, non-decreasing) of each ring. A scanline fill: each edge crosses the
@@ -129,14 +129,14 @@ def _burn_even_odd(labels, points, sizes, owners):
     x, y = points[:, 0], points[:, 1]
     starts = np.cumsum(sizes) - sizes
     # Each owner's vertices are contiguous: its first ring's first vertex starts its group.
-    first_ring = np.flatnonzero(np.r_[True, owners[1:] != owners[:-1]])
+    first_ring, after_last = _runs(owners)
     at = starts[first_ring]
     # Rows and columns whose centres (index + 0.5) can lie inside each owner's bounding box.
     r0 = np.maximum(0, np.ceil(np.minimum.reduceat(y, at) - 0.5))
     r1 = np.minimum(rows - 1, np.floor(np.maximum.reduceat(y, at) - 0.5))
     c0 = np.maximum(0, np.ceil(np.minimum.reduceat(x, at) - 0.5)).astype(np.int64)
     c1 = np.minimum(cols - 1, np.floor(np.maximum.reduceat(x, at) - 0.5)).astype(np.int64)
-    group = np.repeat(np.repeat(np.arange(len(at)), np.diff(np.r_[first_ring, len(sizes)])), sizes)
+    group = np.repeat(np.repeat(np.arange(len(at)), after_last - first_ring), sizes)
     following = np.arange(len(x)) + 1
     wraps = following == np.repeat(starts + sizes, sizes)
     following[wraps] = np.repeat(starts, sizes)[wraps]
