@@ -570,3 +570,32 @@ def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, sta
     else:
         assert code == 0 and record["source"] == "band"
         assert "the DSM does not show it" in record["note"] and summary["cover"] < 0.05
+
+
+def test_the_plots_pixel_rings_and_boxes_are_each_plots_own(tmp_path):
+    # Made for every plot at once: each ring and box as the plot alone gives them (one affine per
+    # ring, its vertices' min and max), for hand-drawn plots, a plot in two parts and empty plots.
+    from cliff_terrain.io.raster.geotiff import read_georeference
+    from cliff_terrain.io.raster.transform import affine_inverse, apply_affine
+    from cliff_terrain.measure.window_tasks import _plot_boxes
+
+    need_plots()
+    drawn = read_plots(PAIR_PLOTS)
+    transform, _ = read_georeference(ORTHO)
+    two_parts = [drawn.polygons[0][0], drawn.polygons[1][0] + 3.0]
+    polygons = [[], *drawn.polygons, two_parts, []]
+    plots = PlotSet(polygons, [{}] * len(polygons), (), drawn.crs, "")
+    rings, boxes = _plot_boxes(plots, transform)
+    inverse = affine_inverse(transform)
+    assert len(rings) == len(boxes) == len(polygons)
+    for polygon, got, box in zip(polygons, rings, boxes, strict=True):
+        expected = [apply_affine(inverse, ring) for ring in polygon]
+        assert len(got) == len(expected)
+        for a, b in zip(got, expected, strict=True):
+            np.testing.assert_array_equal(a, b)
+        if polygon:
+            vertices = np.concatenate(expected)
+            np.testing.assert_array_equal(box, [*vertices.min(axis=0), *vertices.max(axis=0)])
+        else:
+            assert np.isnan(box).all()
+    assert _plot_boxes(PlotSet([], [], (), None, ""), transform)[1].shape == (0, 4)

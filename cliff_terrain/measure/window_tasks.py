@@ -148,15 +148,23 @@ def coarse_tasks(sources, shape, transform, factor, index, threshold, window):
 
 def _plot_boxes(plots, transform):
     """Each plot's rings in global pixel coordinates and its bounding box (c0, r0, c1, r1), pixels."""
-    inverse = affine_inverse(transform)
-    rings = [[apply_affine(inverse, ring) for ring in polygon] for polygon in plots.polygons]
-    boxes = np.array(
-        [
-            (*np.concatenate(r).min(axis=0), *np.concatenate(r).max(axis=0)) if r else (np.nan,) * 4
-            for r in rings
-        ],
-        np.float64,
-    ).reshape(-1, 4)
+    counts = np.fromiter(map(len, plots.polygons), np.int64, len(plots.polygons))
+    flat = [ring for polygon in plots.polygons for ring in polygon]
+    boxes = np.full((len(counts), 4), np.nan)
+    if not flat:
+        return [[] for _ in counts], boxes
+    # One affine over every vertex (row by row, the numbers each ring alone gives) and one min and
+    # max per plot: a loop of numpy calls per plot took 1.7 s of 130 000 plots, twice a run.
+    sizes = np.fromiter(map(len, flat), np.int64, len(flat))
+    points = apply_affine(affine_inverse(transform), np.concatenate(flat))
+    pieces = np.split(points, np.cumsum(sizes)[:-1])
+    first = np.cumsum(counts) - counts
+    rings = [pieces[k : k + n] for k, n in zip(first.tolist(), counts.tolist(), strict=True)]
+    vertices = np.add.reduceat(sizes, first[counts > 0]) if (counts > 0).any() else np.zeros(0, np.int64)
+    has = np.flatnonzero(counts > 0)[vertices > 0]  # plots with at least one vertex
+    starts = (np.cumsum(vertices) - vertices)[vertices > 0]
+    boxes[has, :2] = np.minimum.reduceat(points, starts, axis=0)
+    boxes[has, 2:] = np.maximum.reduceat(points, starts, axis=0)
     return rings, boxes
 
 
