@@ -160,7 +160,7 @@ def _plot_boxes(plots, transform):
     pieces = np.split(points, np.cumsum(sizes)[:-1])
     first = np.cumsum(counts) - counts
     rings = [pieces[k : k + n] for k, n in zip(first.tolist(), counts.tolist(), strict=True)]
-    vertices = np.add.reduceat(sizes, first[counts > 0]) if (counts > 0).any() else np.zeros(0, np.int64)
+    vertices = np.add.reduceat(sizes, first[counts > 0])  # of each plot with a ring
     has = np.flatnonzero(counts > 0)[vertices > 0]  # plots with at least one vertex
     starts = (np.cumsum(vertices) - vertices)[vertices > 0]
     boxes[has, :2] = np.minimum.reduceat(points, starts, axis=0)
