@@ -83,14 +83,11 @@ def rasterize_plots(plots, *, transform, shape):
     rows, cols = (int(n) for n in shape)
     if rows < 1 or cols < 1:
         raise CliffTerrainError(f"`shape` must be (rows, cols) >= 1, got {tuple(shape)}")
-    rings = [ring for polygon in plots.polygons for ring in polygon]
     owners = np.repeat(np.arange(1, len(plots.polygons) + 1), [len(polygon) for polygon in plots.polygons])
     labels = np.zeros((rows, cols), dtype=np.int32)
-    if not rings:
+    points, sizes = pixel_vertices(plots.polygons, t)
+    if not sizes.size:
         return labels
-    # One affine over every vertex (row by row, the numbers each ring alone gives).
-    points = apply_affine(affine_inverse(t), np.concatenate(rings))
-    sizes = np.fromiter((len(ring) for ring in rings), np.int64, len(rings))
     starts = np.cumsum(sizes) - sizes
     # Plots in batches of about _BURN_PIXELS pixels of bounding box (a plot's rings together), so
     # that the runs' pixel indices stay a few tens of MB however much of a large grid the plots cover.
@@ -106,6 +103,20 @@ def rasterize_plots(plots, *, transform, shape):
 
 
 _BURN_PIXELS = 1 << 22
+
+
+def pixel_vertices(polygons, transform):
+    """(points, sizes): every ring of `polygons` (lists of (n, 2) map rings) in the pixel coordinates
+    of `transform` (pixel -> map), one after another, and each ring's vertex count.
+
+    One affine over every vertex: row by row the numbers each ring alone gives, without a loop of
+    numpy calls per ring. :func:`rasterize_plots` and the windows' plot boxes both start here.
+    """
+    rings = [ring for polygon in polygons for ring in polygon]
+    if not rings:
+        return np.zeros((0, 2)), np.zeros(0, np.int64)
+    points = apply_affine(affine_inverse(transform), np.concatenate(rings))
+    return points, np.fromiter(map(len, rings), np.int64, len(rings))
 
 
 def _runs(values):
