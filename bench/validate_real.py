@@ -209,14 +209,15 @@ def paired_bootstrap(ours, theirs, truth, *, resamples=BOOTSTRAP_RESAMPLES, seed
     }
 
 
-def field_rows(data_dir, *, ground="auto", colour="photo"):
+def field_rows(data_dir, *, ground="auto", colour="photo", windowed=False):
     """Per field and date: ours, the naive baseline and plantcv-geospatial's p90 - p25 against every
     reference the field has (the aligned and raw two-flight difference, a ruler), with the coverage
     of ours' uncertainty (|error| <= 1.645 x height_p90_err_m).
 
     ``colour="straw"`` or ``"golden"`` runs ours on each orthophoto recoloured (:func:`straw_photo`,
     :func:`golden_photo`), and skips the dates without one: the ground when the colour does not
-    follow the crop."""
+    follow the crop. With `windowed`, ours is ``cliff-terrain heights --windowed`` (the path of
+    orthophotos too big for memory)."""
     import cv2
 
     from cliff_terrain.io.raster.geotiff import read_surface, resample
@@ -251,7 +252,9 @@ def field_rows(data_dir, *, ground="auto", colour="photo"):
                 continue
             dsm_raster = read_surface(folder / files["dsm"])
             if files.get("ortho"):
-                ours, err, check, transform, shape = _run_heights(folder, files, spec, ground, colour)
+                ours, err, check, transform, shape = _run_heights(
+                    folder, files, spec, ground, colour, windowed
+                )
             else:  # a surface model alone: the ground from its shape, no colour
                 transform, shape = dsm_raster.transform, dsm_raster.shape
                 pixel = float(np.mean(dsm_raster.pixel_size))
@@ -362,7 +365,7 @@ def _write_photo(out, rgb, photo):
 RECOLOURED = {"straw": straw_photo, "golden": golden_photo}
 
 
-def _run_heights(folder, files, spec, ground, colour="photo"):
+def _run_heights(folder, files, spec, ground, colour="photo", windowed=False):
     """`cliff-terrain heights` on one date: (p90, p90 err, ground check, grid transform, grid shape)."""
     from cliff_terrain.cli import main as cli
     from cliff_terrain.io.raster.geotiff import read_surface
@@ -374,6 +377,7 @@ def _run_heights(folder, files, spec, ground, colour="photo"):
             ortho = RECOLOURED[colour](ortho, Path(tmp) / f"{colour}.tif")
         args = ["heights", str(ortho), "--dsm", str(folder / files["dsm"])]
         args += ["--plots", str(folder / spec["plots"]), "--out", str(out), "--ground", ground]
+        args += ["--windowed"] if windowed else []
         if cli(args) != 0:
             raise CliffTerrainError(f"cliff-terrain heights failed on {folder.name} {files['dsm']}")
         chm = read_surface(out / "chm.tif")
@@ -880,6 +884,9 @@ def main(argv=None):
     parser.add_argument("--skip-images", action="store_true")
     parser.add_argument("--skip-fields", action="store_true")
     parser.add_argument("--ground", default="auto", help="the heights' --ground (default auto)")
+    parser.add_argument(
+        "--windowed", action="store_true", help="the fields' heights by the windowed path (--windowed)"
+    )
     parser.add_argument("--docs", type=Path, default=None, help="write the validation page here")
     parser.add_argument(
         "--record", type=Path, default=None, help="a --json record to write --docs from, instead of a run"
@@ -896,10 +903,14 @@ def main(argv=None):
         parser.error(f"DATA_DIR {str(args.data_dir)!r} is not a folder")
     warnings.filterwarnings("ignore", message=".*GDAL_NODATA.*")
     images = [] if args.skip_images else image_rows(args.data_dir, args.max_size)
-    fields = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground)
+    fields = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground, windowed=args.windowed)
     record = {"images": images, "fields": fields, "summary": {}}
     for colour in RECOLOURED:
-        rows = [] if args.skip_fields else field_rows(args.data_dir, ground=args.ground, colour=colour)
+        rows = (
+            []
+            if args.skip_fields
+            else field_rows(args.data_dir, ground=args.ground, colour=colour, windowed=args.windowed)
+        )
         record[f"fields_{colour}"] = rows
     for half in ("tune", "holdout"):
         for group in sorted({r["set"] for r in images}):

@@ -205,9 +205,54 @@ def test_a_coarse_block_gives_the_soil_it_shows_wherever_it_falls_on_the_rows(tm
     )  # fmt: skip
     coarse = coarse_window(task)
     assert coarse["dsm"].shape == (6, 6) and coarse["valid"].all()
-    # Every block shows a furrow's middle: its height is the furrow's, its colour the soil's.
+    # Every block shows a furrow's middle: its height is the furrow's, and it is the ground's evidence.
     np.testing.assert_allclose(coarse["dsm"], -0.1, atol=1e-3)
-    assert (np.abs(coarse["rgb"].astype(int) - [120, 90, 60]).max(axis=-1) <= 2).all()
+    assert coarse["soil"].all() and "rgb" not in coarse
+
+
+def test_a_coarser_ground_grid_takes_as_soil_what_the_whole_photo_calls_soil(tmp_path):
+    # The shared pair's plants recoloured a yellowing green (R : G : B = 1 : 1 : 0.7, index 0.11:
+    # below the plant threshold, 0.14, yet above the soil class's ceiling: not plant, not soil). On a
+    # 2 x 2 ground grid the windows' blocks take as soil what bare_soil calls soil on the whole
+    # photo; the in-memory fit on the same grid then gets the same evidence and heights, and the same
+    # held-out check. Blocks that took every pixel below the threshold as soil stood on the leaves.
+    need_plots()
+    from cliff_terrain.io.raster.geotiff import read_orthophoto, read_surface, resample
+    from cliff_terrain.measure.canopy import plant_mask
+    from cliff_terrain.measure.ground_grid import fit_on_ground_grid
+    from cliff_terrain.photo_heights.vegetation import bare_soil
+
+    photo = read_orthophoto(ORTHO)
+    rgb = photo.data.copy()
+    plants = plant_mask(rgb, valid=photo.valid)
+    level = rgb[plants].max(axis=-1).astype(np.float32)
+    rgb[plants] = np.clip(level[:, None] * [1.0, 1.0, 0.7], 0, 255).astype(np.uint8)
+    yellowing = tmp_path / "yellowing.tif"
+    alpha = (np.ones(photo.shape, bool) if photo.valid is None else photo.valid).astype(np.uint8) * 255
+    tifffile.imwrite(
+        yellowing, np.dstack([rgb, alpha]), photometric="rgb", extrasamples=[2],
+        extratags=geotiff_tags(photo.transform, photo.crs),
+    )  # fmt: skip
+    result, _ = windowed(
+        tmp_path, "w", yellowing, DSM, read_plots(PAIR_PLOTS), window=100, ground_pixels=100_000
+    )
+    assert result.factor == 2 and result.windows == 36
+    surface = resample(read_surface(DSM), transform=photo.transform, shape=photo.shape)
+    valid = read_orthophoto(yellowing).valid
+    has_data = np.isfinite(surface) & valid
+    soil = bare_soil(rgb, valid=valid, threshold=result.threshold)
+    *_, check = fit_on_ground_grid(
+        surface, soil=soil, has_data=has_data, pixel_size=result.pixel_size, factor=2, source="yellowing"
+    )
+    assert (soil & plants).sum() < 0.1 * plants.sum()  # the yellowing leaves are not soil (but rims)
+    assert check["method"] == result.check["method"]
+    # The same to a tenth of a millimetre (the blocks at the DSM's edge count their data apart);
+    # with every pixel below the threshold as soil, 0.5 to 1 mm apart and 0.6 % more evidence.
+    for name, figures in check["candidates"].items():
+        assert result.check["candidates"][name]["error_m"] == pytest.approx(figures["error_m"], abs=1e-4), (
+            name
+        )
+    assert result.check["evidence"]["share"] == pytest.approx(check["evidence"]["share"], abs=1e-3)
 
 
 def synthetic_trial(folder):

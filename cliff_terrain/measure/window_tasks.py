@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.raster.blocks import reduce_blocks
 from .field_plots import pixel_vertices, table_columns
 from .ground import canopy_height
 from .ground_grid import reduce_for_ground
@@ -88,21 +87,27 @@ class CoarseTask:
     index: str
     threshold: float
     core: tuple  # (r0, r1, c0, c1), multiples of factor but at the grid's end
+    # The whole photo's soil class's upper limit (vegetation.soil_ceiling), for ``factor`` > 1.
+    soil_ceiling: float = float("inf")
 
 
 def coarse_window(task, *, sources=None):
-    """`task`'s window reduced to the ground grid: ``{"at": (row, col), "rgb", "valid", "dsm"}``.
+    """`task`'s window reduced to the ground grid: ``{"at": (row, col), "valid", "dsm"}`` and, with
+    ``factor`` 1, the window's own ``rgb`` (the bare soil is then taken on the whole grid, as in
+    memory), else the blocks that show bare ``soil``.
 
-    With ``factor`` 1 the grid is the orthophoto's own. Otherwise each ``factor`` x ``factor`` block
-    gives the mean of its bare-soil pixels (the blurred index at or below the threshold) when it
-    shows any, so that the plants in a block lift neither the soil it shows nor tint its colour,
-    and the mean of its pixels with data when it shows none; a block has data when most of its
-    pixels inside the raster have (:func:`~cliff_terrain.measure.ground_grid.reduce_for_ground`,
-    as in memory). Any soil, not most: the full grid takes every bare pixel as the ground's
-    evidence, and a share threshold aliases with the crop rows (a block holds more or less than
-    half soil depending on where it falls on them): copies of one plot on a tiled trial measured
-    3.1 cm apart (the interquartile range of their p90) on a 1.6 m grid with "most", 1.9 cm with
-    "any" (`bench/bench_coarse_grid.py`).
+    Each ``factor`` x ``factor`` block gives the mean height of its bare-soil pixels when it shows
+    any, so that the plants in a block do not lift the soil it shows, and the mean of its pixels
+    with data when it shows none; a block has data when most of its pixels inside the raster have
+    (:func:`~cliff_terrain.measure.ground_grid.reduce_for_ground`, as in memory). Bare soil is
+    what :func:`~cliff_terrain.photo_heights.vegetation.bare_soil` calls it on the whole photo:
+    the blurred index at or below the threshold and at or below the whole photo's
+    ``soil_ceiling``, so that shaded, yellowing or senescent leaves below the plant threshold
+    neither lift a block's soil nor count as the ground's evidence. Any soil, not most: the full
+    grid takes every bare pixel as the ground's evidence, and a share threshold aliases with the
+    crop rows (a block holds more or less than half soil depending on where it falls on them):
+    copies of one plot on a tiled trial measured 3.1 cm apart (the interquartile range of their
+    p90) on a 1.6 m grid with "most", 1.9 cm with "any" (`bench/bench_coarse_grid.py`).
     """
     from ..photo_heights.vegetation import blurred_index
 
@@ -120,27 +125,30 @@ def coarse_window(task, *, sources=None):
     C0, C1 = max(0, c0 - reach), min(shape[1], c1 + reach)
     rgb, valid = sources.photo(R0, R1, C0, C1)
     vi, _ = blurred_index(rgb, index=task.index)
+    del rgb
     core = (slice(r0 - R0, r1 - R0), slice(c0 - C0, c1 - C0))
-    rgb, valid, vi = rgb[core], valid[core], vi[core]
-    bare = valid & (vi <= task.threshold)
+    valid, vi = valid[core], vi[core]
+    bare = valid & (vi <= task.threshold) & (vi <= task.soil_ceiling)
     del vi
-    colour, _ = reduce_blocks(rgb, factor, valid)
-    colour_bare, n_bare = reduce_blocks(rgb, factor, bare)
-    colour = np.where((n_bare > 0)[..., None], colour_bare, colour)
-    heights, _, data = reduce_for_ground(surface, bare, valid, factor)  # the in-memory path's reduction
-    return {
-        "at": at,
-        "rgb": np.clip(np.nan_to_num(colour) + 0.5, 0, 255).astype(np.uint8),
-        "valid": data,
-        "dsm": heights,
-    }
+    heights, soil, data = reduce_for_ground(surface, bare, valid, factor)  # the in-memory path's reduction
+    return {"at": at, "valid": data, "soil": soil, "dsm": heights}
 
 
-def coarse_tasks(sources, shape, transform, factor, index, threshold, window):
+def coarse_tasks(sources, shape, transform, factor, index, threshold, window, *, soil_ceiling=float("inf")):
     """The first pass's :class:`CoarseTask` s, row-major, each about `window` pixels a side."""
     side = max(factor, window // factor * factor)
     return [
-        CoarseTask(sources.ortho.path, sources.dsm.path, transform, shape, factor, index, threshold, core)
+        CoarseTask(
+            sources.ortho.path,
+            sources.dsm.path,
+            transform,
+            shape,
+            factor,
+            index,
+            threshold,
+            core,
+            soil_ceiling,
+        )
         for core in windows(shape, side)
     ]
 

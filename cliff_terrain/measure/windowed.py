@@ -9,16 +9,21 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
    and reduced by an integer `factor` to a grid of at most `ground_pixels` pixels, each as many
    orthophoto pixels as fit in 5 cm or more (:mod:`cliff_terrain.measure.ground_grid`; the
    ground's finest detail is a Gaussian of 0.15 m): each `factor` x `factor` block gives the mean
-   of its bare-soil pixels when it shows any (the full grid's evidence is every bare pixel; a share
-   threshold would alias with the crop rows), or of all its pixels with data, so that the plants
-   in a block lift neither the soil it shows nor tint its colour. Plants are the blurred
-   vegetation index above the photo's threshold
+   height of its bare-soil pixels when it shows any, and is then the ground's evidence (the full
+   grid's evidence is every bare pixel; a share threshold would alias with the crop rows), or of
+   all its pixels with data, so that the plants in a block do not lift the soil it shows. Plants
+   are the blurred vegetation index above the photo's threshold
    (:func:`cliff_terrain.photo_heights.vegetation.photo_threshold`), taken on an overview of the whole
    orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size); where the
    colour leaves it undecided, the DSM sampled at the overview's pixels decides it, as the
-   in-memory segmentation's :func:`~cliff_terrain.photo_heights.segmentation.decide_by_surface` does. On the
-   coarse grid the bare soil (:func:`~cliff_terrain.photo_heights.vegetation.bare_soil`, at that
-   threshold) is taken as :func:`cliff_terrain.measure.canopy.measure_orthophoto` takes it, and
+   in-memory segmentation's :func:`~cliff_terrain.photo_heights.segmentation.decide_by_surface` does.
+   Bare soil is what :func:`~cliff_terrain.photo_heights.vegetation.bare_soil` calls it in memory:
+   below that threshold and below the soil class's ceiling
+   (:func:`~cliff_terrain.photo_heights.vegetation.soil_ceiling`, on the same overview), so that
+   shaded, yellowing or senescent leaves neither lift a block nor count as soil (on the photo's own
+   grid, ``factor`` 1, it is taken on the whole grid, exactly as in memory). On a recoloured
+   soybean field whose plants were made golden, a 2 x 2 grid that took every pixel below the
+   threshold as soil measured its plots 4.1 cm too low, the in-memory path 0.9 cm too high.
    :func:`cliff_terrain.measure.ground.fit_ground` fits and checks the ground (its held-out check,
    standard error and support) unchanged.
 2. **The canopy, at full resolution.** Each window's DSM minus the ground bilinearly upsampled from
@@ -281,7 +286,7 @@ def _on_threads(function, arguments, shared, readers):
 
 def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run=None):
     from ..io.raster.geotiff_stream import RasterSpool, TileSpool
-    from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold
+    from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold, soil_ceiling
 
     transform = sources.ortho.transform
     shape = sources.ortho.shape
@@ -302,21 +307,33 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
         # As the in-memory segmentation does (decide_by_surface): a class the colour cannot place
         # (a senescent canopy, straw) is plant when it stands above the rest on the DSM.
         threshold, decision = _decide_by_surface(sources, vi_o, valid_o, rule)
+    # The soil class's upper limit, as bare_soil takes it on the whole photo (on a coarser ground
+    # grid the windows need it before any of them is read; on the photo's own, the grid gives it).
+    ceiling = float("inf")
+    if factor > 1:
+        below = vi_o <= threshold if valid_o is None else valid_o & (vi_o <= threshold)
+        ceiling = soil_ceiling(vi_o[below])
     del overview, valid_o, vi_o
     clock.start("ground_grid")
 
-    # 1. The coarse grid: photo, its valid pixels and the surface, reduced window by window
-    # (:func:`~.window_tasks.coarse_window`, here or on the cluster's workers).
+    # 1. The coarse grid: the photo (factor 1) or the blocks showing bare soil, the valid pixels and
+    # the surface, reduced window by window (:func:`~.window_tasks.coarse_window`, here or on the
+    # cluster's workers).
     rows_c, cols_c = -(-shape[0] // factor), -(-shape[1] // factor)
-    rgb_c = np.zeros((rows_c, cols_c, 3), np.uint8)
+    rgb_c = np.zeros((rows_c, cols_c, 3), np.uint8) if factor == 1 else None
+    soil_c = np.zeros((rows_c, cols_c), bool) if factor > 1 else None
     valid_c = np.zeros((rows_c, cols_c), bool)
     dsm_c = np.full((rows_c, cols_c), np.nan, np.float32)
-    parts = coarse_tasks(sources, shape, transform, factor, index, threshold, window)
+    parts = coarse_tasks(sources, shape, transform, factor, index, threshold, window, soil_ceiling=ceiling)
     for k, block in enumerate(run(coarse_window, ((task,) for task in parts))):
         cr, cc = block["at"]
         n_r, n_c = block["valid"].shape
         where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
-        rgb_c[where], valid_c[where], dsm_c[where] = block["rgb"], block["valid"], block["dsm"]
+        valid_c[where], dsm_c[where] = block["valid"], block["dsm"]
+        if factor == 1:
+            rgb_c[where] = block["rgb"]
+        else:
+            soil_c[where] = block["soil"]
         step(0.4 * (k + 1) / len(parts), "ground grid")
     clock.start("ground_fit")
     has_data = valid_c & np.isfinite(dsm_c)
@@ -326,7 +343,8 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     ground_c = support_c = sigma_c = None
     check = None
     if sources.dtm is None:
-        soil_c = bare_soil(rgb_c, valid=valid_c, index=index, threshold=threshold)
+        if factor == 1:  # the photo's own grid: its bare soil as in memory, to the pixel
+            soil_c = bare_soil(rgb_c, valid=valid_c, index=index, threshold=threshold)
         del rgb_c
         step(0.45, "ground")
         fit = fit_ground(

@@ -467,9 +467,36 @@ def bare_soil(image, *, valid=None, index="auto", threshold=None):
     candidates = vi <= threshold
     if valid is not None:
         candidates &= valid
-    values = vi[candidates]
+    return candidates & (vi <= soil_ceiling(vi[candidates]))
+
+
+def soil_ceiling(values):
+    """The highest index value that is surely soil: ``SOIL_SPREAD`` (5) robust standard deviations
+    above the soil class's mode, the spread measured on the lower side of the soil peak, which no
+    plant pixel widens (:func:`bare_soil`'s limit).
+
+    Parameters
+    ----------
+    values : array of float
+        The blurred index of the pixels below the plant threshold (with data), in any order.
+
+    Returns
+    -------
+    float
+        +inf when fewer than 10 values leave no class to measure.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> soil = rng.normal(-0.05, 0.02, 20000)
+    >>> yellow_leaves = rng.normal(0.04, 0.01, 5000)   # below the plant threshold, not soil
+    >>> ceiling = soil_ceiling(np.concatenate([soil, yellow_leaves]))
+    >>> bool(0.02 < ceiling < 0.07), float(np.mean(yellow_leaves > ceiling)) > 0.3
+    (True, True)
+    """
+    values = np.asarray(values).ravel()
     if values.size < 10:
-        return candidates
+        return float("inf")
     values = values[:: max(1, values.size // 400_000)].astype(np.float64)
     hist, edges = np.histogram(values, 200)
     smooth = np.convolve(hist.astype(np.float64), np.ones(3) / 3, "same")
@@ -477,4 +504,4 @@ def bare_soil(image, *, valid=None, index="auto", threshold=None):
     lower = values[values <= mode]
     spread = 1.4826 * float(np.median(mode - lower)) if lower.size else 0.0
     spread = max(spread, float(edges[1] - edges[0]))
-    return candidates & (vi <= mode + SOIL_SPREAD * spread)
+    return mode + SOIL_SPREAD * spread
