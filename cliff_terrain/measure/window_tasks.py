@@ -107,7 +107,8 @@ def coarse_window(task, *, sources=None):
     grid takes every bare pixel as the ground's evidence, and a share threshold aliases with the
     crop rows (a block holds more or less than half soil depending on where it falls on them):
     copies of one plot on a tiled trial measured 3.1 cm apart (the interquartile range of their
-    p90) on a 1.6 m grid with "most", 1.9 cm with "any" (`bench/bench_coarse_grid.py`).
+    p90) on a 1.6 m grid with "most", 1.9 cm with "any", 1.25 cm with "any" of bare_soil's soil
+    (`bench/bench_coarse_grid.py`).
     """
     from ..photo_heights.vegetation import blurred_index
 

@@ -23,7 +23,7 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
    shaded, yellowing or senescent leaves neither lift a block nor count as soil (on the photo's own
    grid, ``factor`` 1, it is taken on the whole grid, exactly as in memory). On a recoloured
    soybean field whose plants were made golden, a 2 x 2 grid that took every pixel below the
-   threshold as soil measured its plots 4.1 cm too low, the in-memory path 0.9 cm too high.
+   threshold as soil measured its plots 4.2 cm too low, the in-memory path 0.9 cm too high.
    :func:`cliff_terrain.measure.ground.fit_ground` fits and checks the ground (its held-out check,
    standard error and support) unchanged.
 2. **The canopy, at full resolution.** Each window's DSM minus the ground bilinearly upsampled from
