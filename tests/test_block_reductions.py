@@ -170,3 +170,35 @@ def test_the_local_quadratic_in_chunks_on_threads_gives_the_whole_grids_numbers(
     chunked = _local_quadratic(values, weight, sigma)
     for got, expected in zip(chunked, whole, strict=True):
         np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("sigma", [0.1, 0.12])
+def test_a_window_narrower_than_a_pixel_fits_the_pixel_itself_as_the_systems_do(monkeypatch, sigma):
+    # The ground's 0.15 m scale on a 1.4 m grid is 0.1 px: its neighbours weigh e^-50. The fit is
+    # then the pixel's own value where it has soil, without the 21 moments and the systems: the
+    # same bits as solving them (their couplings fall below float32's precision), and where the
+    # pixel has no soil the same nothing (the systems leave 1e-15 of the neighbours' weight).
+    from cliff_terrain.measure import ground_detail
+
+    rng = np.random.default_rng(4)
+    values = (100 + rng.normal(size=(120, 90))).astype(np.float32)
+    weight = (rng.random(values.shape) < 0.4).astype(np.float32)
+    weight[weight > 0] = rng.choice([0.25, 0.5, 1.0], size=int(weight.sum())).astype(np.float32)
+    moments = ground_detail._moments
+    monkeypatch.setattr(ground_detail, "_moments", None)  # the shortcut makes no moments
+    short = _local_quadratic(values, weight, sigma)
+    monkeypatch.setattr(ground_detail, "_moments", moments)
+    monkeypatch.setattr(ground_detail, "_NEGLIGIBLE_WEIGHT", 0.0)  # always the moments and systems
+    solved = _local_quadratic(values, weight, sigma)
+    soil = weight > 0
+    np.testing.assert_array_equal(short[0][soil], solved[0][soil])
+    np.testing.assert_array_equal(short[1][soil], solved[1][soil])
+    np.testing.assert_array_equal(short[0][soil], values[soil])  # the pixel itself
+    assert np.abs(solved[1][~soil]).max() < 1e-12 and not short[1][~soil].any()
+    # There the value weighs by that fraction (detail_above's confidence): nothing either way.
+    assert np.abs(solved[0][~soil] * solved[1][~soil]).max() < 1e-12
+    # A wider window (0.3 px: neighbours weigh 0.004) is solved, not shortened.
+    monkeypatch.setattr(ground_detail, "_NEGLIGIBLE_WEIGHT", 1e-12)
+    monkeypatch.setattr(ground_detail, "_moments", None)
+    with pytest.raises(TypeError):
+        _local_quadratic(values, weight, 0.3)
