@@ -88,8 +88,22 @@ def test_the_level_under_the_canopy_counts_in_full_in_the_uncertainty():
     assert fit.check["sigma_model"]["canopy_level_m"] == level and abs(level) > 0.005
     floor = fit.check["sigma_model"]["floor_m"]
     assert np.all(fit.sigma >= np.float32(np.hypot(floor, level)) * (1 - 1e-6))
-    smooth = fit_ground(dsm, soil=~truth.chm.astype(bool), pixel_size=0.03, method="smooth")
-    assert smooth.check["sigma_model"]["canopy_level_m"] == 0.0 and smooth.sigma.min() == pytest.approx(floor)
+    assert fit.check["sigma_model"]["relief_m"] == 0.0  # the detailed ground follows the ridges
+
+
+def test_a_ground_that_does_not_follow_the_ridges_counts_what_it_misses_at_the_soil():
+    # The smooth ground passes under the synthetic field's 3 cm ridges, on which the plants stand:
+    # what it misses at the soil itself (the held-out error at distance 0) counts in every pixel's
+    # standard error, and the error under the plants against the true ground is then covered.
+    img, dsm, truth = synthetic_surface(gsd=0.03, seed=3)
+    plants = truth.chm.astype(bool)
+    smooth = fit_ground(dsm, soil=~plants, pixel_size=0.03, method="smooth")
+    model = smooth.check["sigma_model"]
+    assert model["canopy_level_m"] == 0.0 and 0.02 < model["relief_m"] == model["at_soil_m"] < 0.05
+    assert smooth.sigma.min() == pytest.approx(np.hypot(model["floor_m"], model["relief_m"]), rel=1e-6)
+    miss = np.abs(smooth.ground - truth.ground)[plants]
+    assert np.mean(miss <= 1.645 * smooth.sigma[plants]) > 0.9  # 97 % (the floor alone: 60 %)
+    assert np.mean(miss <= 1.645 * model["floor_m"]) < 0.85
 
 
 def test_the_finer_detail_under_a_canopy_is_one_level_whatever_its_noise():

@@ -213,7 +213,8 @@ def ground_sigma(residual, evidence, *, pixel_size):
     `a` is the error at the soil (pixel noise, microrelief), `g` how fast it grows with the
     distance into a canopy. Every pixel then takes sqrt(SIGMA_FLOOR_M² + (g d)²) at its own
     distance d to the evidence: a plot's height averages the pixel noise away, but not the error
-    no bare soil can show (`a` is reported, not used).
+    no bare soil can show (`a` is reported here; :func:`~cliff_terrain.measure.ground.fit_ground`
+    adds it for the grounds that do not follow the soil's relief).
 
     Parameters
     ----------

@@ -426,12 +426,12 @@ def bare_soil(image, *, valid=None, index="auto", threshold=None):
     """Pixels that are surely soil, by colour: the ground's support, stricter than "not a plant".
 
     A pixel is bare soil when its (blurred) index lies below the photo's plant threshold
-    (:func:`index_threshold`) and within ``SOIL_SPREAD`` (5) robust standard deviations of the
-    soil class's mode, measured on the lower side of the soil peak, which no plant pixel widens.
-    Shaded, yellowing or senescent leaves that fall below the plant threshold lie above that
-    limit, and would otherwise lift the ground under a canopy (on a real potato trial they stood
-    5.8 cm, median, above the early-season surface and lifted the ground by 4.5 cm; see the README). Soil seen through gaps in a plant counts: the relief fills such holes so that a
-    plant is one dome, but the ground under the plant is best seen there.
+    (:func:`index_threshold`) and below the soil class's ceiling (:func:`soil_ceiling`). Shaded,
+    yellowing or senescent leaves that fall below the plant threshold lie above that ceiling, and
+    would otherwise lift the ground under a canopy (on a real potato trial they stood 5.8 cm,
+    median, above the early-season surface and lifted the ground by 4.5 cm; see the README). Soil
+    seen through gaps in a plant counts: the relief fills such holes so that a plant is one dome,
+    but the ground under the plant is best seen there.
 
     Parameters
     ----------
@@ -475,15 +475,8 @@ def soil_ceiling(values):
     above the soil class's mode, the spread measured on the lower side of the soil peak, which no
     plant pixel widens (:func:`bare_soil`'s limit).
 
-    Parameters
-    ----------
-    values : array of float
-        The blurred index of the pixels below the plant threshold (with data), in any order.
-
-    Returns
-    -------
-    float
-        +inf when fewer than 10 values leave no class to measure.
+    `values` are the blurred index of the pixels below the plant threshold (with data), in any
+    order; with fewer than 10 there is no class to measure and the ceiling is +inf.
 
     Examples
     --------
