@@ -115,13 +115,9 @@ def _local_quadratic(values, weight, sigma):
         # 0.1 px: its neighbours weigh 1e-19): the fit is the pixel itself, its value where it has
         # soil. The same numbers as the systems' (their couplings fall below float32's precision),
         # without filtering 21 moments and solving them: half the quadratics' time on such grids.
-        with np.errstate(invalid="ignore", divide="ignore"):
-            estimate = (wz / (w + np.float32(1e-9))).astype(np.float32)
-        fraction = (w / np.float32(total)).astype(np.float32)
-        if factor > 1:
-            estimate = cv2.resize(estimate, (cols, rows), interpolation=cv2.INTER_LINEAR)
-            fraction = cv2.resize(fraction, (cols, rows), interpolation=cv2.INTER_LINEAR)
-        return estimate, fraction
+        # (Such a window is never on a reduced grid: that takes a sigma of 3 px.)
+        estimate = (wz / (w + np.float32(1e-9))).astype(np.float32)
+        return estimate, (w / np.float32(total)).astype(np.float32)
     kernels = {a: (gauss * u**a).astype(np.float32) for a in range(5)}
     estimate = np.empty(w.shape, np.float32)
     fraction = np.empty(w.shape, np.float32)
