@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 
 from cliff_terrain.errors import CliffTerrainError
+from cliff_terrain.io.raster.bilinear import bilinear
 from cliff_terrain.io.raster.blocks import reduce_blocks
 from cliff_terrain.io.raster.geotiff import geotiff_tags
 from cliff_terrain.measure.ground_detail import _local_quadratic
 from cliff_terrain.measure.percentiles import nan_percentile
-from cliff_terrain.measure.window_reading import SurfaceWindows, _bilinear
+from cliff_terrain.measure.window_reading import SurfaceWindows
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -117,7 +118,7 @@ def test_a_surface_on_the_orthophotos_own_grid_is_read_as_the_bilinear_reads_it(
     # Fractional coordinates still take the general path.
     y, x = np.arange(0, 20) * 0.5 + 0.25, np.arange(0, 30) * 0.75
     # (rows first, then columns, in float32: the same to its rounding)
-    np.testing.assert_allclose(_bilinear(dsm, y, x), general_bilinear(dsm, y, x), rtol=2e-7, atol=0)
+    np.testing.assert_allclose(bilinear(dsm, y, x), general_bilinear(dsm, y, x), rtol=2e-7, atol=0)
 
 
 def test_the_local_quadratic_solved_band_by_band_is_the_weighted_least_squares_fit():
@@ -202,3 +203,37 @@ def test_a_window_narrower_than_a_pixel_fits_the_pixel_itself_as_the_systems_do(
     monkeypatch.setattr(ground_detail, "_moments", None)
     with pytest.raises(TypeError):
         _local_quadratic(values, weight, 0.3)
+
+
+def test_a_dsm_resampled_whole_takes_the_exact_bilinear_weights_the_windows_take(tmp_path):
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import GeoRaster, resample
+
+    rng = np.random.default_rng(1)
+    dsm = (200 + rng.random((40, 50))).astype(np.float32)
+    dsm[rng.random(dsm.shape) < 0.05] = np.nan
+    source = np.array([[0.1, 0.0, 500000.0], [0.0, -0.1, 4000000.0], [0.0, 0.0, 1.0]])
+    # A finer grid, shifted by a fraction of a pixel: every coordinate fractional.
+    target = np.array([[0.037, 0.0, 500000.013], [0.0, -0.037, 3999999.991], [0.0, 0.0, 1.0]])
+    shape = (100, 130)
+    got = resample(GeoRaster(dsm, source, 32616, None, "dsm.tif"), transform=target, shape=shape)
+    # The reference, written out: each target pixel centre in map units, then in source pixels.
+    x = (500000.013 + (np.arange(shape[1]) + 0.5) * 0.037 - 500000.0) / 0.1 - 0.5
+    y = (4000000.0 - (3999999.991 - (np.arange(shape[0]) + 0.5) * 0.037)) / 0.1 - 0.5
+    inside_y, inside_x = (y >= 0) & (y <= 39), (x >= 0) & (x <= 49)
+    expected = np.full(shape, np.nan, np.float32)
+    expected[np.ix_(inside_y, inside_x)] = general_bilinear(dsm, y[inside_y], x[inside_x])
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(expected))
+    # float32 sums of heights of 200 m: their rounding, where OpenCV's 1/32-pixel coordinates were
+    # up to 1/64 of a pixel's rise off (about 8 mm of a 1 m rise).
+    np.testing.assert_allclose(got, expected, rtol=0, atol=6e-5)
+    # ... and the windows read the same numbers, to the bit.
+    path = tmp_path / "dsm.tif"
+    tifffile.imwrite(path, dsm, extratags=geotiff_tags(source, 32616, nodata=float("nan")))
+    surface = SurfaceWindows(path)
+    try:
+        np.testing.assert_array_equal(surface.on_grid(target, 0, shape[0], 0, shape[1]), got)
+        np.testing.assert_array_equal(surface.on_grid(target, 17, 60, 9, 101), got[17:60, 9:101])
+    finally:
+        surface.close()

@@ -125,13 +125,11 @@ def test_the_windowed_command_agrees_with_the_in_memory_one_on_the_real_pair(tmp
     memory, rows_m, _ = run_heights(tmp_path, "memory")
     win, rows_w, stdout = run_heights(tmp_path, "windowed", "--windowed", "--window", "128")
     assert "windowed (25 windows)" in stdout
-    assert list(rows_m[0]) == list(rows_w[0])  # the same columns, in the same order
-    assert [r["plot"] for r in rows_m] == [r["plot"] for r in rows_w]
-    assert [r["area_m2"] for r in rows_m] == [r["area_m2"] for r in rows_w]  # the same pixels
-    p90_m, p90_w = column(rows_m, "height_p90_m"), column(rows_w, "height_p90_m")
-    gap = np.abs(p90_m - p90_w)
-    assert gap.max() < 0.01 and np.median(gap) < 0.001, (gap.max(), np.median(gap))
-    assert np.abs(column(rows_m, "cover") - column(rows_w, "cover")).max() < 0.02
+    # The same table to the last digit, every column of every plot: on the orthophoto's own grid
+    # (0.3 MP, within the ground grid's budget) both paths resample the DSM with the same exact weights
+    # (io.raster.bilinear; OpenCV's 1/32-pixel coordinates put p90s up to 1.2 mm apart), fit the
+    # same ground on the same soil and take the same plants.
+    assert rows_w == rows_m
     assert sorted(p.name for p in win.iterdir()) == [
         "chm.tif", "chm_err.tif", "ground_support.tif", "plots.csv", "plots.geojson", "summary.json",
     ]  # fmt: skip
@@ -144,9 +142,11 @@ def test_the_windowed_command_agrees_with_the_in_memory_one_on_the_real_pair(tmp
         page = tif.pages[0]
         assert page.is_tiled and page.compression == 8 and len(tif.pages) == 2
         chm_w = page.asarray()
-    chm_m = tifffile.imread(memory / "chm.tif")
-    both = np.isfinite(chm_m) & np.isfinite(chm_w)
-    assert both.mean() > 0.7 and np.median(np.abs(chm_m - chm_w)[both]) < 0.002
+    for name in ("chm", "chm_err", "ground_support"):  # and the same rasters, pixel for pixel
+        expected = tifffile.imread(memory / f"{name}.tif")
+        got = chm_w if name == "chm" else tifffile.imread(win / f"{name}.tif")
+        np.testing.assert_array_equal(got, expected, err_msg=name)
+    assert np.isfinite(chm_w).mean() > 0.7
 
 
 def test_the_windowed_command_reads_a_ruler_as_the_in_memory_one_does(tmp_path):

@@ -37,9 +37,10 @@ from ._geokeys import (
     nodata_value,
 )
 from ._tiff_window import TiffRaster
+from .bilinear import is_axis_aligned, on_grid, pixel_map
 from .blocks import block_mean
 from .crs import UserCrs, crs_text, user_geokeys
-from .transform import affine_inverse, as_affine, grid_bounds, pixel_size
+from .transform import as_affine, grid_bounds, pixel_size
 
 # ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
 _FLOAT_NODATA_FLOOR = -1e38
@@ -308,19 +309,23 @@ def resample(raster, *, transform, shape, crs=None, target="the target grid"):
         raise GeoreferenceError(f"{raster.path!r} does not overlap {target}")
     if np.allclose(t, raster.transform) and (rows, cols) == raster.shape:
         return raster.data.copy()
-    # Target pixel index (centre at +0.5) -> map -> source pixel index (centre at +0.5).
-    shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
-    unshift = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
-    m = unshift @ affine_inverse(raster.transform) @ t @ shift
+    m = pixel_map(raster.transform, t)  # target pixel -> source pixel, centres at integers
     source = raster.data
     scale = min(abs(np.linalg.det(m[:2, :2])) ** -0.5, 1e9)
     if scale < 0.5:
         # The target is much coarser: average the source first so bilinear sampling does not alias.
         factor = max(1, int(1.0 / scale))
         source = block_mean(source, factor)
-        m = np.diag([1.0 / factor, 1.0 / factor, 1.0]) @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ m
-        m[:2, 2] -= 0.5
-    out = cv2.warpAffine(
+        m = (
+            np.array(
+                [[1.0 / factor, 0, 0.5 / factor - 0.5], [0, 1.0 / factor, 0.5 / factor - 0.5], [0, 0, 1]]
+            )
+            @ m
+        )
+    if is_axis_aligned(m):
+        # North-up grids: exact weights, the numbers the windowed measure reads window by window.
+        return on_grid(lambda r0, r1, c0, c1: source[r0:r1, c0:c1], source.shape, m, 0, rows, 0, cols)
+    out = cv2.warpAffine(  # a rotated grid (OpenCV rounds its coordinates to 1/32 pixel)
         source,
         m[:2].astype(np.float64),
         (cols, rows),
