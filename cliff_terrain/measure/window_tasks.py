@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .field_plots import pixel_vertices, table_columns
-from .ground import canopy_height
+from .ground import canopy_height, surface_data
 from .ground_grid import reduce_for_ground
 from .window_reading import BLUR_REACH, WindowSources, upsample, windows
 
@@ -131,7 +131,9 @@ def coarse_window(task, *, sources=None):
     valid, vi = valid[core], vi[core]
     bare = valid & (vi <= task.threshold) & (vi <= task.soil_ceiling)
     del vi
-    heights, soil, data = reduce_for_ground(surface, bare, valid, factor)  # the in-memory path's reduction
+    # The in-memory path's reduction, on its pixels with data: the photo's where the DSM has a
+    # surface (a block half off the DSM has no data, as in memory, not the mean of its other half).
+    heights, soil, data = reduce_for_ground(surface, bare, valid & surface_data(surface), factor)
     return {"at": at, "valid": data, "soil": soil, "dsm": heights}
 
 
