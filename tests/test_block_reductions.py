@@ -84,17 +84,20 @@ def test_block_means_of_a_photo_are_exact_and_of_heights_within_float_rounding(f
 
 
 def general_bilinear(source, y, x):
-    """The separable bilinear written out with its four gathers, in float64 (NaN in any neighbour
-    gives NaN)."""
+    """The bilinear written out as its four weighted neighbours, in float64: NaN where a neighbour
+    that carries weight is NaN, a neighbour of weight 0 not read."""
     rows, cols = source.shape
     source = source.astype(np.float64)
     y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
     fy, fx = (y - y0)[:, None], (x - x0)[None, :]
     y1, x1 = np.minimum(y0 + 1, rows - 1), np.minimum(x0 + 1, cols - 1)
-    top, bottom = source[y0], source[y1]
-    upper = top[:, x0] * (1 - fx) + top[:, x1] * fx
-    lower = bottom[:, x0] * (1 - fx) + bottom[:, x1] * fx
-    return (upper * (1 - fy) + lower * fy).astype(np.float32)
+    total = np.zeros((y.size, x.size))
+    for rows_k, wy in ((y0, 1 - fy), (y1, fy)):
+        for cols_k, wx in ((x0, 1 - fx), (x1, fx)):
+            weight = wy * wx
+            with np.errstate(invalid="ignore"):
+                total += np.where(weight > 0, weight * source[np.ix_(rows_k, cols_k)], 0.0)
+    return total.astype(np.float32)
 
 
 @pytest.mark.parametrize("window", [(0, 40, 0, 50), (5, 39, 7, 49), (39, 40, 49, 50), (10, 20, 0, 1)])
@@ -115,6 +118,9 @@ def test_a_surface_on_the_orthophotos_own_grid_is_read_as_the_bilinear_reads_it(
         surface.close()
     expected = general_bilinear(dsm, np.arange(r0, r1, dtype=float), np.arange(c0, c1, dtype=float))
     np.testing.assert_array_equal(got, expected)
+    # On its own grid a surface is its own pixels, as the whole raster's copy is: beside its no-data
+    # too (a neighbour of weight 0 is not read; OpenCV's NaN x 0 dropped them).
+    np.testing.assert_array_equal(got, dsm[r0:r1, c0:c1])
     # Fractional coordinates still take the general path.
     y, x = np.arange(0, 20) * 0.5 + 0.25, np.arange(0, 30) * 0.75
     # (rows first, then columns, in float32: the same to its rounding)

@@ -97,16 +97,28 @@ def bilinear(source, y, x):
     """`source` at rows `y` x columns `x` (source pixel indices, inside it), separably bilinear.
 
     The weights come from the coordinates alone, so a pixel's value does not depend on the
-    window it is computed in; NaN in any of the four neighbours gives NaN, as OpenCV's does.
+    window it is computed in. NaN in a neighbour that carries weight gives NaN; a neighbour of
+    weight 0 (a coordinate on a pixel centre) is not read, so that a surface on the orthophoto's
+    own grid is its own pixels, as the whole raster's copy is, and keeps the pixels beside its
+    no-data (OpenCV's NaN x 0 drops them).
+
+    Examples
+    --------
+    >>> source = np.array([[1.0, np.nan], [3.0, 4.0]], np.float32)
+    >>> bilinear(source, np.array([0.0, 1.0]), np.array([0.0, 0.5]))
+    array([[1. , nan],
+           [3. , 3.5]], dtype=float32)
     """
     rows, cols = source.shape
     y0 = np.floor(y).astype(np.int64)
     x0 = np.floor(x).astype(np.int64)
-    if _unit_steps(y, y0) and _unit_steps(x, x0):
-        return _on_own_grid(source, int(y0[0]), int(x0[0]), y.size, x.size)
+    if _unit_steps(y, y0) and _unit_steps(x, x0):  # the pixels themselves, without the gathers
+        return np.array(source[y0[0] : y0[0] + y.size, x0[0] : x0[0] + x.size], np.float32)
     fy = (y - y0).astype(np.float32)[:, None]
     fx = (x - x0).astype(np.float32)[None, :]
-    y1, x1 = np.minimum(y0 + 1, rows - 1), np.minimum(x0 + 1, cols - 1)
+    # The next row and column, but the pixel itself where it weighs nothing.
+    y1 = np.where(y > y0, np.minimum(y0 + 1, rows - 1), y0)
+    x1 = np.where(x > x0, np.minimum(x0 + 1, cols - 1), x0)
     # Rows first, on the source's columns (few when upsampling), then two gathers of the output's
     # size instead of four: a 12 MP ground in 0.3 s instead of 0.75 s.
     along = (source[y0] * (1 - fy) + source[y1] * fy).astype(np.float32, copy=False)
@@ -121,19 +133,3 @@ def bilinear(source, y, x):
 def _unit_steps(coords, floors):
     """Whether `coords` are consecutive integers (the surface on the orthophoto's own grid)."""
     return bool(coords.size) and np.array_equal(coords, floors) and bool(np.all(np.diff(floors) == 1))
-
-
-def _on_own_grid(source, y0, x0, n_rows, n_cols):
-    """:func:`bilinear` at integer pixels: the pixel itself, NaN where one of the four neighbours
-    is NaN (their weight is 0, and NaN x 0 is NaN), without its gathers."""
-    rows, cols = source.shape
-    ys = np.minimum(np.arange(y0, y0 + n_rows + 1), rows - 1)
-    xs = np.minimum(np.arange(x0, x0 + n_cols + 1), cols - 1)
-    part = source[ys[0] : ys[-1] + 1, xs[0] : xs[-1] + 1]
-    if part.shape != (n_rows + 1, n_cols + 1):  # the last row or column is its own neighbour
-        part = source[np.ix_(ys, xs)]
-    bad = np.isnan(part)
-    bad = bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:]
-    out = np.array(part[:-1, :-1], np.float32)
-    out[bad] = np.nan
-    return out
