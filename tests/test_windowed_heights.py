@@ -510,6 +510,25 @@ def test_the_windowed_options_refuse_what_they_cannot_do_in_one_line(tmp_path):
         assert not (tmp_path / "x" / "summary.json").exists()
 
 
+def test_a_dsm_rotated_against_the_photo_is_refused_in_windows_in_one_line(tmp_path):
+    # The windows read rows of the DSM as rows of the photo; the in-memory path warps a rotated DSM.
+    plots, _, transform = synthetic_trial(tmp_path)
+    angle = np.deg2rad(10.0)
+    turn = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    dsm = np.zeros((600, 900), np.float32)
+    write_geotiff(tmp_path / "turned.tif", dsm, transform=transform @ turn, crs=32616, nodata=float("nan"))
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-m", "cliff_terrain", "heights", str(tmp_path / "ortho.tif"),
+         "--dsm", str(tmp_path / "turned.tif"), "--windowed", "--no-progress", "--out", str(out)],
+        capture_output=True, text=True, cwd=REPO,
+    )  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert f"'{tmp_path / 'turned.tif'}' is rotated against the orthophoto's grid" in done.stderr
+    assert "measure it without --windowed or warp it north-up" in done.stderr
+    assert not (out / "summary.json").exists()
+
+
 def test_windows_on_three_threads_give_exactly_what_one_gives(tmp_path):
     need_plots()
     plots = read_plots(PAIR_PLOTS)

@@ -9,8 +9,20 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import CliffTerrainError, GeoreferenceError, RasterReadError
-from ..io.raster.bilinear import bilinear, on_grid, pixel_map, require_axis_aligned
+from ..io.raster.bilinear import bilinear, is_axis_aligned, on_grid, pixel_map
 from ..io.raster.crs import crs_text
+
+
+def require_axis_aligned(m, *, name):
+    """`m` (:func:`~cliff_terrain.io.raster.bilinear.pixel_map`), or GeoreferenceError naming
+    `name` when it rotates: the windows read rows of one raster as rows of the other."""
+    if not is_axis_aligned(m):
+        raise GeoreferenceError(
+            f"{name!r} is rotated against the orthophoto's grid; the windowed measure needs north-up "
+            "rasters: measure it without --windowed or warp it north-up"
+        )
+    return m
+
 
 # The blurred index's reach (pixels): cv2's Gaussian of sigma 1 on float32 has a 9-pixel kernel.
 BLUR_REACH = 4

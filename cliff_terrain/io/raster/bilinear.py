@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._threads import map_row_bands
-from ...errors import GeoreferenceError
+from .transform import affine_inverse
 
 # Output pixels resampled at once (about 8 MB of float32 per temporary).
 _BAND_PIXELS = 2_000_000
@@ -35,24 +35,12 @@ _UNSHIFT = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
 def pixel_map(source, target):
     """Target pixel index -> source pixel index, pixel centres at integers (3 x 3), from the grids'
     transforms (pixel corner -> map)."""
-    from .transform import affine_inverse
-
     return _UNSHIFT @ affine_inverse(source) @ np.asarray(target, np.float64) @ _SHIFT
 
 
 def is_axis_aligned(m):
     """Whether the pixel map `m` neither rotates nor shears (rows map to rows, columns to columns)."""
     return abs(m[0, 1]) <= 1e-12 * abs(m[0, 0]) and abs(m[1, 0]) <= 1e-12 * abs(m[1, 1])
-
-
-def require_axis_aligned(m, *, name):
-    """`m` (:func:`pixel_map`), or GeoreferenceError naming `name` when it rotates."""
-    if not is_axis_aligned(m):
-        raise GeoreferenceError(
-            f"{name!r} is rotated against the orthophoto's grid; the windowed measure needs north-up "
-            "rasters: measure it without --windowed or warp it north-up"
-        )
-    return m
 
 
 def on_grid(read, shape, m, r0, r1, c0, c1):
