@@ -306,3 +306,81 @@ def test_the_definitions_table_names_every_key_figure():
     figures = key_figures(build_relief(image, max_size=160, gsd=0.01, mesh=None))
     text = (DOCS / "concepts" / "ground.md").read_text()
     assert _table_names(text, "| key | definition |") == set(figures) - {"units"}
+
+
+def _table_rows(text, header):
+    """{first cell: [other cells]} of the Markdown table under `header`."""
+    section = text.split(header + "\n", 1)[1].split("\n\n", 1)[0]
+    rows = {}
+    for line in section.splitlines()[1:]:
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        rows[cells[0]] = cells[1:]
+    return rows
+
+
+def test_the_ground_pages_real_field_figures_are_the_validation_records():
+    # The concept page quotes the validation record by hand; it drifted once (day 90 and soybean
+    # kept figures of an earlier record), so each quoted r / RMSE is checked against it.
+    import json
+
+    record = json.loads((REPO / "bench" / "validation_record.json").read_text())
+
+    def figure(key, field, date, against, who):
+        (row,) = [f for f in record[key] if f["field"] == field and f["date"] == date]
+        m = row["against"][against][who]
+        return f"{m['r']:.3f} / {m['rmse_cm']:.1f} cm"
+
+    text = (DOCS / "concepts" / "ground.md").read_text()
+    d = "potato_fieldimager_d55_d90"
+    quoted = {
+        "potato, day 40 (open rows on ridges)": ("potato_fieldimager", "40", "aligned"),
+        "potato, day 55": (d, "55", "aligned"),
+        "potato, day 90 (closed canopy)": (d, "90", "aligned"),
+        "potato, day 100": ("potato_fieldimager", "100", "aligned"),
+        "second potato trial, surface model alone": ("potato_fieldimager_ex1", "vegetative", "aligned"),
+        "soybean, vegetative (pliman's example; against DSM minus its DTM, aligned on the soil)": (
+            "soybean_pliman",
+            "vegetative",
+            "aligned",
+        ),
+        "soybean, the same against DSM minus its DTM as published (the DTM lies 4.5 cm below the soil)": (
+            "soybean_pliman",
+            "vegetative",
+            "raw",
+        ),
+    }
+    rows = _table_rows(text, "| field, date | ours | naive baseline |")
+    assert set(rows) == set(quoted)
+    for label, where in quoted.items():
+        assert rows[label] == [figure("fields", *where, "ours"), figure("fields", *where, "baseline")], label
+    recoloured = _table_rows(
+        text, "| date | straw, now | straw, before | golden, now | golden, before | naive baseline |"
+    )
+    dates = {
+        "day 40": ("potato_fieldimager", "40"),
+        "day 55": (d, "55"),
+        "day 90 (closed canopy)": (d, "90"),
+        "day 100": ("potato_fieldimager", "100"),
+    }
+    assert set(recoloured) == set(dates)
+    for label, (field, date) in dates.items():
+        straw, _, golden, _, baseline = recoloured[label]
+        assert straw == figure("fields_straw", field, date, "aligned", "ours"), label
+        assert golden == figure("fields_golden", field, date, "aligned", "ours"), label
+        assert baseline == figure("fields", field, date, "aligned", "baseline"), label
+    # The README's table row quotes each potato date's r / RMSE / bias, ours then the baseline's.
+    line = next(x for x in (REPO / "README.md").read_text().splitlines() if "single-flight per-plot p90" in x)
+    quoted = re.findall(r"day (\d+): ([^(]+?) \(naive baseline|day (\d+): ([^(]+?) \(baseline", line)
+    baselines = re.findall(r"baseline ([0-9.]+ / [0-9.]+ cm / [−+][0-9.]+ cm)", line)
+    assert len(quoted) == len(baselines) == 4
+    for (d1, ours1, d2, ours2), theirs in zip(quoted, baselines, strict=True):
+        date, ours = d1 or d2, ours1 or ours2
+        (row,) = [
+            f for f in record["fields"] if f["date"] == date and f["field"].startswith("potato_fieldimager")
+        ]
+
+        def full(m):
+            return f"{m['r']:.3f} / {m['rmse_cm']:.1f} cm / {m['bias_cm']:+.1f} cm".replace("-", "−")
+
+        assert ours.strip().rstrip(";").strip() == full(row["against"]["aligned"]["ours"]), date
+        assert theirs == full(row["against"]["aligned"]["baseline"]), date
