@@ -54,17 +54,13 @@ import numpy as np
 from .. import settings
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
+from .ground_blocks import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, lowest_surface, naive_block_ground
 from .ground_check import check_ground, ground_sigma, ground_support
 from .ground_detail import DETAIL_CONFIDENCE, blur, canopy_level, detail_above
 from .ground_evidence import MIN_SOIL_PIXELS, exposed_soil, ground_evidence
 from .ground_occlusion import occlusion_check
-from .percentiles import nan_percentile
-from .robust_plane import robust_plane
 
-DEFAULT_BLOCK_M = 5.0
 DEFAULT_DETAIL_M = 0.15
-# The baseline's percentile: low enough to reach the soil of a block that is mostly canopy.
-BASELINE_PERCENTILE = 2.0
 # What `method` accepts, and the candidates, simplest first (ties go to the simpler one).
 GROUND_METHODS = settings.ids(settings.GROUND_METHODS)
 CANDIDATES = GROUND_METHODS[1:]
@@ -291,17 +287,19 @@ def fit_ground(
 
 
 def surface_data(dsm):
-    """Where `dsm` has a surface: finite, and within 100 km of sea level.
+    """Where `dsm` has a surface: finite, above 1 km below sea level and below 100 km above it.
 
-    No surface on Earth lies 100 km from it: such values are a no-data marker the file did not
-    declare (OpenDroneMap's -3.4e38), and one of them would drag every lower percentile.
+    No land lies that low (the Dead Sea's shore, the lowest, is 430 m below sea level; ellipsoidal
+    heights differ by at most about 110 m) and nothing a drone flies over that high: such values are
+    a no-data marker the file did not declare (OpenDroneMap's -3.4e38, GDAL's habitual -9999,
+    int16's -32767), and one of them would drag every lower percentile and read as a plant 0 m tall.
 
     Examples
     --------
-    >>> surface_data(np.array([101.5, np.nan, -3.4e38], np.float32)).tolist()
-    [True, False, False]
+    >>> surface_data(np.array([101.5, np.nan, -3.4e38, -9999.0, -32767.0, -120.0], np.float32)).tolist()
+    [True, False, False, False, False, True]
     """
-    return np.isfinite(dsm) & (np.abs(dsm) < 1e5)
+    return np.isfinite(dsm) & (dsm > -1e3) & (dsm < 1e5)
 
 
 def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):
@@ -318,46 +316,6 @@ def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, deta
     True
     """
     return fit_ground(dsm, soil=soil, pixel_size=pixel_size, block_m=block_m, detail_m=detail_m).ground
-
-
-def lowest_surface(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M):
-    """The DSM's lowest surface: its `BASELINE_PERCENTILE` in blocks above the field's tilt, bilinear.
-
-    The naive peer's block percentile, taken after the field's own plane is removed (the plane
-    of the block percentiles themselves, so that plants do not lift it) and added back: on a
-    slope a block's lowest pixels lie at its downhill edge, below the soil at its centre by the
-    slope times half a block, more than any microrelief. Held flat beyond the outer block
-    centres: extending a border block's noisy level linearly was tried and measured worse on a
-    real potato trial (day 100: RMSE 2.2 -> 2.3 cm with colour, 2.4 -> 4.5 cm without).
-    """
-    plane = _field_plane(dsm, pixel_size=pixel_size, block_m=block_m)
-    lowest = naive_block_ground(
-        dsm - plane, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
-    )
-    return (lowest + plane).astype(np.float32)
-
-
-def _field_plane(dsm, *, pixel_size, block_m):
-    """The plane z = a + b row + c col through the DSM's block percentiles (robust least squares).
-
-    Each block's percentile lies on the ground at its downhill edge, so on a uniform slope the
-    levels are the ground shifted by one constant: their plane has the field's slope. A block
-    whose level lies more than three robust deviations off the plane (a block of canopy) is
-    dropped and the plane fitted again.
-    """
-    levels, block = _block_levels(dsm, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE)
-    rows, cols = dsm.shape
-    if levels.size < 3:
-        return np.zeros(dsm.shape, np.float32)
-    bi, bj = np.mgrid[: levels.shape[0], : levels.shape[1]]
-    centre_r = np.minimum((bi + 0.5) * block, rows).ravel() / max(rows, 1)
-    centre_c = np.minimum((bj + 0.5) * block, cols).ravel() / max(cols, 1)
-    z = levels.ravel().astype(np.float64)
-    design = np.column_stack([np.ones(z.size), centre_r, centre_c])
-    coef = robust_plane(design, z)
-    r = np.arange(rows, dtype=np.float64)[:, None] / max(rows, 1)
-    c = np.arange(cols, dtype=np.float64)[None, :] / max(cols, 1)
-    return (coef[0] + coef[1] * r + coef[2] * c).astype(np.float32)
 
 
 @dataclass(eq=False, frozen=True)
@@ -432,12 +390,13 @@ def check_enough_soil(soil, valid, *, source):
 
 
 def canopy_height(dsm, ground):
-    """CHM = DSM - ground, negatives set to 0, NaN where either has no data.
+    """CHM = DSM - ground, negatives set to 0, NaN where either has no data (a no-data marker the
+    DSM did not declare included: :func:`surface_data`).
 
     Examples
     --------
-    >>> canopy_height(np.array([[1.5, np.nan, 0.9]]), np.array([[1.0, 1.0, 1.0]]))
-    array([[0.5, nan, 0. ]], dtype=float32)
+    >>> canopy_height(np.array([[1.5, np.nan, 0.9, -9999.0]]), np.array([[1.0, 1.0, 1.0, 1.0]]))
+    array([[0.5, nan, 0. , nan]], dtype=float32)
     """
     dsm = np.asarray(dsm, dtype=np.float32)
     ground = np.asarray(ground, dtype=np.float32)
@@ -445,43 +404,5 @@ def canopy_height(dsm, ground):
         raise CliffTerrainError(f"`ground` must have the shape of `dsm` {dsm.shape}, got {ground.shape}")
     chm = dsm - ground
     np.maximum(chm, 0.0, out=chm)  # NaN stays NaN
+    chm[~surface_data(dsm)] = np.nan
     return chm
-
-
-def naive_block_ground(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, percentile=5.0):
-    """The peer: a low percentile of the DSM alone in blocks, bilinearly interpolated (no segmentation).
-
-    What one does without knowing which pixels are soil: with ``percentile=2`` and 5 m blocks it
-    is the naive baseline every estimate is compared with, and the ``"baseline"`` candidate of
-    :func:`fit_ground`.
-
-    Examples
-    --------
-    >>> dsm = np.full((100, 100), 10.0, np.float32); dsm[::3, ::3] = 9.0   # soil under 1 m leaves
-    >>> float(naive_block_ground(dsm, pixel_size=0.1, percentile=2)[50, 50])
-    9.0
-    """
-    import cv2
-
-    dsm = np.asarray(dsm, dtype=np.float32)
-    levels, block = _block_levels(dsm, pixel_size=pixel_size, block_m=block_m, percentile=percentile)
-    rows, cols = dsm.shape
-    nb_r, nb_c = levels.shape
-    big = cv2.resize(levels, (nb_c * block, nb_r * block), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(big[:rows, :cols])
-
-
-def _block_levels(dsm, *, pixel_size, block_m, percentile):
-    """(levels, block px): the `percentile` of `dsm` in each block (NaN-free: empty blocks take the median)."""
-    dsm = np.asarray(dsm, dtype=np.float32)
-    block = max(2, round(block_m / pixel_size))
-    rows, cols = dsm.shape
-    nb_r, nb_c = -(-rows // block), -(-cols // block)
-    pad = np.full((nb_r * block, nb_c * block), np.nan, np.float32)
-    pad[:rows, :cols] = dsm
-    blocks = pad.reshape(nb_r, block, nb_c, block).transpose(0, 2, 1, 3).reshape(nb_r, nb_c, -1)
-    levels = nan_percentile(blocks, percentile).astype(np.float32)  # nanpercentile's, vectorized
-    if np.isnan(levels).any():
-        fill = np.nanmedian(levels) if np.isfinite(levels).any() else 0.0
-        levels = np.where(np.isnan(levels), fill, levels).astype(np.float32)
-    return levels, block

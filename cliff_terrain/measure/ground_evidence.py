@@ -107,7 +107,10 @@ def soil_peak(above):
     step = 0.005
     # From the 1st percentile: a few pits (or unmarked no-data) far below must not stretch the bins.
     low = max(float(np.percentile(above, 1.0)), float(above.max()) - 2.0)
-    edges = np.arange(low, float(above.max()) + 2 * step, step)
+    # At least five bins: "same" convolution returns max(bins, 5) values, and on a flat or
+    # quantized surface (every soil pixel within 2 cm) fewer bins would overrun the edges.
+    top = max(float(above.max()), low + 4 * step)
+    edges = np.arange(low, top + 2 * step, step)
     hist, edges = np.histogram(above[above >= low], bins=edges)
     smooth = np.convolve(hist, np.ones(5) / 5, mode="same")
     peaks, props = find_peaks(np.concatenate([[0.0], smooth, [0.0]]), prominence=0.0)

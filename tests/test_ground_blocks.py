@@ -1,0 +1,92 @@
+"""The DSM's block percentiles (:mod:`cliff_terrain.measure.ground_blocks`) on the shapes real
+rasters have: an orthomosaic's no-data outline on a slope, a block larger than the field, and a
+flat or quantized surface (cases a review found on 2026-12-06)."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from cliff_terrain.measure.ground import fit_ground
+from cliff_terrain.measure.ground_blocks import naive_block_ground
+
+PX = 0.05
+
+
+def sloped_field(rows, cols, slope, *, outline=None):
+    """Soil on a plane rising `slope` down the rows, 0.5 m plants on a 1.2 m grid, 5 mm noise; NaN
+    outside `outline` (a function of rows, cols)."""
+    rr, cc = np.mgrid[:rows, :cols]
+    ground = 100.0 + slope * rr * PX
+    plants = np.hypot(rr % 24 - 12, cc % 24 - 12) < 8
+    noise = 0.005 * np.random.default_rng(0).standard_normal((rows, cols))
+    dsm = (ground + 0.5 * plants + noise).astype(np.float32)
+    inside = np.ones(dsm.shape, bool) if outline is None else outline(rr, cc)
+    dsm[~inside] = np.nan
+    return dsm, ~plants, ground, inside
+
+
+@pytest.mark.parametrize("slope, before_cm", [(0.1, 15.7), (0.3, 55.3)])
+def test_an_orthomosaics_no_data_corners_do_not_flatten_the_fields_plane(slope, before_cm):
+    # A diamond of data in its raster, as a field flown at 45 degrees to north is: the corner blocks
+    # have no data. They used to enter the field's plane at the median level, flattening it, and the
+    # ground stood `before_cm` off on the bare soil at the field's edges, the check passing.
+    dsm, soil, ground, inside = sloped_field(
+        600, 600, slope, outline=lambda r, c: abs(r - 300) + abs(c - 300) < 300
+    )
+    fit = fit_ground(dsm, soil=soil, pixel_size=PX)
+    error = np.abs(fit.ground - ground)
+    bound = 0.01 if slope <= 0.1 else 0.03  # measured 0.7 and 2.3 cm: cut blocks still count at their centres
+    assert error[fit.evidence].max() < bound
+    assert error[inside].max() < bound
+
+
+def test_a_block_larger_than_the_field_is_the_field_and_takes_its_memory():
+    dsm, _, _, _ = sloped_field(200, 200, 0.0)
+    whole = naive_block_ground(dsm, pixel_size=PX, block_m=200 * PX, percentile=2.0)
+    tracemalloc.start()
+    try:
+        huge = naive_block_ground(dsm, pixel_size=PX, block_m=1500.0, percentile=2.0)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(huge, whole)
+    # Padded to the block's own size it took 30 000 x 30 000 floats (3.6 GB at 1000 m).
+    assert peak < 20 * dsm.nbytes
+    fit = fit_ground(dsm, soil=None, pixel_size=PX, block_m=1500.0)
+    assert np.isfinite(fit.ground).all()
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "flat, all soil",
+        "flat, no photo",
+        "a noiseless bare slope",
+        "plants on flat soil, heights in whole cm",
+    ],
+)
+def test_a_flat_or_quantized_surface_gets_a_ground(name):
+    # Every soil pixel within 2 cm: the soil band's histogram had fewer bins than its smoothing
+    # kernel, and fit_ground raised IndexError.
+    rr, cc = np.mgrid[:300, :300]
+    plants = np.hypot(rr % 24 - 12, cc % 24 - 12) < 8
+    flat = np.full((300, 300), 100.0, np.float32)
+    dsm, soil, truth = {
+        "flat, all soil": (flat, np.ones((300, 300), bool), flat),
+        "flat, no photo": (flat, None, flat),
+        "a noiseless bare slope": (
+            (100.0 + 0.0025 * cc).astype(np.float32),
+            np.ones((300, 300), bool),
+            100.0 + 0.0025 * cc,
+        ),
+        "plants on flat soil, heights in whole cm": (
+            (np.round((100.0 + 0.5 * plants) * 100) / 100).astype(np.float32),
+            ~plants,
+            flat,
+        ),
+    }[name]
+    fit = fit_ground(dsm, soil=soil, pixel_size=PX)
+    assert np.abs(fit.ground - truth).max() < 0.01, fit.method
