@@ -340,6 +340,10 @@ def _plots(ids):
         ("plot,height\n1,70\n", {}, "--ruler-units"),
         ("plot,height_cm\n1,tall\n", {}, "is not a number"),
         ("plot,height_cm\n1,70\n", {"height_column": "ph_cm"}, "no column 'ph_cm'"),
+        # Until 2026-12-06: the last of two heights taken silently, and a semicolon file refused as
+        # "tried columns  against ...".
+        ("plot,height_cm\n1,70\n2,80\n1,90\n", {}, r"plot '1' appears twice \(rows 2 and 4\)"),
+        ("plot;height_cm\n1;70\n", {}, "its header is one column, 'plot;height_cm': save it comma-separated"),
     ],
 )
 def test_bad_ruler_files_say_what_is_wrong(tmp_path, text, kwargs, words):
@@ -348,6 +352,20 @@ def test_bad_ruler_files_say_what_is_wrong(tmp_path, text, kwargs, words):
     with pytest.raises(RulerError, match=words) as caught:
         read_ruler(path, _plots([1, 2, 3]), **kwargs)
     assert "ruler.csv" in str(caught.value)
+
+
+def test_a_ruler_keyed_by_a_plot_number_each_trial_repeats_is_refused_not_joined_off_by_one(tmp_path):
+    # Two trials numbering their plots 1-3 each: the ruler's 1, 2, 3 matched the 0-based plot index
+    # instead (plots 2, 3 and 4 of the file), every height on the wrong plot, and nothing said so.
+    square = [np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])]
+    attributes = [{"trial": t, "PlotName": k} for t in ("A", "B") for k in (1, 2, 3)]
+    plots = PlotSet([square] * 6, attributes, ("trial", "PlotName"), None, "")
+    path = tmp_path / "ruler.csv"
+    path.write_text("PlotName,height_cm\n1,70\n2,80\n3,90\n")
+    with pytest.raises(
+        RulerError, match="its column 'PlotName' matches the plots' 'PlotName', which names several"
+    ):
+        read_ruler(path, plots)
 
 
 def test_a_binary_field_book_is_refused(tmp_path):

@@ -19,6 +19,7 @@ import pytest
 from conftest import REPO
 
 from cliff_terrain import cli
+from cliff_terrain.measure.tables import RENAMING_JOURNAL
 
 ODM_PAIR = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 ORTHO, DSM = ODM_PAIR / "odm_orthophoto.tif", ODM_PAIR / "dsm.tif"
@@ -94,10 +95,11 @@ def test_ctrl_c_while_writing_leaves_nothing_and_the_command_runs_again(pair, tm
 def test_a_killed_runs_leftovers_are_replaced_and_a_finished_run_is_kept(pair, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    # What a kill during the renames leaves: some outputs without summary.json (renamed last), and a
-    # dead process's .part file.
+    # What a kill during the renames leaves: some outputs without summary.json (renamed last), the
+    # journal of the renames, and a dead process's .part file.
     (out / "chm.tif").write_bytes(b"half of a raster")
     (out / "regions.csv").write_text("id\n")
+    (out / RENAMING_JOURNAL).write_text("chm.tif\nregions.csv\nsummary.json\n")
     dead = subprocess.run(
         [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
     )
@@ -152,3 +154,39 @@ def test_writers_run_at_once_all_or_nothing_and_the_first_error_is_raised(tmp_pa
     with pytest.raises(OSError, match="disk full"):
         write_files({out / "s.json": "{}", out / "a.tif": broken, out / "b.tif": lambda tmp: None}, threads=2)
     assert list(out.iterdir()) == []
+
+
+def test_a_users_own_files_in_out_are_never_replaced_without_overwrite_nor_an_input_ever(pair, tmp_path):
+    # A folder holding the user's own field book as plots.csv and their plots as plots.geojson: names
+    # the command writes, but no finished run's (no summary.json) nor an interrupted one's (no
+    # journal). Until 2026-12-06 both were taken for leftovers and replaced.
+    ortho, dsm = pair
+    out = tmp_path / "trial"
+    out.mkdir()
+    book = "plot,genotype\n1,G1\n"
+    (out / "plots.csv").write_text(book)
+    original = (REPO / "tests" / "data" / "odm_plots_by_hand.geojson").read_text()
+    (out / "plots.geojson").write_text(original)
+    base = [sys.executable, "-m", "cliff_terrain", "heights", str(ortho), "--dsm", str(dsm), "--no-progress"]
+    plots = tmp_path / "plots.geojson"
+    plots.write_text(original)
+    done = subprocess.run(
+        [*base, "--plots", str(plots), "--out", str(out)], capture_output=True, text=True, cwd=REPO
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert f"'{out / 'plots.csv'}' exists; pass --overwrite to replace it" in done.stderr
+    # The plots read from the folder the tables go to: refused, --overwrite or not.
+    for extra in ((), ("--overwrite",)):
+        done = subprocess.run(
+            [*base, "--plots", str(out / "plots.geojson"), "--out", str(out), *extra],
+            capture_output=True,
+            text=True,
+            cwd=REPO,
+        )
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+        assert (
+            f"--plots '{out / 'plots.geojson'}' is where --out '{out}' writes its plots.geojson: "
+            "the run would replace its own input; give another --out"
+        ) in done.stderr
+    assert (out / "plots.csv").read_text() == book and (out / "plots.geojson").read_text() == original
+    assert sorted(p.name for p in out.iterdir()) == ["plots.csv", "plots.geojson"]

@@ -102,6 +102,9 @@ def test_field_book_joined_by_plot_or_by_column_and_row(tmp_path):
         ("plot,x\n1,a\n1,b\n2,c\n3,d\n4,e\n5,f\n6,g\n", "plot plot=1 appears twice"),
         ("plot,x\n" + "".join(f"{k},a\n" for k in range(1, 8)), "names plots the grid does not have: plot=7"),
         ("name,x\nA,1\n", "needs a `plot` column"),
+        # A ragged row and a semicolon book: a traceback (AttributeError) until 2026-12-06.
+        ("plot,x\n1,a\n2,b,\n", "row 3 has 3 values for the header's 2 columns (a trailing comma"),
+        ("plot;x;yield\n1;a;3,5\n", "its header is one column, 'plot;x;yield': save it comma-separated"),
     ],
 )
 def test_bad_field_books_are_refused_by_name(tmp_path, text, words):
@@ -253,15 +256,31 @@ def test_fit_matches_the_soybean_plots_from_rough_corners_and_from_nothing():
             ["--grid", "4x9", "--plot-size", "14x4.8", "--corners", "1,1", "2,2", "3,3", "4,4"],
             "quadrilateral",
         ),
+        # GeoJSON written under a .kml name, exit 0, until 2026-12-06; `heights --plots` then refused it.
+        (
+            [
+                "--grid",
+                "4x9",
+                "--plot-size",
+                "14x4.8",
+                "--origin",
+                "296590,4888240",
+                "--out-name",
+                "plots.kml",
+            ],
+            "must end in .geojson (or .json) or .shp",
+        ),
     ],
 )
 def test_plots_command_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, args, words):
     odm()
-    out = tmp_path / "plots.geojson"
+    name = args[args.index("--out-name") + 1] if "--out-name" in args else "plots.geojson"
+    args = [a for a in args if a not in ("--out-name", name)]
+    out = tmp_path / name
     done = run_cli("plots", ODM, *args, "--out", out)
     assert done.returncode == 2, done.stdout
     assert words in done.stderr and len(done.stderr.strip().splitlines()) == 1
-    assert not out.exists()
+    assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
 def test_plots_feed_the_heights_command(tmp_path):

@@ -152,7 +152,7 @@ def run(args):
     from ..params import ReliefParams
     from .index_options import relief_index_maps, requested_bands
     from .memory_estimate import check_heights_memory
-    from .out_folder import check_out_folder, finished_outputs
+    from .out_folder import check_inputs_not_outputs, check_out_folder, finished_outputs
 
     out = args.out
     check_out_folder(out)
@@ -168,6 +168,14 @@ def run(args):
         raise CliffTerrainError(f"--ruler {str(args.ruler)!r} needs --plots: its heights belong to plots")
     if args.calibrate and args.ruler is None:
         raise CliffTerrainError("--calibrate needs --ruler: the measured heights it is fitted on")
+    inputs = {
+        "the orthophoto": args.ortho,
+        "--dsm": args.dsm,
+        "--dtm": args.dtm,
+        "--plots": args.plots,
+        "--ruler": args.ruler,
+    }
+    check_inputs_not_outputs(out, outputs, inputs)
     if not args.overwrite:  # summary.json is written last: without it, outputs are an interrupted run's
         existing = finished_outputs(out, outputs, marker="summary.json")
         if existing:

@@ -148,6 +148,10 @@ def _run(args, progress):
     from ..measure.plot_grid import parse_pair, place_grid, plots_from
 
     out = args.out
+    if out.suffix.lower() not in (".geojson", ".json", ".shp"):
+        raise CliffTerrainError(
+            f"`--out` {str(out)!r} must end in .geojson (or .json) or .shp: the formats the plots are written in"
+        )
     columns, rows = _counts(args.grid)
     size = parse_pair(args.plot_size, "--plot-size")
     pitch = parse_pair(args.pitch, "--pitch") if args.pitch else None

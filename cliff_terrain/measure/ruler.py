@@ -131,6 +131,10 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
     columns = [c for c in (rows[0].keys() if rows else ()) if c is not None]
     if not rows or not columns:
         raise RulerError(f"the ruler file {name!r} has no rows under a header")
+    if len(columns) == 1 and any(c in columns[0] for c in ";\t|"):
+        raise RulerError(
+            f"the ruler file {name!r}: its header is one column, {columns[0]!r}: save it comma-separated"
+        )
     height_column = _height_column(name, columns, height_column)
     fields = {"plot": [str(i) for i in range(len(plots))]}
     for field in plots.fields:
@@ -139,12 +143,19 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
     unit = _unit(name, rows, columns, height_column, units)
     heights = np.full(len(plots), np.nan)
     unmatched = 0
-    for row in rows:
+    seen = {}
+    for number, row in enumerate(rows, start=2):
         key = _key(row.get(id_column, ""))
         value = (row.get(height_column) or "").strip()
         if key not in index:
             unmatched += 1
             continue
+        if key in seen:
+            raise RulerError(
+                f"the ruler file {name!r}: plot {row.get(id_column)!r} appears twice (rows {seen[key]} and "
+                f"{number}); give one height per plot"
+            )
+        seen[key] = number
         if not value or value.lower() in ("na", "nan"):
             continue
         try:
@@ -180,19 +191,29 @@ def _id_column(name, rows, columns, wanted, fields, height_column):
     if wanted is not None and wanted not in columns:
         raise RulerError(f"the ruler file {name!r} has no column {wanted!r} (it has {', '.join(columns)})")
     best = (0, None, None)
+    shared = (0, None, None)  # the best match with an attribute that names several plots each
     for column in candidates:
         keys = [_key(r.get(column, "")) for r in rows]
         for field, values in fields.items():
-            if len(set(values)) < len(values):
-                continue  # an attribute that does not name each plot once is no id
-            index = {v: i for i, v in enumerate(values)}
-            hits = sum(k in index for k in keys)
+            hits = sum(k in set(values) for k in keys)
+            if len(set(values)) < len(values):  # an attribute that does not name each plot once is no id
+                if hits > shared[0]:
+                    shared = (hits, column, field)
+                continue
             if hits > best[0]:
                 best = (hits, column, field)
+    if shared[0] and shared[0] >= best[0] and (best[0] == 0 or best[2] == "plot"):
+        # The ids name plots through an attribute several plots share (a plot number repeated in
+        # each trial); the 0-based index matching them instead would join every height to another
+        # plot.
+        raise RulerError(
+            f"the ruler file {name!r}: its column {shared[1]!r} matches the plots' {shared[2]!r}, which "
+            "names several plots each; give ids that name one plot each (or --ruler-id naming such a column)"
+        )
     if best[0] == 0:
         raise RulerError(
             f"the ruler file {name!r}: none of its ids names a plot of the plot file "
-            f"(tried columns {', '.join(candidates)} against the plots' {', '.join(fields)})"
+            f"(tried columns {', '.join(candidates) or 'none'} against the plots' {', '.join(fields)})"
         )
     _, column, field = best
     return column, field, {v: i for i, v in enumerate(fields[field])}

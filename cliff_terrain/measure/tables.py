@@ -156,6 +156,10 @@ def text_writer(make):
     return write
 
 
+# Written beside a run's outputs while they are renamed into place, removed once all are.
+RENAMING_JOURNAL = ".cliff-terrain-renaming"
+
+
 def write_files(files, *, threads=1):
     """Write {path: text or bytes-writer} all or nothing: each to a temporary name, then all renamed.
 
@@ -182,8 +186,19 @@ def write_files(files, *, threads=1):
                     content(tmp)
             for job in jobs:
                 job.result()
+        # A journal beside the outputs while they are renamed: a run killed between two renames
+        # leaves it, so that its outputs are told from files of the user's of the same names
+        # (:func:`cliff_terrain.commands.out_folder.finished_outputs`), which are never replaced.
+        journals = []
+        for folder in dict.fromkeys(os.path.dirname(os.path.abspath(path)) for _, path in temporary):
+            journal = os.path.join(folder, RENAMING_JOURNAL)
+            with open(journal, "w", encoding="utf-8") as file:
+                file.write("\n".join(os.path.basename(path) for _, path in temporary) + "\n")
+            journals.append(journal)
         for tmp, path in temporary:
             os.replace(tmp, path)
+        for journal in journals:
+            os.remove(journal)
     finally:
         for tmp, _ in temporary:
             if os.path.exists(tmp):

@@ -31,6 +31,18 @@ def read_field_book(path):
         raise PlotFileError(f"cannot read the field book {str(path)!r}: {exc}") from None
     if not rows:
         raise PlotFileError(f"the field book {str(path)!r} has no rows")
+    for i, row in enumerate(rows):
+        if None in row:  # csv.DictReader's key for the values beyond the header's columns
+            header = [k for k in row if k is not None]
+            hint = (
+                f"; its header is one column, {header[0]!r}: save it comma-separated"
+                if len(header) == 1 and any(c in header[0] for c in ";\t|")
+                else " (a trailing comma, or a value with a comma that is not quoted?)"
+            )
+            raise PlotFileError(
+                f"the field book {str(path)!r} row {i + 2} has {len(header) + len(row[None])} values "
+                f"for the header's {len(header)} columns{hint}"
+            )
     return [{(k or "").strip(): (v or "").strip() for k, v in row.items()} for row in rows], str(path)
 
 
