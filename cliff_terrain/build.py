@@ -46,6 +46,10 @@ class Relief:
         Quaternion filter output.
     mask, labels, boundaries : (rows, cols) bool, int32, bool
         Segmentation.
+    cover_mask : (rows, cols) bool or None
+        The plant pixels canopy cover counts (:func:`cliff_terrain.measure.canopy.cover_pixels`):
+        the photo's vegetation index above the segmentation's threshold, before the holes inside
+        plants are filled and specks dropped; None in paper mode and for an NDVI map (`mask` then).
     distance : (rows, cols) float32
         Euclidean distance map per region, in processing pixels.
     heights : (rows, cols) float32
@@ -97,6 +101,7 @@ class Relief:
     mesh_rule: str = ""
     canopy: object = None
     georeference: dict | None = None
+    cover_mask: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def n_regions(self) -> int:
@@ -278,7 +283,13 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
             ground_method=params.ground_method or "auto",
         )
         units = "m"
+    cover_mask = None
+    if params.segmentation == "vegetation" and seg.index in ("green", "nir"):
+        from .photo_heights.cover import index_plants
+
+        cover_mask = index_plants(stages.working, index=seg.index, threshold=float(seg.threshold))
     relief = Relief(
+        cover_mask=cover_mask,
         image=stages.image,
         metadata=metadata,
         working=stages.working,

@@ -7,6 +7,8 @@ import pytest
 from conftest import REPO, grey_copy
 from PIL import Image
 
+from cliff_terrain.measure.canopy import cover_pixels
+
 pytestmark = pytest.mark.blender
 
 EX2 = REPO.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
@@ -50,7 +52,10 @@ def test_build_from_the_sidebar_fields_measures_heights(scene):
     assert info["canopy_p90_cm"] == pytest.approx(np.percentile(chm, 90) * 100, abs=0.05)
     # Cover counts the pixels with data only (the orthophoto's no-data corners are neither plant nor soil).
     has_data = np.isfinite(reference.canopy.chm)
-    assert info["cover"] == pytest.approx((reference.mask & has_data).sum() / has_data.sum())
+    # cover counts the index's plant pixels (cover_pixels), not the relief's filled mask
+    plants = cover_pixels(reference)
+    assert plants is reference.cover_mask and (plants != reference.mask).any()
+    assert info["cover"] == pytest.approx((plants & has_data).sum() / has_data.sum())
 
     from cliff_terrain_addon.panels.sidebar import key_figure_lines, relief_info
 

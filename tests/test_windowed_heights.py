@@ -510,6 +510,56 @@ def test_the_windowed_options_refuse_what_they_cannot_do_in_one_line(tmp_path):
         assert not (tmp_path / "x" / "summary.json").exists()
 
 
+def test_an_8_bit_export_with_gdal_nodata_has_no_data_outside_the_flight_in_memory_as_in_windows(tmp_path):
+    # The pair's orthophoto as an export without alpha writes it: 8-bit RGB, black outside the flight,
+    # GDAL_NODATA 0. Pillow read it in memory and took the black for data (and soil): "only 0
+    # bare-soil pixels", exit 2; the windows honoured GDAL_NODATA. Now both read it alike. (Without
+    # GDAL_NODATA black is a colour: the dark soil of a real photo has pixels of exact zeros.)
+    from cliff_terrain.io.raster.geotiff import read_orthophoto
+
+    need_plots()
+    ortho = read_orthophoto(ORTHO)
+    rgb = np.where(ortho.valid[..., None], ortho.data, 0).astype(np.uint8)
+    assert (~ortho.valid).mean() > 0.05  # a real outline, not a few pixels
+    path = tmp_path / "ortho_rgb8.tif"
+    tifffile.imwrite(
+        path, rgb, photometric="rgb", compression="zlib",
+        extratags=geotiff_tags(ortho.transform, ortho.crs, nodata=0),
+    )  # fmt: skip
+    _, rows_m, _ = run_heights(tmp_path, "memory", ortho=path)
+    _, rows_w, _ = run_heights(tmp_path, "windows", "--windowed", ortho=path)
+    assert rows_w == rows_m
+    # The same pixels with data as the float original's: the plots' areas with data and heights are
+    # its within the rounding of the photo to 8 bits.
+    _, rows_f, _ = run_heights(tmp_path, "float")
+    np.testing.assert_allclose(column(rows_m, "height_p90_m"), column(rows_f, "height_p90_m"), atol=0.01)
+
+
+def test_a_dsm_stored_in_centimetres_with_gdals_scale_and_offset_reads_in_metres_both_ways(tmp_path):
+    # The pair's DSM as int16 centimetres above 200 m, GDAL's scale 0.01 and offset 200 in its
+    # metadata: read as stored until 2026-12-06, the ground check missed by 86 cm and refused it
+    # (and a float DSM with scale 0.5 measured every plant twice as tall).
+    from cliff_terrain.io.raster.geotiff import read_surface
+
+    need_plots()
+    dsm = read_surface(DSM)
+    stored = np.where(np.isfinite(dsm.data), np.round((dsm.data - 200.0) * 100.0), -32768).astype(np.int16)
+    xml = (
+        '<GDALMetadata><Item name="SCALE" sample="0" role="scale">0.01</Item>'
+        '<Item name="OFFSET" sample="0" role="offset">200</Item></GDALMetadata>'
+    )
+    path = tmp_path / "dsm_cm.tif"
+    tags = geotiff_tags(dsm.transform, dsm.crs, nodata=-32768) + [(42112, "s", 0, xml, True)]
+    tifffile.imwrite(path, stored, compression="zlib", extratags=tags)
+    back = read_surface(path)
+    assert np.nanmax(np.abs(back.data - dsm.data)) <= 0.005 + 1e-4
+    _, rows_m, _ = run_heights(tmp_path, "memory", dsm=path)
+    _, rows_w, _ = run_heights(tmp_path, "windows", "--windowed", dsm=path)
+    _, rows_f, _ = run_heights(tmp_path, "float")
+    assert rows_w == rows_m
+    np.testing.assert_allclose(column(rows_m, "height_p90_m"), column(rows_f, "height_p90_m"), atol=0.01)
+
+
 def test_a_dsm_rotated_against_the_photo_is_refused_in_windows_in_one_line(tmp_path):
     # The windows read rows of the DSM as rows of the photo; the in-memory path warps a rotated DSM.
     plots, _, transform = synthetic_trial(tmp_path)

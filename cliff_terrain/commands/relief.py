@@ -36,13 +36,15 @@ def run(args):
     from ..build import build_relief
     from ..errors import CliffTerrainError
     from ..figures.writer import write_height_map
+    from ..measure.key_figures import plant_cover
     from ..measure.tables import REGION_COLUMNS, REGIONS_CSV, region_table, table_csv, write_files
-    from .out_folder import check_out_folder, finished_outputs
+    from .out_folder import check_inputs_not_outputs, check_out_folder, finished_outputs
 
     outputs = (HEIGHT_MAP, MASK, LABELS, REGIONS_CSV, SUMMARY)
 
     out = args.out
     check_out_folder(out)
+    check_inputs_not_outputs(out, outputs, {"the image": args.image})
     if not args.overwrite:  # relief.json is written last: without it, outputs are an interrupted run's
         existing = finished_outputs(out, outputs, marker=SUMMARY)
         if existing:
@@ -58,7 +60,7 @@ def run(args):
     summary = {
         "image": str(args.image),
         "regions": relief.n_regions,
-        "cover": float(relief.mask.mean()),
+        "cover": plant_cover(relief),  # as metrics.json and summary.json define it
         "max_height": relief.max_height,
         "units": relief.units,
         "pixel_size": float(relief.pixel_size),

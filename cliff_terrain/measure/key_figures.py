@@ -9,7 +9,9 @@ plants
     the watershed (the rows of ``regions.csv``).
 cover
     The share of plant pixels among the pixels with data (the photo's, and the surface model's
-    when there is one).
+    when there is one): the pixels whose vegetation index lies above the photo's plant threshold
+    (:func:`~cliff_terrain.measure.canopy.cover_pixels`), before the relief fills the holes inside its plants and drops its specks
+    (that shapes the domes, not the cover), as the windowed measure counts them.
 plant height
     Per plant, the highest point of its region: of the canopy height model with a surface
     model, else of the relief's heights (before exaggeration). Reported as the median and the 90th
@@ -38,6 +40,15 @@ def relief_valid(relief):
     if relief.canopy is not None:
         valid &= np.isfinite(relief.canopy.chm)
     return valid
+
+
+def plant_cover(relief, *, valid=None):
+    """The key figure ``cover``: :func:`~cliff_terrain.measure.canopy.cover_pixels` among the pixels with data (`valid`, default
+    :func:`relief_valid`)."""
+    from .canopy import cover_pixels
+
+    valid = relief_valid(relief) if valid is None else valid
+    return float(np.count_nonzero(cover_pixels(relief) & valid) / max(1, np.count_nonzero(valid)))
 
 
 def canopy_heights(relief):
@@ -79,7 +90,7 @@ def key_figures(relief):
     valid = relief_valid(relief)
     plants = relief.mask & valid
     n = int(relief.n_regions)
-    figures = {"plants": n, "cover": float(plants.sum() / max(1, valid.sum())), "units": unit}
+    figures = {"plants": n, "cover": plant_cover(relief, valid=valid), "units": unit}
     values = heights[plants]
     values = values[np.isfinite(values)]
     p50, p90 = (float(v) for v in np.percentile(values, (50, 90))) if values.size else (None, None)

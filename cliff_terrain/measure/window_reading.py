@@ -36,7 +36,7 @@ class SurfaceWindows:
     """
 
     def __init__(self, path, *, what="surface model"):
-        from ..io.raster._geokeys import GDAL_NODATA, georeference, nodata_value
+        from ..io.raster._geokeys import GDAL_METADATA, GDAL_NODATA, georeference, nodata_value, scale_offset
         from ..io.raster._tiff_window import TiffRaster
 
         self.raster = TiffRaster(path)
@@ -46,6 +46,7 @@ class SurfaceWindows:
                 raise RasterReadError(f"{what} {self.path!r} has {self.raster.samples} bands, expected 1")
             self.transform, self.crs = georeference(self.raster.tags, self.path)
             self.nodata = nodata_value(self.raster.tags.get(GDAL_NODATA), self.path)
+            self.scale_offset = scale_offset(self.raster.tags.get(GDAL_METADATA))
         except CliffTerrainError:
             self.raster.close()
             raise
@@ -56,13 +57,14 @@ class SurfaceWindows:
 
     def read(self, r0, r1, c0, c1):
         """Heights [r0:r1, c0:c1] (float32, NaN for no data)."""
-        from ..io.raster.geotiff import is_nodata
+        from ..io.raster.geotiff import is_nodata, scaled
 
         raw = self.raster.read_window(r0, r1, c0, c1)[..., 0]
         data = raw.astype(np.float32, copy=True)
         invalid = ~np.isfinite(data)
         if self.nodata is not None:
             invalid |= is_nodata(raw, self.nodata)
+        data = scaled(data, self.scale_offset)
         data[invalid] = np.nan
         return data
 

@@ -105,7 +105,9 @@ def _process(job):
         from ..photo_heights.indices import index_maps
 
         maps = index_maps(read_bands(job["path"], names=job.get("bands")), job["indices"], shape=shape)
-    table = _table(_plots(job["plots"]), transform, relief.mask, relief.heights, relief.units, maps)
+    from ..measure.canopy import cover_pixels
+
+    table = _table(_plots(job["plots"]), transform, cover_pixels(relief), relief.heights, relief.units, maps)
     return {
         "table": [_plain(row) for row in table],
         "height_mode": params["height_source"],

@@ -28,7 +28,8 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
     """A :class:`TiffPhoto` when `name` is a TIFF photo Pillow cannot read, else None (Pillow's to read).
 
     Decided by the header: a TIFF whose first image has three or more samples per pixel that are
-    floats, tagged greyscale, or neither 8 nor 16 bits; or a multispectral orthomosaic (more than
+    floats, tagged greyscale, or neither 8 nor 16 bits, or that declare a no-data value (GDAL_NODATA,
+    which Pillow ignores); or a multispectral orthomosaic (more than
     four bands, bands named other than red, green, blue (see :mod:`..raster.bands`), or bands named by
     `bands`), shown in true colour.
     """
@@ -47,6 +48,9 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
         bits = set(page.bitspersample) if isinstance(page.bitspersample, tuple) else {page.bitspersample}
         odd = page.sampleformat == _FLOAT or page.photometric in _GREY or not bits <= {8, 16}
         shape, tags, samples = tiff.shape, tiff.tags, tiff.samples
+    # A GeoTIFF that declares its no-data value (GDAL_NODATA): Pillow ignores it, and would read the
+    # area outside the flight as black soil; photo_bands reads it as the windows do.
+    odd = odd or GDAL_NODATA in tags
     multispectral = samples >= 3 and (bands is not None or is_multispectral(name))
     if not multispectral and (samples < 3 or len(page.shape) != 3 or not odd):
         return None

@@ -29,7 +29,8 @@ from .transform import as_affine
 MODEL_PIXEL_SCALE, MODEL_TIEPOINT, MODEL_TRANSFORMATION = 33550, 33922, 34264
 GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS, GEO_ASCII_PARAMS, GDAL_NODATA = 34735, 34736, 34737, 42113
 GEO_TAGS = (MODEL_PIXEL_SCALE, MODEL_TIEPOINT, MODEL_TRANSFORMATION, GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS)
-GEO_TAGS += (GEO_ASCII_PARAMS, GDAL_NODATA)
+GDAL_METADATA = 42112  # GDAL's XML metadata: a band's scale and offset among them
+GEO_TAGS += (GEO_ASCII_PARAMS, GDAL_NODATA, GDAL_METADATA)
 
 # GeoKey ids (GeoTIFF 1.1, section 7) and their codes used here.
 GT_MODEL_TYPE, GT_RASTER_TYPE, GEOGRAPHIC_TYPE = 1024, 1025, 2048
@@ -188,3 +189,51 @@ def nodata_value(text, name):
         return float(text)
     except ValueError:
         raise RasterReadError(f"raster {name!r} has an unreadable GDAL_NODATA value {text!r}") from None
+
+
+def gdal_items(text, samples):
+    """(descriptions, scales, offsets) per sample from GDAL_METADATA's XML text (None where absent;
+    a value that is not a number, or XML GDAL could not have written, says nothing)."""
+    import xml.etree.ElementTree as ElementTree
+
+    descriptions, scales, offsets = [None] * samples, [None] * samples, [None] * samples
+    if text is None:
+        return descriptions, scales, offsets
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    try:
+        root = ElementTree.fromstring(str(text).strip().strip("\x00"))
+    except ElementTree.ParseError:
+        return descriptions, scales, offsets
+    for item in root.iter("Item"):
+        sample, role = item.get("sample"), (item.get("role") or "").lower()
+        if sample is None or not sample.isdigit() or int(sample) >= samples:
+            continue
+        value = (item.text or "").strip()
+        if role == "description" or item.get("name", "").upper() == "DESCRIPTION":
+            descriptions[int(sample)] = value
+        elif role in ("scale", "offset"):
+            try:
+                (scales if role == "scale" else offsets)[int(sample)] = float(value)
+            except ValueError:
+                pass
+    return descriptions, scales, offsets
+
+
+def scale_offset(text):
+    """``(scale, offset)`` of band 1 from GDAL_METADATA's XML text (:func:`gdal_items`): stored
+    values times scale plus offset are the heights; ``(1.0, 0.0)`` when the file gives neither. A DSM
+    in centimetres as int16 with scale 0.01 is read in metres: without it, its heights would read
+    100 times too tall.
+
+    Examples
+    --------
+    >>> xml = '<GDALMetadata><Item name="SCALE" sample="0" role="scale">0.01</Item>'
+    >>> xml += '<Item name="OFFSET" sample="0" role="offset">270</Item></GDALMetadata>'
+    >>> scale_offset(xml)
+    (0.01, 270.0)
+    >>> scale_offset(None)
+    (1.0, 0.0)
+    """
+    _, scales, offsets = gdal_items(text, 1)
+    return (1.0 if scales[0] is None else scales[0]), (0.0 if offsets[0] is None else offsets[0])

@@ -23,16 +23,14 @@ from __future__ import annotations
 
 import os
 import re
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 
 import numpy as np
 
 from ...errors import CliffTerrainError, GeoreferenceError, MissingBandError, RasterReadError
-from ._geokeys import GDAL_NODATA, georeference, nodata_value
+from ._geokeys import GDAL_METADATA, GDAL_NODATA, gdal_items, georeference, nodata_value
 from ._tiff_window import TiffRaster
 
-GDAL_METADATA = 42112
 #: The bands an index may ask for, in spectral order.
 BAND_NAMES = ("blue", "green", "red", "rededge", "nir", "lwir")
 _ALIASES = {
@@ -206,27 +204,8 @@ def _check_unique(names, source):
 
 def _gdal_items(page, samples):
     """(descriptions, scales, offsets) per sample from the GDAL_METADATA tag (None where absent)."""
-    descriptions, scales, offsets = [None] * samples, [None] * samples, [None] * samples
     tag = page.tags.get(GDAL_METADATA)
-    if tag is None:
-        return descriptions, scales, offsets
-    try:
-        root = ElementTree.fromstring(str(tag.value))
-    except ElementTree.ParseError:
-        return descriptions, scales, offsets
-    for item in root.iter("Item"):
-        sample, role = item.get("sample"), (item.get("role") or "").lower()
-        if sample is None or not sample.isdigit() or int(sample) >= samples:
-            continue
-        text = (item.text or "").strip()
-        if role == "description" or item.get("name", "").upper() == "DESCRIPTION":
-            descriptions[int(sample)] = text
-        elif role in ("scale", "offset"):
-            try:
-                (scales if role == "scale" else offsets)[int(sample)] = float(text)
-            except ValueError:
-                pass
-    return descriptions, scales, offsets
+    return gdal_items(None if tag is None else tag.value, samples)
 
 
 def _read_file(path, names):

@@ -25,6 +25,7 @@ import numpy as np
 from ..._threads import usable_cores
 from ...errors import GeoreferenceError, RasterReadError
 from ._geokeys import (
+    GDAL_METADATA,
     GDAL_NODATA,
     GEO_ASCII_PARAMS,
     GEO_DOUBLE_PARAMS,
@@ -35,6 +36,7 @@ from ._geokeys import (
     MODEL_TRANSFORMATION,
     georeference,
     nodata_value,
+    scale_offset,
 )
 from ._tiff_window import TiffRaster
 from .bilinear import is_axis_aligned, on_grid, pixel_map
@@ -134,10 +136,22 @@ def read_surface(path):
     invalid = ~np.isfinite(data)
     if nodata is not None:
         invalid |= is_nodata(array, nodata)
+    data = scaled(data, scale_offset(tags.get(GDAL_METADATA)))
     data[invalid] = np.nan
     if invalid.all():
         raise RasterReadError(f"surface model {name!r} holds no data (every pixel is no-data)")
     return GeoRaster(data=data, transform=transform, crs=crs, nodata=nodata, path=name)
+
+
+def scaled(data, scale_offset):
+    """`data` (float32) times the GDAL scale plus the offset (:func:`._geokeys.scale_offset`), in place
+    when there is either."""
+    scale, offset = scale_offset
+    if scale != 1.0:
+        data *= np.float32(scale)
+    if offset != 0.0:
+        data += np.float32(offset)
+    return data
 
 
 def read_orthophoto(path):
