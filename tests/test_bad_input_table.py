@@ -129,6 +129,16 @@ def make_truncated_jpeg(folder):
     return path
 
 
+def make_truncated_tiff(folder):
+    # A plain RGB TIFF cut short: Pillow's libtiff printed "TIFFFillStrip: Read error" on stderr and
+    # the error said "corrupt or unsupported", until 2026-12-06.
+    whole = folder / "whole.tif"
+    tifffile.imwrite(whole, FIELD, photometric="rgb", compression="zlib")
+    path = folder / "cut.tif"
+    path.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    return path
+
+
 def make_missing(folder):
     return folder / "no_such_photo.jpg"
 
@@ -236,6 +246,7 @@ CASES = [
     Case("empty", make_empty, Refused("the file is empty (0 bytes)")),
     Case("not-an-image.jpg", make_not_an_image, Refused("it is not a JPEG, PNG, TIFF, WebP or BMP image")),
     Case("truncated-jpeg", make_truncated_jpeg, Refused("the file is truncated")),
+    Case("truncated-tiff", make_truncated_tiff, Refused("is truncated: the file has")),
     Case("missing", make_missing, Refused("no such file", cli_message="image not found")),
     Case(
         "directory",

@@ -190,3 +190,42 @@ def test_a_users_own_files_in_out_are_never_replaced_without_overwrite_nor_an_in
         ) in done.stderr
     assert (out / "plots.csv").read_text() == book and (out / "plots.geojson").read_text() == original
     assert sorted(p.name for p in out.iterdir()) == ["plots.csv", "plots.geojson"]
+
+
+def test_ctrl_c_on_a_local_clusters_terminal_prints_one_line_and_leaves_nothing(pair, tmp_path):
+    # A terminal's Ctrl-C reaches the whole process group: each Dask worker printed its
+    # KeyboardInterrupt traceback (67 lines on stderr) before "interrupted", until 2026-12-06.
+    import signal
+    import time
+
+    from conftest import load_script
+
+    pytest.importorskip("distributed")
+    field = tmp_path / "field"
+    field.mkdir()
+    load_script(REPO / "bench" / "bench_scale.py", "bench_scale").build_field(3, field, target_plots=300)
+    out = tmp_path / "out"
+    command = ["heights", str(field / "ortho.tif"), "--dsm", str(field / "dsm.tif"), "--out", str(out)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cliff_terrain", *command, "--no-progress", "--windowed", "--window", "64",
+         "--workers", "2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, start_new_session=True,
+    )  # fmt: skip
+
+    def workers():  # the cluster's worker processes: children of any of this run's threads
+        found = []
+        for task in Path(f"/proc/{proc.pid}/task").iterdir():
+            for child in (task / "children").read_text().split():
+                if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                    found.append(child)
+        return found
+
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and len(workers()) < 2:
+        time.sleep(0.1)
+    time.sleep(1.0)  # the cluster up (this process ignores Ctrl-C while it starts it), windows under way
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal sends it: to every process of the group
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and err == "cliff-terrain heights: interrupted\n", err
+    assert not (out / "summary.json").exists()

@@ -245,7 +245,7 @@ def local_cluster(workers, *, memory_limit="auto"):
         "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
         "distributed.worker.profile.enabled": False,
     }
-    with dask.config.set(config):
+    with dask.config.set(config), _workers_ignore_ctrl_c():
         return LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
@@ -255,3 +255,22 @@ def local_cluster(workers, *, memory_limit="auto"):
             host="127.0.0.1",
             env={OPENCV_THREADS: "2"},
         )
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """Start the workers with Ctrl-C ignored: a terminal's Ctrl-C reaches every process of its group,
+    and each worker printed its KeyboardInterrupt traceback (67 lines on stderr) before this process
+    said "interrupted". A process started with SIGINT ignored keeps ignoring it (Python installs its
+    KeyboardInterrupt handler only when SIGINT was not ignored); this process closes the cluster."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -41,7 +41,9 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
         return None  # missing or unreadable: Pillow's reader words the error
     try:
         tiff = TiffRaster(name, what="image", error=ImageReadError)
-    except ImageReadError:
+    except ImageReadError as exc:
+        if " is truncated: " in str(exc):
+            raise  # a file cut short is told as such (Pillow's libtiff prints to stderr, then fails)
         return None  # a broken header: Pillow's reader words the error
     with tiff:
         page = tiff.page
