@@ -24,10 +24,6 @@ def require_axis_aligned(m, *, name):
     return m
 
 
-# The blurred index's reach (pixels): cv2's Gaussian of sigma 1 on float32 has a 9-pixel kernel.
-BLUR_REACH = 4
-
-
 class SurfaceWindows:
     """A surface model GeoTIFF (DSM or DTM) read in windows: heights in metres, NaN for no data.
 

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..photo_heights.cover import BLUR_REACH
 from .field_plots import pixel_vertices, table_columns
 from .ground import canopy_height, surface_data
 from .ground_grid import reduce_for_ground
-from .window_reading import BLUR_REACH, WindowSources, upsample, windows
+from .window_reading import WindowSources, upsample, windows
 
 _LOCAL = threading.local()
 

@@ -12,6 +12,10 @@ import numpy as np
 from .._threads import map_row_bands
 from .vegetation import blurred_index
 
+# The blurred index's reach (pixels): cv2's Gaussian of sigma 1 on float32 has a 9-pixel kernel,
+# so rows computed with this many around them are the whole photo's (here in bands, and in the
+# windowed measure's windows: cliff_terrain.measure.window_tasks).
+BLUR_REACH = 4
 # Output pixels computed at once (a band of rows, about 1 MB of float32 index).
 _BAND_PIXELS = 262_144
 
@@ -31,10 +35,9 @@ def index_plants(image, *, index, threshold, valid=None):
     """
     rows = image.shape[0]
     out = np.zeros(image.shape[:2], bool)
-    reach = 4  # cv2's Gaussian of sigma 1 reads 4 pixels either side
 
     def band(r0, r1):
-        a, b = max(0, r0 - reach), min(rows, r1 + reach)
+        a, b = max(0, r0 - BLUR_REACH), min(rows, r1 + BLUR_REACH)
         vi, _ = blurred_index(image[a:b], index=index)
         out[r0:r1] = vi[r0 - a : r1 - a] > threshold
 
