@@ -40,7 +40,7 @@ STEPS = {
     "cliff_terrain.io.photo": ["OpenImage.decode"],
     "cliff_terrain.photo_heights.segmentation": [
         "_vegetation_mask",
-        "_clean",
+        "clean_mask",
         "distance_map",
         "colour_edges",
         "inner_boundaries",

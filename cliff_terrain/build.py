@@ -283,13 +283,10 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
             ground_method=params.ground_method or "auto",
         )
         units = "m"
-    cover_mask = None
-    if params.segmentation == "vegetation" and seg.index in ("green", "nir"):
-        from .photo_heights.cover import index_plants
-
-        cover_mask = index_plants(stages.working, index=seg.index, threshold=float(seg.threshold))
     relief = Relief(
-        cover_mask=cover_mask,
+        # The segmentation's index pixels (before it filled its plants' holes): what the windowed
+        # measure counts too. NDVI maps keep the mask, as the windows do.
+        cover_mask=seg.index_pixels if seg.index in ("green", "nir") else None,
         image=stages.image,
         metadata=metadata,
         working=stages.working,

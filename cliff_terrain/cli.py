@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 PROG = "cliff-terrain"
@@ -54,11 +55,19 @@ def build_parser():
     return parser
 
 
+_NEGATIVE_PAIR = re.compile(r"-\.?\d[^,=\s]*,[^=\s]*$")
+
+
 def main(argv=None):
     """Run the command line; return the exit status (0 ok, 1 some work failed, 2 bad input)."""
     from ._deps import check_required
     from .errors import CliffTerrainError
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # argparse takes a negative map coordinate, "-120.5,4300" (--corners, --origin), for an unknown
+    # option; no option of ours looks like a pair of numbers, so such a value gets a leading space,
+    # which argparse reads as a value (its rule for values with spaces) and the parsers strip.
+    argv = [f" {a}" if isinstance(a, str) and _NEGATIVE_PAIR.match(a) else a for a in argv]
     args = build_parser().parse_args(argv)
     _quiet_libraries()
     try:

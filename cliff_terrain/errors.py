@@ -29,6 +29,22 @@ class RasterReadError(CliffTerrainError):
     """A surface model or orthophoto GeoTIFF is missing, unreadable, or lacks a usable georeference."""
 
 
+class TruncatedFileError(CliffTerrainError):
+    """A file cut short (a copy or download interrupted): copying or exporting it again mends it.
+
+    Raised as :class:`TruncatedImageError` or :class:`TruncatedRasterError`, so a caller that catches
+    the reading error of its kind catches this one too.
+    """
+
+
+class TruncatedImageError(TruncatedFileError, ImageReadError):
+    """An image (photo or mosaic) file cut short."""
+
+
+class TruncatedRasterError(TruncatedFileError, RasterReadError):
+    """A surface model or orthophoto GeoTIFF cut short."""
+
+
 class GeoreferenceError(CliffTerrainError):
     """Rasters or plots that cannot be put on one map: other CRSs, no overlap, feet or degrees."""
 

@@ -1,5 +1,5 @@
-"""Canopy cover counts the photo's plant pixels (:mod:`cliff_terrain.photo_heights.cover`), the same
-in memory and in windows, not the holes the relief fills inside its plants."""
+"""Canopy cover counts the photo's plant pixels (``Segmentation.index_pixels``), the same in memory
+and in windows, not the holes the relief fills inside its plants."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ import pytest
 import tifffile
 from conftest import REPO
 
-import cliff_terrain.photo_heights.cover as cover
 from cliff_terrain.io.photo import load_image
 from cliff_terrain.io.raster.geotiff import geotiff_tags, read_orthophoto
 from cliff_terrain.photo_heights.vegetation import blurred_index
@@ -24,21 +23,31 @@ PAIR = SHARED / "dsm" / "fieldimager_ex2"
 PLOTS = REPO / "tests" / "data" / "odm_plots_by_hand.geojson"
 
 
-def test_the_bands_give_the_whole_photos_index_pixel_for_pixel(monkeypatch):
+def test_cover_counts_the_index_above_the_threshold_not_the_filled_mask():
+    # Segmentation.index_pixels: the blurred index above the photo's threshold, no-data included,
+    # before the relief drops specks and fills holes; the relief's cover_mask is that array (the
+    # index is not computed a second time) and differs from the mask where holes were filled.
+    from cliff_terrain.build import build_relief
+    from cliff_terrain.photo_heights.segmentation import segment
+
     photo = SHARED / "uav" / "broccoli" / "01_clip_raw_test.jpg"
     if not photo.is_file():
         pytest.skip(f"the shared UAV photos are not at {photo.parent}")
     rgb, _ = load_image(photo, max_size=900)
-    vi, _ = blurred_index(rgb, index="green")
-    threshold = float(np.median(vi))  # half the pixels either side: every band has both
-    monkeypatch.setattr(cover, "_BAND_PIXELS", 37 * rgb.shape[1])  # bands of 37 rows, not a divisor
-    got = cover.index_plants(rgb, index="green", threshold=threshold)
-    np.testing.assert_array_equal(got, vi > threshold)
     valid = np.zeros(rgb.shape[:2], bool)
     valid[10:-10, 20:-20] = True
-    np.testing.assert_array_equal(
-        cover.index_plants(rgb, index="green", threshold=threshold, valid=valid), got & valid
-    )
+    seg = segment(rgb, valid=valid)
+    vi, _ = blurred_index(rgb, index=seg.index)
+    np.testing.assert_array_equal(seg.index_pixels, vi > seg.threshold)
+    assert (seg.mask & ~seg.index_pixels).any()  # holes filled inside plants
+    assert not (seg.mask & ~valid).any() and (seg.index_pixels & ~valid).any()
+    assert segment(rgb, method="paper", filtered=rgb).index_pixels is None
+    relief = build_relief(photo, max_size=900, mesh=None)
+    vi, _ = blurred_index(relief.working, index="green")
+    threshold = relief.params["threshold"]["value"]  # rounded to 4 digits: the pixels near it aside
+    near = np.abs(vi - threshold) < 1e-4
+    np.testing.assert_array_equal(relief.cover_mask[~near], (vi > threshold)[~near])
+    assert (relief.mask & ~relief.cover_mask).any()
 
 
 def _heights(tmp_path, name, ortho, *extra):

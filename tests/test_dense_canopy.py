@@ -16,9 +16,9 @@ from scipy import ndimage as ndi
 from cliff_terrain import CliffTerrainError, build_relief, distance_map, inflate, segment
 from cliff_terrain.data.synthetic import synthetic_field
 from cliff_terrain.evaluate.mask_quality import mask_agreement, reference_mask, volume_fraction
+from cliff_terrain.photo_heights.holes import plant_holes
 from cliff_terrain.photo_heights.inflate import plateau_profile, typical_plant_radius
 from cliff_terrain.photo_heights.quaternion import quaternion_filter
-from cliff_terrain.photo_heights.segmentation import plant_holes
 
 
 @pytest.fixture(scope="module")

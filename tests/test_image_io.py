@@ -232,6 +232,39 @@ def test_truncated_png_and_tiff(tmp_path):
             load_image(cut)
 
 
+def test_a_tiff_cut_short_raises_the_truncated_kind_of_its_readers_error(tmp_path):
+    # The kind, not the words, tells a file cut short from a broken one (the photo reader asked
+    # TiffRaster's message for "is truncated" until 2026-12-07): a photo's is an ImageReadError, a
+    # surface model's a RasterReadError, and both a TruncatedFileError.
+    from cliff_terrain.errors import (
+        RasterReadError,
+        TruncatedFileError,
+        TruncatedImageError,
+        TruncatedRasterError,
+    )
+    from cliff_terrain.io.raster._tiff_window import TiffRaster
+
+    whole = tmp_path / "whole.tif"
+    tifffile.imwrite(whole, _rng_image((60, 70, 3)), photometric="rgb", compression="zlib")
+    cut = tmp_path / "cut.tif"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    with pytest.raises(TruncatedImageError, match=r"cut\.tif' is truncated: the file has") as raised:
+        load_image(cut)
+    assert isinstance(raised.value, ImageReadError)
+    with pytest.raises(TruncatedRasterError, match="is truncated") as raised:
+        TiffRaster(cut)
+    assert isinstance(raised.value, RasterReadError) and isinstance(raised.value, TruncatedFileError)
+    header = tmp_path / "header.tif"
+    header.write_bytes(whole.read_bytes()[:6])
+    with pytest.raises(TruncatedImageError, match="its TIFF header ends early"):
+        TiffRaster(header, what="image", error=ImageReadError)
+    broken = tmp_path / "broken.tif"
+    broken.write_bytes(b"II*\x00" + b"\xff" * 400)  # a header pointing nowhere: corrupt, not cut
+    with pytest.raises(RasterReadError) as raised:
+        TiffRaster(broken)
+    assert not isinstance(raised.value, TruncatedFileError)
+
+
 def test_png_header_claiming_200000_squared_is_refused_without_decoding(tmp_path):
     path = _png_claiming(tmp_path / "bomb.png", 200_000, 200_000)
     message = r"bomb\.png.*200000x200000 pixels \(40000\.0 MP\).*max_pixels=150000000.*only JPEG"

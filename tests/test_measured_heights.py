@@ -751,7 +751,7 @@ def test_a_canopy_without_bare_soil_is_refused_and_a_dtm_suggested(field_files):
 def test_bare_soil_leaves_out_dull_leaves_that_the_threshold_calls_soil():
     # Shaded, yellowing leaves below the plant threshold still stand on the canopy: they must not
     # carry the ground. The synthetic surface's shadowed flanks are exactly that.
-    from cliff_terrain.photo_heights.vegetation import bare_soil
+    from cliff_terrain.photo_heights.bare_soil import bare_soil
 
     img, _, truth = synthetic_surface(shape=(300, 450), gsd=0.02, seed=6)
     soil = bare_soil(img)

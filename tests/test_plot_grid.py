@@ -283,6 +283,50 @@ def test_plots_command_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_pa
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
+def test_corners_and_origin_take_negative_map_coordinates(tmp_path):
+    # A local metric CRS puts fields at negative coordinates: "--corners -120.5,40 ..." was taken
+    # for an unknown option (argparse: "expected 4 arguments") until 2026-12-07.
+    import tifffile
+
+    from cliff_terrain.io.raster.geotiff import geotiff_tags
+
+    ortho = odm()
+    shift = np.array([[1.0, 0.0, -ortho.transform[0, 2] - 500.0], [0.0, 1.0, -ortho.transform[1, 2] - 10.0]])
+    moved = ortho.transform.copy()
+    moved[:2, 2] += shift[:, 2]
+    assert moved[0, 2] < 0 and moved[1, 2] < 0  # every map coordinate of the photo is negative
+    photo = tmp_path / "negative.tif"
+    alpha = ortho.valid.astype(np.uint8) * 255
+    tifffile.imwrite(
+        photo, np.dstack([ortho.data, alpha]), photometric="rgb", extrasamples=[2],
+        extratags=geotiff_tags(moved, ortho.crs),
+    )  # fmt: skip
+    corners = [_map(moved, c, r) for c, r in ODM_CORNERS_PX]
+    assert all(c.startswith("-") for c in corners)
+    out = tmp_path / "plots.geojson"
+    done = run_cli(
+        "plots", photo, "--grid", "4x9", "--plot-size", "14.2x4.8", "--corners", *corners, "--out", out
+    )
+    assert done.returncode == 0, done.stderr
+    moved_plots = read_plots(out)
+    done = run_cli(
+        "plots", ODM, "--grid", "4x9", "--plot-size", "14.2x4.8",
+        "--corners", *[_map(ortho.transform, c, r) for c, r in ODM_CORNERS_PX], "--out", tmp_path / "odm.geojson",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    for got, want in zip(moved_plots.polygons, read_plots(tmp_path / "odm.geojson").polygons, strict=True):
+        np.testing.assert_allclose(np.asarray(got[0]) - shift[:, 2], np.asarray(want[0]), atol=1e-3)
+    origin = f"{moved[0, 2] + 20:.3f},{moved[1, 2] - 30:.3f}"
+    done = run_cli(
+        "plots", photo, "--grid", "2x2", "--plot-size", "1x3", "--origin", origin, "--out", out, "--overwrite"
+    )
+    assert done.returncode == 0, done.stderr
+    done = run_cli(
+        "plots", photo, "--grid", "2x2", "--plot-size", "1x3", "--origin", "-5,x", "--out", out, "--overwrite"
+    )
+    assert done.returncode == 2 and "got '-5,x'" in done.stderr, done.stderr
+
+
 def test_plots_feed_the_heights_command(tmp_path):
     ortho = odm()
     t = ortho.transform

@@ -134,7 +134,7 @@ def test_cleaning_matches_scipy_and_skimage():
     # remove_small_objects: 0.26 changed its size parameter.
     from scipy import ndimage as ndi
 
-    from cliff_terrain.photo_heights.segmentation import _clean
+    from cliff_terrain.photo_heights.holes import clean_mask
 
     rng = np.random.default_rng(0)
     for i in range(12):
@@ -144,7 +144,7 @@ def test_cleaning_matches_scipy_and_skimage():
         labels, _ = ndi.label(mask, structure=np.ones((3, 3)))
         sizes = np.bincount(labels.ravel())
         expected = ndi.binary_fill_holes(mask & (sizes[labels] >= 5))
-        np.testing.assert_array_equal(_clean(mask, 5), expected)
+        np.testing.assert_array_equal(clean_mask(mask, 5), expected)
 
 
 def test_colour_edges_are_the_distance_from_the_grey_axis():

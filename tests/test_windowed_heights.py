@@ -220,7 +220,7 @@ def test_a_coarser_ground_grid_takes_as_soil_what_the_whole_photo_calls_soil(tmp
     from cliff_terrain.io.raster.geotiff import read_orthophoto, read_surface, resample
     from cliff_terrain.measure.canopy import plant_mask
     from cliff_terrain.measure.ground_grid import fit_on_ground_grid
-    from cliff_terrain.photo_heights.vegetation import bare_soil
+    from cliff_terrain.photo_heights.bare_soil import bare_soil
 
     photo = read_orthophoto(ORTHO)
     rgb = photo.data.copy()

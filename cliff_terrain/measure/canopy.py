@@ -100,7 +100,7 @@ def surface_on_grid(path, metadata, shape, dsm):
 
 def cover_pixels(relief):
     """The plant pixels canopy cover counts: ``relief.cover_mask`` (the vegetation index above the
-    segmentation's threshold, :func:`cliff_terrain.photo_heights.cover.index_plants`), or the
+    segmentation's threshold, ``Segmentation.index_pixels``), or the
     relief's mask where there is none (paper mode, an NDVI map). Not the holes the relief fills
     inside its plants, which the windowed measure cannot fill across its windows (on a potato
     trial's day 100, 66 % of the photo with them, 54 % without).
@@ -161,7 +161,7 @@ def measure_canopy(
     valid : (rows, cols) bool array, optional
         Pixels where the photo has data: only there can soil be told from plants.
     soil : (rows, cols) bool array, optional
-        What the photo calls bare soil (see :func:`cliff_terrain.photo_heights.vegetation.bare_soil`):
+        What the photo calls bare soil (see :func:`cliff_terrain.photo_heights.bare_soil.bare_soil`):
         evidence for the ground, which the surface can overrule; default: every pixel that is not
         a plant.
     ground_method : {"auto", "baseline", "smooth", "detailed"}, optional
@@ -269,7 +269,7 @@ def measure_orthophoto(ortho, dsm, *, dtm=None, resolution=None, block_m=DEFAULT
             rgb = cv2.resize(rgb, shape[::-1], interpolation=cv2.INTER_AREA)
             if valid is not None:
                 valid = cv2.resize(valid.astype(np.uint8), shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
-    from ..photo_heights.vegetation import bare_soil
+    from ..photo_heights.bare_soil import bare_soil
 
     plants = plant_mask(rgb, valid=valid)
     canopy = measure_canopy(
@@ -303,7 +303,7 @@ def relief_heights(
     transform, crs = photo_grid(path, stages.metadata, stages.working.shape[:2])
     plants = stages.segmentation.mask
     valid = photo_valid(stages.metadata, plants.shape)  # an orthophoto's no-data is neither soil nor plant
-    from ..photo_heights.vegetation import bare_soil
+    from ..photo_heights.bare_soil import bare_soil
 
     seg = stages.segmentation
     # The ground's soil by the threshold the plants got (the DSM's, when it decided a senescent class).

@@ -24,7 +24,7 @@ def naive_block_ground(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, percentile=5
 
     What one does without knowing which pixels are soil: with ``percentile=2`` and 5 m blocks it
     is the naive baseline every estimate is compared with, and the ``"baseline"`` candidate of
-    :func:`fit_ground`.
+    :func:`cliff_terrain.measure.ground.fit_ground`.
 
     Examples
     --------

@@ -376,6 +376,8 @@ def plots_from(
 
 def parse_pair(text, name, *, count=2):
     """``"AxB"`` or ``"A,B"`` as floats (the command line's sizes and points)."""
+    if isinstance(text, str):
+        text = text.strip()  # the command line's negative coordinates come with a leading space
     parts = text.replace("x", ",").replace("X", ",").split(",") if isinstance(text, str) else text
     try:
         values = [float(p) for p in parts]

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..photo_heights.cover import BLUR_REACH
+from ..photo_heights.vegetation import BLUR_REACH
 from .field_plots import pixel_vertices, table_columns
 from .ground import canopy_height, surface_data
 from .ground_grid import reduce_for_ground
@@ -88,7 +88,7 @@ class CoarseTask:
     index: str
     threshold: float
     core: tuple  # (r0, r1, c0, c1), multiples of factor but at the grid's end
-    # The whole photo's soil class's upper limit (vegetation.soil_ceiling), for ``factor`` > 1.
+    # The whole photo's soil class's upper limit (bare_soil.soil_ceiling), for ``factor`` > 1.
     soil_ceiling: float = float("inf")
 
 
@@ -101,7 +101,7 @@ def coarse_window(task, *, sources=None):
     any, so that the plants in a block do not lift the soil it shows, and the mean of its pixels
     with data when it shows none; a block has data when most of its pixels inside the raster have
     (:func:`~cliff_terrain.measure.ground_grid.reduce_for_ground`, as in memory). Bare soil is
-    what :func:`~cliff_terrain.photo_heights.vegetation.bare_soil` calls it on the whole photo:
+    what :func:`~cliff_terrain.photo_heights.bare_soil.bare_soil` calls it on the whole photo:
     the blurred index at or below the threshold and at or below the whole photo's
     ``soil_ceiling``, so that shaded, yellowing or senescent leaves below the plant threshold
     neither lift a block's soil nor count as the ground's evidence. Any soil, not most: the full

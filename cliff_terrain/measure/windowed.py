@@ -17,9 +17,9 @@ of a bounded *ground grid* plus one window, whatever the orthophoto's size:
    orthophoto (every n-th pixel, at most 4 MP: the orthophoto itself up to that size); where the
    colour leaves it undecided, the DSM sampled at the overview's pixels decides it, as the
    in-memory segmentation's :func:`~cliff_terrain.photo_heights.segmentation.decide_by_surface` does.
-   Bare soil is what :func:`~cliff_terrain.photo_heights.vegetation.bare_soil` calls it in memory:
+   Bare soil is what :func:`~cliff_terrain.photo_heights.bare_soil.bare_soil` calls it in memory:
    below that threshold and below the soil class's ceiling
-   (:func:`~cliff_terrain.photo_heights.vegetation.soil_ceiling`, on the same overview), so that
+   (:func:`~cliff_terrain.photo_heights.bare_soil.soil_ceiling`, on the same overview), so that
    shaded, yellowing or senescent leaves neither lift a block nor count as soil (on the photo's own
    grid, ``factor`` 1, it is taken on the whole grid, exactly as in memory). On a recoloured
    soybean field whose plants were made golden, a 2 x 2 grid that took every pixel below the
@@ -286,7 +286,8 @@ def _on_threads(function, arguments, shared, readers):
 
 def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run=None):
     from ..io.raster.geotiff_stream import RasterSpool, TileSpool
-    from ..photo_heights.vegetation import bare_soil, blurred_index, photo_threshold, soil_ceiling
+    from ..photo_heights.bare_soil import bare_soil, soil_ceiling
+    from ..photo_heights.vegetation import blurred_index, photo_threshold
 
     transform = sources.ortho.transform
     shape = sources.ortho.shape

@@ -106,10 +106,11 @@ def mosaic_settings(
     """
     from scipy import ndimage
 
+    from ..photo_heights.holes import soil_level
     from ..photo_heights.inflate import resolve_profile, typical_plant_radius
     from ..photo_heights.labels import distance_map, label_max
     from ..photo_heights.quaternion import quaternion_filter
-    from ..photo_heights.segmentation import segment, soil_level
+    from ..photo_heights.segmentation import segment
     from ..photo_heights.vegetation import blurred_index
     from ..photo_heights.watershed import colour_edges, default_edge_scale
 

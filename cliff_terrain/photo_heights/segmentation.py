@@ -20,11 +20,12 @@ Two modes:
     Touching plants are split by a
     watershed whose markers are the distance map's peaks and whose landscape adds the quaternion
     filter's colour-edge strength, so boundaries follow colour edges between plants. Holes are
-    filled only where they are plausibly inside a plant (see :func:`plant_holes`): soil enclosed
+    filled only where they are plausibly inside a plant (see :func:`.holes.plant_holes`): soil enclosed
     by canopy, such as the strips between rows that join at their ends, stays flat.
 
-The index and its threshold are in :mod:`.vegetation`, the watershed in :mod:`.watershed`, the
-labels, distances and boundaries in :mod:`.labels`; this module puts them together.
+The index and its threshold are in :mod:`.vegetation`, the holes filled in :mod:`.holes`, the
+watershed in :mod:`.watershed`, the labels, distances and boundaries in :mod:`.labels`; this module
+puts them together.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from .._validate import check_choice, check_float, check_int, check_rgb
 from ..errors import CliffTerrainError
 from ..settings import SEGMENTATIONS, ids
 from .histogram import otsu_threshold
+from .holes import clean_mask
 from .labels import distance_map, inner_boundaries
 from .separation import surface_split
 from .vegetation import COLOUR_SEPARATION, ThresholdRule, blurred_index, photo_threshold
@@ -84,6 +86,11 @@ class Segmentation:
         ``distance_map(labels)``: each region pixel's distance to the nearest pixel outside its
         region (computed with the watershed; the inflation's D). The same array as `distance`
         where the watershed split nothing.
+    index_pixels : (rows, cols) bool or None
+        The vegetation mode's index above `threshold`, before specks are dropped and holes filled
+        (no-data pixels included): the plant pixels canopy cover counts, as the windowed measure
+        does (:func:`cliff_terrain.measure.canopy.cover_pixels`). None in paper mode and when
+        `mask` was given.
     """
 
     mask: np.ndarray
@@ -97,6 +104,7 @@ class Segmentation:
     region_distance: np.ndarray | None = None
     separation: float = float("nan")
     threshold_note: str = ""
+    index_pixels: np.ndarray | None = None
 
     @property
     def n_regions(self) -> int:
@@ -146,8 +154,8 @@ def segment(
         The watershed's marker radius and colour-edge scale (see :func:`split_regions`); by
         default from this image's regions and edges. Tiles of one mosaic share the whole mosaic's.
     soil : float, optional
-        The soil's index for the hole rule (see :func:`plant_holes`); by default this image's
-        :func:`soil_level`. Tiles of one mosaic share the whole mosaic's.
+        The soil's index for the hole rule (see :func:`.holes.plant_holes`); by default this image's
+        :func:`.holes.soil_level`. Tiles of one mosaic share the whole mosaic's.
     index_map : (rows, cols) float array, optional
         NDVI of a multispectral orthomosaic on the image's grid (NaN = no data), used by
         ``"vegetation"`` instead of the colour index; its threshold is the photo's own (see
@@ -210,12 +218,14 @@ def segment(
         if mask.shape != image.shape[:2]:
             raise CliffTerrainError(f"`mask` must have shape {image.shape[:2]}, got {mask.shape}")
         rule = ThresholdRule(threshold, index, "given", float("nan"))
+        index_pixels = None
     elif method == "paper":
         if filtered is None:
             raise CliffTerrainError("`filtered` is required when `method` is 'paper', got None")
         mask, rule = _paper_mask(filtered, valid, threshold)
+        index_pixels = None
     else:
-        mask, rule = vegetation_mask(
+        mask, rule, index_pixels = vegetation_mask(
             image,
             index=index,
             valid=valid,
@@ -224,12 +234,13 @@ def segment(
             soil=soil,
             index_map=index_map,
             red=red,
+            return_index_pixels=True,
         )
     threshold, index_name, source, valley = rule.threshold, rule.index, rule.source, rule.valley
     if method == "paper":
         if valid is not None:
             mask &= valid
-        mask = _clean(mask, min_region)  # the paper fills every hole (imfill)
+        mask = clean_mask(mask, min_region)  # the paper fills every hole (imfill)
     distance = distance_map(mask)
     edges = colour_edges(filtered) if (filtered is not None and method == "vegetation") else None
     labels, region_distance = split_regions(
@@ -248,6 +259,7 @@ def segment(
         region_distance=region_distance,
         separation=rule.separation,
         threshold_note=rule.note,
+        index_pixels=index_pixels,
     )
 
 
@@ -311,17 +323,29 @@ def decide_by_surface(seg, image, surface, *, filtered=None, valid=None, index_m
 
 
 def vegetation_mask(
-    image, *, index="auto", valid=None, threshold=None, min_region=0, soil=None, index_map=None, red=None
+    image,
+    *,
+    index="auto",
+    valid=None,
+    threshold=None,
+    min_region=0,
+    soil=None,
+    index_map=None,
+    red=None,
+    return_index_pixels=False,
 ):
     """The plants' mask of :func:`segment`'s ``"vegetation"`` mode, before the watershed.
 
     The index thresholded, the no-data pixels dropped, specks dropped and the holes plausibly inside
-    a plant filled (see :func:`plant_holes`). Arguments as :func:`segment`'s (checked there).
+    a plant filled (see :func:`.holes.plant_holes`). Arguments as :func:`segment`'s (checked there).
 
     Returns
     -------
     mask : (rows, cols) bool array
     rule : ThresholdRule
+    index_pixels : (rows, cols) bool array
+        With `return_index_pixels` only: the index above the threshold, before anything is
+        dropped or filled (``Segmentation.index_pixels``).
     """
     if index_map is not None:
         index_map = np.asarray(index_map, dtype=np.float32)
@@ -335,10 +359,12 @@ def vegetation_mask(
                 + ("" if index_map is not None else " without `index_map`")
             )
     mask, rule, vi = _vegetation_mask(image, index, valid, threshold, index_map, red)
+    index_pixels = mask.copy() if return_index_pixels else None
     if valid is not None:
         mask &= valid
     # Vegetation mode fills only the holes plausibly inside a plant.
-    return _clean(mask, min_region, vi=vi, threshold=rule.threshold, soil=soil), rule
+    mask = clean_mask(mask, min_region, vi=vi, threshold=rule.threshold, soil=soil)
+    return (mask, rule, index_pixels) if return_index_pixels else (mask, rule)
 
 
 def _paper_mask(filtered, valid, threshold=None):
@@ -372,118 +398,3 @@ def _vegetation_mask(image, index, valid, threshold=None, index_map=None, red=No
     else:
         rule = ThresholdRule(threshold, name, "given", float("nan"))
     return vi > rule.threshold, rule, vi
-
-
-def _clean(mask, min_region, *, vi=None, threshold=None, soil=None):
-    """Drop specks and fill holes (the paper's ``bwareaopen`` and ``imfill``).
-
-    Without `vi` every hole is filled (``imfill``); with it only the holes that
-    :func:`plant_holes` finds plausibly inside a plant.
-    """
-    mask = np.ascontiguousarray(mask, dtype=np.uint8)
-    components = None
-    if min_region > 0:
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        keep = stats[:, cv2.CC_STAT_AREA] >= min_region
-        keep[0] = False
-        mask = keep.astype(np.uint8)[labels]
-        # Holes lie next to kept components only: the labels and areas serve plant_holes as they are.
-        components = (labels, stats[:, cv2.CC_STAT_AREA])
-    # Holes: background that cannot be reached from the frame (flood the padded background).
-    padded = np.pad(mask, 1)
-    flood = padded.copy()
-    cv2.floodFill(flood, None, (0, 0), 1)
-    holes = flood[1:-1, 1:-1] == 0
-    if vi is None or not holes.any():
-        return holes | (mask > 0)
-    filled = plant_holes(mask, holes, vi, threshold, min_region=min_region, soil=soil, _components=components)
-    return filled | (mask > 0)
-
-
-# A hole this small against the plant region around it is a leaf gap or a highlight.
-HOLE_FRACTION = 0.02
-
-
-def plant_holes(mask, holes, vi, threshold, *, min_region=0, soil=None, _components=None):
-    """The holes of `mask` that plausibly lie inside a plant, to be filled.
-
-    A hole is kept (filled) when it is small compared with the region that encloses it (at most
-    ``HOLE_FRACTION`` = 2 % of that region's area, or smaller than `min_region`): a gap between
-    leaves, a specular highlight; or when it is not soil-coloured: its mean vegetation index lies
-    above the midpoint between the soil's (:func:`soil_level`, the median over all non-plant
-    pixels) and the threshold (shadows and pale spots inside a plant). Any other hole is soil
-    enclosed by canopy, such as the strip between two crop rows that join at their ends, and
-    stays flat.
-
-    Parameters
-    ----------
-    mask : (rows, cols) bool or uint8 array
-        Plant pixels.
-    holes : (rows, cols) bool array
-        Non-plant pixels that cannot be reached from the frame.
-    vi : (rows, cols) float array
-        The vegetation index the mask was thresholded from.
-    threshold : float
-        Its threshold.
-    min_region : int, optional
-        Holes smaller than this many pixels are always filled.
-    soil : float, optional
-        The soil's index; default ``soil_level(vi, mask)``.
-
-    Returns
-    -------
-    (rows, cols) bool array
-        The holes to fill.
-
-    Examples
-    --------
-    >>> mask = np.zeros((60, 60), bool); mask[5:55, 5:55] = True
-    >>> mask[10:12, 10:12] = False; mask[20:50, 30:34] = False   # a leaf gap and a soil strip
-    >>> vi = np.where(mask, 0.4, -0.2).astype(np.float32)
-    >>> holes = np.zeros_like(mask); holes[5:55, 5:55] = ~mask[5:55, 5:55]
-    >>> filled = plant_holes(mask, holes, vi, 0.1)
-    >>> bool(filled[10, 10]), bool(filled[30, 31])
-    (True, False)
-    """
-    mask = np.ascontiguousarray(mask, dtype=np.uint8)
-    holes = np.ascontiguousarray(holes, dtype=bool)
-    vi = np.asarray(vi, dtype=np.float32)
-    n_holes, hole_labels, hole_stats, _ = cv2.connectedComponentsWithStats(
-        holes.view(np.uint8), connectivity=4, ltype=cv2.CV_32S
-    )
-    if n_holes <= 1:
-        return np.zeros(mask.shape, dtype=bool)
-    if _components is None:
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-        _components = (labels, stats[:, cv2.CC_STAT_AREA])
-    components, component_area = _components
-    area = hole_stats[:, cv2.CC_STAT_AREA].astype(np.float64)
-    inside = np.flatnonzero(holes)
-    which = hole_labels.ravel()[inside]
-    # The pixel above a hole's first pixel (in raster order) belongs to the region around it.
-    # Assigning in reverse order leaves each hole's first pixel (the last write wins).
-    first = np.empty(n_holes, dtype=np.intp)
-    first[which[::-1]] = inside[::-1]
-    enclosing = components.ravel()[first[1:] - mask.shape[1]]
-    small = (area[1:] < min_region) | (area[1:] <= HOLE_FRACTION * component_area[enclosing])
-    if soil is None:
-        soil = soil_level(vi, mask)
-        soil = float(threshold) if soil is None else soil
-    mean_vi = np.bincount(which, weights=vi.ravel()[inside], minlength=n_holes)[1:] / area[1:]
-    not_soil = mean_vi > 0.5 * (soil + float(threshold))
-    fill = np.zeros(n_holes, dtype=bool)
-    fill[1:] = small | not_soil
-    if fill[1:].all():  # the usual case: every hole is inside a plant
-        return holes
-    return fill[hole_labels]
-
-
-def soil_level(vi, mask):
-    """The soil's vegetation index: its median over the pixels outside `mask` (a sample).
-
-    Holes count as soil. None when every pixel is in `mask`.
-    """
-    vi = np.asarray(vi, dtype=np.float32)
-    step = max(1, vi.size // 200_000)
-    ground = vi.ravel()[::step][np.asarray(mask).ravel()[::step] == 0]
-    return float(np.median(ground)) if ground.size else None

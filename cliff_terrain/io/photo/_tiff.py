@@ -8,7 +8,13 @@ like Pillow's, so the photo loads like any other (with its GeoTIFF GSD and no-da
 
 from __future__ import annotations
 
-from ...errors import GeoreferenceError, ImageReadError, ImageTooLargeError, RasterReadError
+from ...errors import (
+    GeoreferenceError,
+    ImageReadError,
+    ImageTooLargeError,
+    RasterReadError,
+    TruncatedFileError,
+)
 from ..raster._geokeys import GDAL_NODATA, georeference, nodata_value
 from ..raster._tiff_window import TiffRaster
 from ..raster.bands import is_multispectral, read_bands, rgb_rendering
@@ -41,9 +47,9 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
         return None  # missing or unreadable: Pillow's reader words the error
     try:
         tiff = TiffRaster(name, what="image", error=ImageReadError)
-    except ImageReadError as exc:
-        if " is truncated: " in str(exc):
-            raise  # a file cut short is told as such (Pillow's libtiff prints to stderr, then fails)
+    except TruncatedFileError:
+        raise  # a file cut short is told as such (Pillow's libtiff prints to stderr, then fails)
+    except ImageReadError:
         return None  # a broken header: Pillow's reader words the error
     with tiff:
         page = tiff.page

@@ -13,12 +13,19 @@ from __future__ import annotations
 import logging
 import math
 import os
+import struct
 import threading
 from contextlib import contextmanager
 
 import numpy as np
 
-from ...errors import DependencyError, RasterReadError
+from ...errors import (
+    DependencyError,
+    ImageReadError,
+    RasterReadError,
+    TruncatedImageError,
+    TruncatedRasterError,
+)
 from ._geokeys import GEO_TAGS
 
 
@@ -50,6 +57,10 @@ _quiet_depth = 0
 _quiet_level = logging.NOTSET
 
 
+# The truncated kind of each reading error (a subclass of both, so callers catch either).
+_TRUNCATED = {RasterReadError: TruncatedRasterError, ImageReadError: TruncatedImageError}
+
+
 class TiffRaster:
     """The first image of a TIFF file, open for reading.
 
@@ -59,7 +70,9 @@ class TiffRaster:
     what : str, optional
         What the file is, for error messages ("raster", "mosaic", "image").
     error : type, optional
-        The error raised for a missing or unreadable file (:class:`RasterReadError` by default).
+        The error raised for a missing or unreadable file (:class:`RasterReadError` by default); a
+        file cut short raises its truncated kind (:class:`TruncatedRasterError`,
+        :class:`TruncatedImageError`).
 
     Attributes
     ----------
@@ -82,6 +95,7 @@ class TiffRaster:
         import tifffile
 
         self.path = name = os.fspath(path)
+        truncated = _TRUNCATED.get(error, error)
         if not os.path.isfile(name):
             raise error(f"{what} {name!r} does not exist")
         try:
@@ -101,8 +115,10 @@ class TiffRaster:
                 raise error(
                     f"{what} {name!r} is {kind}, not a TIFF; give the GeoTIFF the survey exported"
                 ) from None
-            if isinstance(exc, tifffile.TiffFileError | EOFError | OSError) and _looks_cut(name, size):
-                raise error(
+            if isinstance(exc, tifffile.TiffFileError | EOFError | OSError | struct.error) and _looks_cut(
+                name, size
+            ):
+                raise truncated(
                     f"{what} {name!r} is truncated: its TIFF header ends early ({size} bytes); copy or export it again"
                 ) from None
             raise error(
@@ -116,7 +132,7 @@ class TiffRaster:
         if end > size or any("invalid value offset" in p or "missing data offset" in p for p in problems):
             self._tif.close()
             needs = f", its image data needs {end}" if end > size else ""
-            raise error(
+            raise truncated(
                 f"{what} {name!r} is truncated: the file has {size} bytes{needs} (its header points past "
                 "its end); copy or export it again"
             )
