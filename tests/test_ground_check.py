@@ -158,6 +158,24 @@ def test_a_short_canopy_the_colour_does_not_follow_is_overruled_by_the_surface(c
     assert abs(np.median(heights) - 0.20) < 0.03
 
 
+def test_where_the_surface_overrules_the_colour_the_grounds_lift_counts_in_the_error():
+    # Nothing confirms the surface's soil level when the colour is overruled: where the ground
+    # stands above the lowest surface (the naive baseline), the lift counts in full in the error. On
+    # a real closed potato canopy cut to its plots the surface's lowest layer was the canopy's, and
+    # the plots read 7-19 cm low with a stated error of 2.5-3.7 cm.
+    dsm, ground, bed = beds(height=0.20)
+    soil = np.random.default_rng(1).random(dsm.shape) < 0.6
+    fit = fit_ground(dsm, soil=soil, pixel_size=0.05)
+    assert fit.check["evidence"]["colour_contradicted"].startswith("the photo's plants stand no higher")
+    lift = np.maximum(fit.ground - naive_block_ground(dsm, pixel_size=0.05, percentile=2.0), 0.0)
+    assert fit.check["sigma_model"]["unconfirmed_lift_m"] == pytest.approx(float(np.median(lift)), abs=1e-6)
+    assert lift[bed].mean() > 0.01  # the furrow-level baseline lies below the soil the ground rests on
+    assert (fit.sigma >= lift - 1e-6).all() and (fit.sigma**2 - lift**2 > 0.02**2 - 1e-6).all()
+    trusted = fit_ground(dsm, soil=~bed, pixel_size=0.05)  # the colour's plants stand above its soil
+    assert "unconfirmed_lift_m" not in trusted.check["sigma_model"]
+    assert float(np.median(fit.sigma)) > float(np.median(trusted.sigma)) + 0.005
+
+
 def test_the_soil_band_ends_above_the_lowest_mode_not_the_largest_nor_a_shoulder():
     rng = np.random.default_rng(0)
     soil = rng.normal(0.02, 0.01, 40_000)
@@ -509,7 +527,8 @@ def test_heights_on_a_grey_photo_says_the_surface_decided_and_measures_the_same(
         runs[name] = done.stdout, evidence, p90
     stdout, evidence, p90 = runs["grey"]
     assert evidence["source"] == "surface" and evidence["colour_contradicted"]
-    assert f"soil from the surface: {evidence['colour_contradicted']})" in stdout
+    assert f"soil from the surface: {evidence['colour_contradicted']} (the ground stands " in stdout
+    assert "above the lowest surface, median, with no colour to confirm it: counted in the error)" in stdout
     assert "soil from the surface" not in runs["ortho"][0]
     assert "colour_contradicted" not in runs["ortho"][1]
     assert np.abs(p90 - runs["ortho"][2]).max() < 0.03
