@@ -137,7 +137,7 @@ def evidence_note(check):
     why = evidence.get("colour_contradicted")
     note = f"; soil from the surface: {why}" if why else ""
     lift = ((check or {}).get("sigma_model") or {}).get("unconfirmed_lift_m")
-    if why and lift is not None:
+    if why and lift is not None and lift >= 0.005:
         note += f" (the ground stands {lift * 100:.0f} cm above the lowest surface, median, with no colour to confirm it: counted in the error)"
     occluded = ((check or {}).get("occlusion") or {}).get("note")
     return f"{note}; {occluded}" if occluded else note

@@ -187,8 +187,12 @@ def dask_client(*, workers=None, scheduler=None, timeout=10.0, memory_limit="aut
                     raise CliffTerrainError(
                         f"`memory_limit` must be a size such as 2GiB or 'auto', got {memory_limit!r}"
                     ) from None
-            cluster = local_cluster(n, memory_limit=memory_limit)
-            client = Client(cluster, set_as_default=False)
+            with _workers_ignore_ctrl_c():
+                cluster = local_cluster(n, memory_limit=memory_limit)
+                # Connected while Ctrl-C is still ignored: one pressed between the cluster's start
+                # and the client's left a half-made client, whose close at exit waited 60 s for a
+                # loop already gone and printed a traceback after "interrupted".
+                client = Client(cluster, set_as_default=False)
         with client:
             try:
                 yield client
