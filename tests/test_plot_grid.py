@@ -291,9 +291,9 @@ def test_corners_and_origin_take_negative_map_coordinates(tmp_path):
     from cliff_terrain.io.raster.geotiff import geotiff_tags
 
     ortho = odm()
-    shift = np.array([[1.0, 0.0, -ortho.transform[0, 2] - 500.0], [0.0, 1.0, -ortho.transform[1, 2] - 10.0]])
+    shift = np.array([-ortho.transform[0, 2] - 500.0, -ortho.transform[1, 2] - 10.0])  # map metres
     moved = ortho.transform.copy()
-    moved[:2, 2] += shift[:, 2]
+    moved[:2, 2] += shift
     assert moved[0, 2] < 0 and moved[1, 2] < 0  # every map coordinate of the photo is negative
     photo = tmp_path / "negative.tif"
     alpha = ortho.valid.astype(np.uint8) * 255
@@ -315,7 +315,7 @@ def test_corners_and_origin_take_negative_map_coordinates(tmp_path):
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     for got, want in zip(moved_plots.polygons, read_plots(tmp_path / "odm.geojson").polygons, strict=True):
-        np.testing.assert_allclose(np.asarray(got[0]) - shift[:, 2], np.asarray(want[0]), atol=1e-3)
+        np.testing.assert_allclose(np.asarray(got[0]) - shift, np.asarray(want[0]), atol=1e-3)
     origin = f"{moved[0, 2] + 20:.3f},{moved[1, 2] - 30:.3f}"
     done = run_cli(
         "plots", photo, "--grid", "2x2", "--plot-size", "1x3", "--origin", origin, "--out", out, "--overwrite"
