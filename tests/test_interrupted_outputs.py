@@ -4,6 +4,7 @@ command then runs again without ``--overwrite``."""
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -212,13 +213,18 @@ def test_ctrl_c_on_a_local_clusters_terminal_prints_one_line_and_leaves_nothing(
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, start_new_session=True,
     )  # fmt: skip
 
+    def read(path):  # a thread or a short-lived child can end between a listing and a read
+        try:
+            return path.read_bytes()
+        except (FileNotFoundError, ProcessLookupError):
+            return b""
+
     def workers():  # the cluster's worker processes: children of any of this run's threads
-        found = []
-        for task in Path(f"/proc/{proc.pid}/task").iterdir():
-            for child in (task / "children").read_text().split():
-                if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
-                    found.append(child)
-        return found
+        with contextlib.suppress(FileNotFoundError):
+            tasks = list(Path(f"/proc/{proc.pid}/task").iterdir())
+            children = (child for task in tasks for child in read(task / "children").split())
+            return [c for c in children if b"spawn_main" in read(Path(f"/proc/{c.decode()}/cmdline"))]
+        return []
 
     def ignores_ctrl_c():  # while it starts the cluster, this process ignores SIGINT too
         status = Path(f"/proc/{proc.pid}/status").read_text()
