@@ -135,6 +135,18 @@ def datablock_counts(addon):
     return _datablock_counts
 
 
+@pytest.fixture
+def no_bpy(tmp_path):
+    """An environment whose `bpy` raises on import: proof that a command or script never imports
+    Blender (render_views.py's checks must come before it starts)."""
+    shim = tmp_path / "shim" / "bpy"
+    shim.mkdir(parents=True)
+    (shim / "__init__.py").write_text("raise RuntimeError('bpy was imported')\n")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(shim.parent)
+    return env
+
+
 def blender_only_site(tmp_path: Path) -> Path:
     """A folder that holds only what a Blender without the extension has: bpy, numpy and bpy's own
     dependencies (bpy 5.2 needs cattrs, for example), linked from this interpreter's site-packages.

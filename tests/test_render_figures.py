@@ -3,7 +3,6 @@ on the rendered pixels, the transect, the legends on copies of the renders, and 
 
 import importlib.util
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -178,17 +177,6 @@ def test_key_figures_in_metrics_and_summary(transect_run):
     assert summary.ndim == 3 and summary.shape[1] >= 1000 and summary.shape[0] >= 1000
     # Mostly paper, with the panels on it (not a blank or black sheet).
     assert 0.2 < (summary == 255).all(axis=-1).mean() < 0.9
-
-
-@pytest.fixture
-def no_bpy(tmp_path):
-    """An environment in which importing bpy fails loudly: the check must come before Blender."""
-    shim = tmp_path / "shim" / "bpy"
-    shim.mkdir(parents=True)
-    (shim / "__init__.py").write_text("raise RuntimeError('bpy was imported')\n")
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(shim.parent)
-    return env
 
 
 @pytest.mark.parametrize(

@@ -234,17 +234,6 @@ def test_overwrite_replaces_the_outputs_and_smaller_views_stay_aligned(tmp_path,
     assert not (copy / "scene.blend1").exists()
 
 
-@pytest.fixture
-def no_bpy(tmp_path):
-    """An environment whose `bpy` raises on import: proof that a command never imports Blender."""
-    shim = tmp_path / "shim" / "bpy"
-    shim.mkdir(parents=True)
-    (shim / "__init__.py").write_text("raise RuntimeError('bpy was imported')\n")
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(shim.parent)
-    return env
-
-
 def test_help_answers_without_blender(no_bpy):
     proc = run(str(SCRIPT), "--help", env=no_bpy, timeout=60)
     assert proc.returncode == 0, proc.stderr
