@@ -386,6 +386,34 @@ def test_a_ruler_keyed_by_a_plot_number_each_trial_repeats_is_refused_not_joined
         read_ruler(path, plots)
 
 
+@pytest.mark.parametrize(
+    "header, row, unit, metres",
+    [
+        # A breeding program's export: the trait abbreviated, the unit in a column of its own.
+        ("Plot,Name,HD,HT,MAT,Units", "2,Glenn,52,31,88,inches", "in", 31 * 0.0254),
+        ("Plot,PH_cm,Yield", "2,74,3.1", "cm", 0.74),
+        ("Plot,PLTHT (in)", "2,29.5", "in", 29.5 * 0.0254),
+        ("Plot,plant_height_inch", "2,30", "in", 30 * 0.0254),
+    ],
+)
+def test_a_field_books_abbreviated_height_and_inches_are_read(tmp_path, header, row, unit, metres):
+    path = tmp_path / "book.csv"
+    path.write_text(f"{header}\n{row}\n")
+    ruler = read_ruler(path, _plots([1, 2, 3]))
+    # "2" names the plot whose PlotID is 2, not the 0-based plot 2: on a tie the attribute wins.
+    assert ruler.unit == unit and ruler.plot_field == "PlotID"
+    np.testing.assert_allclose(ruler.heights_m, [np.nan, metres, np.nan])
+
+
+@pytest.mark.parametrize("header", ["Plot,WEIGHT,units", "Plot,phase,units", "Plot,HT,PH,units"])
+def test_words_that_only_contain_a_heights_letters_are_not_a_height(tmp_path, header):
+    path = tmp_path / "book.csv"
+    path.write_text(f"{header}\n2,1,1,cm\n")
+    words = "several height columns" if ",HT," in header else "no column named like a height"
+    with pytest.raises(RulerError, match=words):
+        read_ruler(path, _plots([1, 2, 3]))
+
+
 def test_a_binary_field_book_is_refused(tmp_path):
     path = tmp_path / "book.xlsx"
     path.write_bytes(b"PK\x03\x04\x00\x00binary")

@@ -71,7 +71,7 @@ def configure(parser):
     )
     parser.add_argument(
         "--ruler-units",
-        choices=("m", "cm", "mm"),
+        choices=("m", "cm", "mm", "in"),  # measure.ruler.UNITS (not imported to parse arguments)
         default=None,
         help="unit of the ruler's heights (default: from a 'unit' column or the column's name)",
     )

@@ -20,9 +20,14 @@ import numpy as np
 
 from ..errors import CliffTerrainError, RulerError
 
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-_UNIT_IN_NAME = re.compile(r"(?:^|[_\s(\[])(m|cm|mm)[)\]]?$", re.IGNORECASE)
+# The inch is exact (0.0254 m since 1959): field books of North American trials often keep heights in it.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+_UNIT_NAMES = {"inch": "in", "inches": "in"}
+_UNIT_IN_NAME = re.compile(r"(?:^|[_\s(\[])(m|cm|mm|in|inch|inches)[)\]]?$", re.IGNORECASE)
 _UNIT_COLUMNS = ("unit", "units")
+# Field books abbreviate the trait: HT, PH, PHT, PLHT, PLTHT (plant height, as in the Crop
+# Ontology's trait names and breeding databases' exports), alone or beside a unit or a date.
+_HEIGHT_WORDS = {"ht", "ph", "pht", "plht", "pltht", "planthgt", "hgt"}
 # |error| <= Z90 x standard error for 90 % of plots when the errors are normal (the two-sided 90 %
 # interval): what an uncertainty "covers", here and on the validation page.
 Z90 = 1.645
@@ -83,11 +88,13 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
         The plots (:func:`cliff_terrain.io.vector.plot_polygons.read_plots`); an id matches one of their
         attributes (the one that matches most rows) or ``plot``, the 0-based index.
     id_column, height_column : str, optional
-        The file's columns; default: the column whose values match the plots best, and the column
-        whose name holds "height" (or is ``ph``).
-    units : {"m", "cm", "mm"}, optional
+        The file's columns; default: the column whose values match the plots best, and the one
+        column named like a height: its name holds "height", or one of its words is a field book's
+        abbreviation (``HT``, ``PH``, ``PHT``, ``PLHT``, ``PLTHT``, ``HGT``).
+    units : {"m", "cm", "mm", "in"}, optional
         The heights' unit; default: from a ``unit``/``units`` column, else from the height column's
-        name (``height_cm``, ``Height (m)``). One of them must say it.
+        name (``height_cm``, ``Height (m)``, ``PH_in``; ``inch`` and ``inches`` are ``in``). One of
+        them must say it.
 
     Returns
     -------
@@ -136,9 +143,10 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
             f"the ruler file {name!r}: its header is one column, {columns[0]!r}: save it comma-separated"
         )
     height_column = _height_column(name, columns, height_column)
-    fields = {"plot": [str(i) for i in range(len(plots))]}
-    for field in plots.fields:
-        fields[field] = [_key(a.get(field, "")) for a in plots.attributes]
+    # The plots' own attributes before the 0-based index: on a tie (a few rows of ids 1, 2, ... that
+    # both name), the ids are the attribute's. An attribute named `plot` stands for the index.
+    fields = {field: [_key(a.get(field, "")) for a in plots.attributes] for field in plots.fields}
+    fields.setdefault("plot", [str(i) for i in range(len(plots))])
     id_column, plot_field, index = _id_column(name, rows, columns, id_column, fields, height_column)
     unit = _unit(name, rows, columns, height_column, units)
     heights = np.full(len(plots), np.nan)
@@ -177,13 +185,21 @@ def _height_column(name, columns, wanted):
                 f"the ruler file {name!r} has no column {wanted!r} (it has {', '.join(columns)})"
             )
         return wanted
-    found = [c for c in columns if "height" in c.lower() or c.strip().lower() == "ph"]
+    found = [c for c in columns if _names_a_height(c)]
     if len(found) != 1:
         why = "no column named like a height" if not found else f"several height columns ({', '.join(found)})"
         raise RulerError(
             f"the ruler file {name!r} has {why}; name it with --ruler-height (columns: {', '.join(columns)})"
         )
     return found[0]
+
+
+def _names_a_height(column):
+    """Whether a column's name names a height: holds "height", or one of its words is a field book's
+    abbreviation of it (``HT``, ``PH_cm``, ``PLTHT 2023-07-26``), not merely contains it (``WEIGHT``,
+    ``phase``)."""
+    text = column.strip().lower()
+    return "height" in text or any(word in _HEIGHT_WORDS for word in re.split(r"[^a-z]+", text))
 
 
 def _id_column(name, rows, columns, wanted, fields, height_column):
@@ -222,7 +238,7 @@ def _id_column(name, rows, columns, wanted, fields, height_column):
 def _unit(name, rows, columns, height_column, units):
     unit_column = next((c for c in columns if c.strip().lower() in _UNIT_COLUMNS), None)
     if unit_column is not None:
-        seen = {(r.get(unit_column) or "").strip().lower() for r in rows} - {""}
+        seen = {_unit_name((r.get(unit_column) or "").strip().lower()) for r in rows} - {""}
         if len(seen) > 1:
             raise RulerError(
                 f"the ruler file {name!r} mixes units in column {unit_column!r} ({', '.join(sorted(seen))}); "
@@ -231,13 +247,13 @@ def _unit(name, rows, columns, height_column, units):
         if seen:
             (found,) = seen
             if found not in UNITS:
-                raise RulerError(f"the ruler file {name!r}: unit {found!r} is not one of m, cm, mm")
+                raise RulerError(f"the ruler file {name!r}: unit {found!r} is not one of m, cm, mm, in")
             if units is not None and units != found:
                 raise RulerError(f"the ruler file {name!r} says {found!r} but --ruler-units says {units!r}")
             return found
     match = _UNIT_IN_NAME.search(height_column.strip())
     if match:
-        found = match.group(1).lower()
+        found = _unit_name(match.group(1).lower())
         if units is not None and units != found:
             raise RulerError(
                 f"the ruler file {name!r}: column {height_column!r} says {found!r} but --ruler-units says {units!r}"
@@ -246,9 +262,14 @@ def _unit(name, rows, columns, height_column, units):
     if units is None:
         raise RulerError(
             f"the ruler file {name!r} does not say the unit of {height_column!r}; "
-            "give --ruler-units m, cm or mm (or a 'unit' column)"
+            "give --ruler-units m, cm, mm or in (or a 'unit' column)"
         )
     return units
+
+
+def _unit_name(text):
+    """A unit as :data:`UNITS` names it: ``inch`` and ``inches`` are ``in``."""
+    return _UNIT_NAMES.get(text, text)
 
 
 def agreement(estimate, truth, *, err=None):
