@@ -733,7 +733,10 @@ def docs_page(record):
         "(`python bench/validate_real.py DATA_DIR --json record.json --docs docs/validation.md`).",
     ]
     if record.get("provenance"):
-        parts.append(f"*This record:* {record['provenance']}")
+        history = (
+            " What each re-run changed: [Record history](#record-history)." if record.get("history") else ""
+        )
+        parts.append(f"*This record:* {record['provenance']}{history}")
     parts += [
         "## Sources and licences",
         _table(("set", "what", "source (public GitHub repository)", "licence", "reference"), SOURCES),
@@ -867,6 +870,10 @@ def docs_page(record):
     if record.get("notes"):
         parts.append("## Notes on this run")
         parts.append("\n".join(f"- {note}" for note in record["notes"]))
+    if record.get("history"):
+        # The record's re-runs, oldest first: what each changed, so that the page's top stays short.
+        parts.append("## Record history")
+        parts.append("\n".join(f"- {entry}" for entry in record["history"]))
     return "\n\n".join(parts) + "\n"
 
 

@@ -49,7 +49,7 @@ PROFILES = (
         "Isolated plants rise as the circular domes; merged or wide canopy levels off at canopy height",
     ),
 )
-# "auto" measured better than "circular" on every shared photo in the vegetation mode (README).
+# "auto" measured better than "circular" on every shared photo in the vegetation mode (docs/concepts/method.md).
 DEFAULT_PROFILE = "auto"
 # Canopy height of the plateau profile (a ceiling for the others), in metres with a GSD, else in
 # processing pixels; None: estimated from the photo (the radius of a typical isolated plant).
@@ -64,7 +64,7 @@ MESHES = (
     (
         "auto",
         "Auto",
-        "The adaptive mesh from 1.5 MP up, where it builds faster; the grid below (see the README); the build says which",
+        "The adaptive mesh from 1.5 MP up, where it builds faster; the grid below (see docs/concepts/adaptive-mesh.md); the build says which",
     ),
     ("grid", "Grid", "One vertex per pixel corner: every pixel's height, and the most triangles"),
     (
@@ -75,7 +75,7 @@ MESHES = (
 )
 DEFAULT_MESH = "auto"
 # "auto": processing grids of fewer pixels than this get the grid (None: always adaptive). From
-# bench/bench_adaptive_mesh.py --auto (README "`mesh="auto"`, the default"): below about 1.5 MP the
+# bench/bench_adaptive_mesh.py --auto (docs/concepts/adaptive-mesh.md, "`mesh="auto"`, the default"): below about 1.5 MP the
 # TIN costs the core about what the grid's faces cost Blender or more (grid/adaptive Build time
 # 0.70-0.96, once 1.12, at 0.19-1.17 MP on two photos); from there up the adaptive mesh is faster
 # (1.05-1.35 at 1.56-12 MP).

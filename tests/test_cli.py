@@ -102,3 +102,15 @@ def test_help_lists_every_command_without_importing_the_heavy_libraries(capsys):
     text = capsys.readouterr().out
     for name in COMMANDS:
         assert name in text
+
+
+def test_without_a_gsd_no_region_size_is_given_in_metres():
+    # The equivalent diameter was the pixels' under a `_m` name (5.17 "m" for a 21-pixel plant).
+    from cliff_terrain.measure.tables import region_table
+
+    labels = np.zeros((8, 8), int)
+    labels[2:6, 2:6] = 1
+    row = region_table(labels, heights=labels * 0.5)[0]
+    assert row["area_px"] == 16 and np.isnan(row["area_m2"]) and np.isnan(row["equivalent_diameter_m"])
+    metres = region_table(labels, heights=labels * 0.5, pixel_size=0.01)[0]
+    assert metres["equivalent_diameter_m"] == pytest.approx(2 * np.sqrt(16 / np.pi) * 0.01)

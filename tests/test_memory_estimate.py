@@ -44,7 +44,7 @@ def test_past_the_cap_the_run_is_refused_with_the_options_that_fit_and_they_do(p
     lines = done.stderr.splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr
     assert lines[0].startswith(f"cliff-terrain heights: error: measuring '{ORTHO}' ({cols} x {rows} pixels)")
-    assert f"needs about {full:.1f} GiB, more than the {cap:g} GiB cap" in lines[0]
+    assert f"needs about {full:.2f} GiB, more than the {cap:g} GiB cap" in lines[0]
     assert not (tmp_path / "out").exists()
     size, resolution = re.search(r"use --max-size (\d+) or --resolution ([\d.]+)", lines[0]).groups()
     # A quarter of the grid's memory: half the side, to the pixel.

@@ -785,3 +785,19 @@ def test_insecure_joins_a_plain_tcp_scheduler_elsewhere(soybean, tmp_path):
     )  # fmt: skip
     assert done.returncode == 2
     assert "cannot reach the Dask scheduler `tcp://192.0.2.7:8786` within 1 s" in done.stderr
+
+
+def test_an_attribute_named_like_a_season_column_gets_the_suffix_plots_csv_gives_it():
+    # A layout from `cliff-terrain plots` carries its 1-based `plot` number; season.csv called it
+    # `attr_plot` while plots.csv called it `plot_attr`.
+    from cliff_terrain.io.vector.plot_polygons import PlotSet
+    from cliff_terrain.measure.field_plots import table_columns
+    from cliff_terrain.season.table import season_columns
+
+    square = [np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])]
+    plots = PlotSet(
+        [square] * 2, [{"plot": 1, "entry": "G1"}, {"plot": 2, "entry": "G2"}], ("plot", "entry"), None, ""
+    )
+    season = season_columns(plots)
+    assert season[:6] == ("date", "date_source", "image", "plot", "plot_attr", "entry")
+    assert table_columns(plots)[:3] == ["plot", "plot_attr", "entry"]

@@ -107,11 +107,11 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
         return estimate
     what = (
         f"measuring {str(ortho)!r} ({cols} x {rows} pixels) on a {g_cols} x {g_rows} grid "
-        f"needs about {estimate:.1f} GiB, more than the {cap_gib:g} GiB cap"
+        f"needs about {estimate:.2f} GiB, more than the {cap_gib:g} GiB cap"
     )
     if cap_gib - heights_estimate(files_mp, 0.0) <= (GRID_GIB_PER_MP + GROUND_FIT_GIB_PER_MP) * 0.01:
         raise CliffTerrainError(
-            f"{what}, and reading the files alone needs {heights_estimate(files_mp, 0.0):.1f} GiB; crop or "
+            f"{what}, and reading the files alone needs {heights_estimate(files_mp, 0.0):.2f} GiB; crop or "
             "split the orthophoto and its DSM, or raise --max-memory"
         )
     longest_o = max(rows, cols)
@@ -211,7 +211,7 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
         smallest = GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6
         least = max(estimate, resident + window_gib + smallest)
         raise CliffTerrainError(
-            f"measuring {str(ortho)!r} in windows needs about {least:.1f} GiB (one {window_px}-pixel window"
+            f"measuring {str(ortho)!r} in windows needs about {least:.2f} GiB (one {window_px}-pixel window"
             f"{f' here and in each of {workers} workers' if workers else ''}, the files that are striped "
             f"decoded whole, and the ground's grid), more than the {cap_gib:g} GiB cap; raise --max-memory, "
             f"lower --window{', use fewer --workers' if workers else ''}, or tile the striped files "

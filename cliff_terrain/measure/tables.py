@@ -62,7 +62,7 @@ def region_table(labels, *, heights=None, pixel_size=None, transform=None, valid
     list of dict
         ``id``, centroid ``row``/``col`` (pixel centres at +0.5) and ``x``/``y`` (map, NaN without
         a transform), ``area_m2``, ``area_px``, ``equivalent_diameter_m`` (of a disc of the same area;
-        in pixels when there is no GSD), ``cover`` (the region's share of the pixels with data),
+        NaN, as ``area_m2``, when there is no GSD), ``cover`` (the region's share of the pixels with data),
         heights over the region's pixels (``height_mean_m`` ... ``height_max_m``) and ``volume_m3``.
 
     Examples
@@ -104,7 +104,8 @@ def region_table(labels, *, heights=None, pixel_size=None, transform=None, valid
                 "y": y,
                 "area_m2": f["area_m2"] if pixel_size is not None else math.nan,
                 "area_px": int(count[k]),
-                "equivalent_diameter_m": diameter_px * (pixel_size if pixel_size is not None else 1.0),
+                # Without a GSD no metre is known: NaN, as the area's (`area_px` holds the size).
+                "equivalent_diameter_m": diameter_px * pixel_size if pixel_size is not None else math.nan,
                 "cover": count[k] / total if total else math.nan,
                 **{name: f[name] for name in HEIGHT_COLUMNS},
                 "volume_m3": f["volume_m3"] if pixel_size is not None else math.nan,

@@ -24,7 +24,7 @@ def bare_soil(image, *, valid=None, index="auto", threshold=None):
     (:func:`~.vegetation.index_threshold`) and below the soil class's ceiling (:func:`soil_ceiling`). Shaded,
     yellowing or senescent leaves that fall below the plant threshold lie above that ceiling, and
     would otherwise lift the ground under a canopy (on a real potato trial they stood 5.8 cm,
-    median, above the early-season surface and lifted the ground by 4.5 cm; see the README). Soil
+    median, above the early-season surface and lifted the ground by 4.5 cm; see docs/concepts/ground.md). Soil
     seen through gaps in a plant counts: the relief fills such holes so that a plant is one dome,
     but the ground under the plant is best seen there.
 

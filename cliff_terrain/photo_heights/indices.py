@@ -1,6 +1,6 @@
 """Vegetation indices of multispectral bands, each defined once: its formula, bands and reference.
 
-:data:`INDICES` holds the definitions (the README's index table is this table); :func:`index_map`
+:data:`INDICES` holds the definitions (the index table of docs/concepts/multispectral.md is this table); :func:`index_map`
 computes one as a float32 map, NaN where it is undefined (no data, or a zero denominator). Bands
 are reflectance from :func:`cliff_terrain.io.raster.bands.read_bands`. An index whose band the file lacks
 raises :class:`~cliff_terrain.errors.MissingBandError` naming the index, the band and the file.

@@ -32,7 +32,7 @@ TASK_S_PER_IMAGE = 0.02
 
 # A local cluster pays only when its tasks would take longer than this in one process: it starts in
 # 0.8-1.2 s, each worker then imports the pipeline, and 2 workers run the tasks at best 1.7x faster,
-# so it loses below about 2.4 x 1.5 s (see the README's season section for the measurements).
+# so it loses below about 2.4 x 1.5 s (see docs/concepts/season.md for the measurements).
 CLUSTER_PAYS_S = 4.0
 
 

@@ -72,8 +72,9 @@ def _attributes(plot_set, i):
 
 
 def _attribute_column(name):
-    """An attribute's column; one named like a table column is prefixed so nothing is overwritten."""
-    return f"attr_{name}" if name in LEAD_COLUMNS or name in VALUE_COLUMNS else name
+    """An attribute's column: its own name, unless it is one of the table's (then with ``_attr``
+    appended, as in ``plots.csv``: a layout's 1-based ``plot`` number is ``plot_attr`` in both)."""
+    return f"{name}_attr" if name in LEAD_COLUMNS or name in VALUE_COLUMNS else name
 
 
 def season_columns(plot_set, indices=()):
