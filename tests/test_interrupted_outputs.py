@@ -239,3 +239,24 @@ def test_ctrl_c_on_a_local_clusters_terminal_prints_one_line_and_leaves_nothing(
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130 and err == "cliff-terrain heights: interrupted\n", err
     assert not (out / "summary.json").exists()
+
+
+def test_overwrite_removes_the_earlier_runs_outputs_this_run_does_not_write_and_keeps_the_users(
+    pair, tmp_path
+):
+    # A run with plots, then one without them (and windowed: no regions) over it with --overwrite:
+    # the first run's plots.csv and regions stood beside the second's summary, a folder mixing two
+    # runs that looked complete.
+    out = tmp_path / "out"
+    plots = REPO / "tests" / "data" / "odm_plots_by_hand.geojson"
+    assert cli.main([*heights_args(out, "--no-progress"), "--plots", str(plots)]) == 0
+    assert {"plots.csv", "regions.csv"} <= {p.name for p in out.iterdir()}
+    assert cli.main([*heights_args(out, "--no-progress"), "--overwrite", "--windowed"]) == 0
+    windowed = ["chm.tif", "chm_err.tif", "ground_support.tif", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == windowed
+    # Files of those names with no earlier run's summary.json (nor its journal) are the user's: kept.
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "plots.csv").write_text("plot,genotype\n1,G1\n")
+    assert cli.main([*heights_args(mine, "--no-progress"), "--overwrite"]) == 0
+    assert (mine / "plots.csv").read_text() == "plot,genotype\n1,G1\n"

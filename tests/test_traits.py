@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import json
+import shutil
 import subprocess
 import sys
 
@@ -146,3 +147,28 @@ def test_soybean_senescence_agrees_with_the_covers_own_half_crossing(soybean_sea
         [sys.executable, "-m", "cliff_terrain", *args], capture_output=True, text=True, cwd=REPO
     )
     assert again.returncode == 2 and "--overwrite" in again.stderr
+
+
+def test_a_season_run_again_on_other_dates_removes_the_traits_fitted_on_the_old_one(soybean_season, tmp_path):
+    # The season's folder updates in place (its cache keeps the measured dates); the traits/ beside
+    # it, fitted on the season it replaced, stood there unchanged until 2026-12-07.
+    season = tmp_path / "season"
+    shutil.copytree(soybean_season, season)
+    photos = sorted((SHARED_UAV / "lamberton_soybean").glob("*.tif"))
+    plots = SHARED_UAV / "lamberton_soybean" / "plots.geojson"
+
+    def run(*args):
+        done = subprocess.run(
+            [sys.executable, "-m", "cliff_terrain", *map(str, args)], capture_output=True, text=True, cwd=REPO
+        )
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    run("traits", season)
+    fitted = sorted(p.name for p in (season / "traits").iterdir())
+    assert fitted == ["growth.png", "traits.csv", "traits.geojson", "traits_map.png"]
+    same = run("season", *photos, "--plots", plots, "--out", season, "--workers", "0")
+    assert sorted(p.name for p in (season / "traits").iterdir()) == fitted and "removed" not in same
+    fewer = run("season", *photos[:-1], "--plots", plots, "--out", season, "--workers", "0")
+    assert list((season / "traits").iterdir()) == []
+    assert "removed traits.csv, traits.geojson, growth.png, traits_map.png from" in fewer

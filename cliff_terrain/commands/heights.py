@@ -264,7 +264,7 @@ def run(args):
     files[out / "summary.json"] = json.dumps(json_safe(summary), indent=2) + "\n"
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_files(files)
+        write_files(files, remove=stale_outputs(out, outputs))
     except OSError as exc:
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
     ground = canopy.ground_source
@@ -279,6 +279,29 @@ def run(args):
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
+
+
+# Every file `heights` may write; summary.json, written last, marks a finished run.
+ALL_OUTPUTS = (
+    "chm.tif",
+    "ground_support.tif",
+    "chm_err.tif",
+    "regions.csv",
+    "regions.geojson",
+    "plots.csv",
+    "plots.geojson",
+    "ruler.png",
+    "summary.json",
+)
+
+
+def stale_outputs(out, outputs):
+    """An earlier run's outputs in `out` that this run, writing `outputs`, does not write (its plots
+    without --plots, its regions when windowed, its ruler.png without --ruler): removed as this run's
+    are written (:func:`~cliff_terrain.commands.out_folder.previous_outputs`)."""
+    from ..measure.tables import previous_outputs
+
+    return previous_outputs(out, [n for n in ALL_OUTPUTS if n not in outputs], markers=("summary.json",))
 
 
 def _windowed(args):
@@ -362,4 +385,5 @@ def _run_windowed(args, outputs, plots, ruler):
         ground_pixels=budget,
         estimate_gib=estimate,
         threads=threads,
+        stale=stale_outputs(args.out, outputs),
     )

@@ -8,13 +8,14 @@ fits the cap, the plot table exact. It writes ``chm.tif``, ``chm_err.tif`` and
 ``plots.csv`` and ``plots.geojson`` (the in-memory run's columns), with ``--ruler`` its columns and
 ``ruler.png``, and ``summary.json`` (``"windowed"``: the window, the ground grid's pixel and
 factor, each stage's wall time). It writes no ``regions.csv``: the plants' regions come from the
-in-memory segmentation's watershed. ``--indices`` and ``--band-files`` are refused (they read the bands whole).
+in-memory segmentation's watershed. ``--indices`` and ``--band-files`` are refused (they read the bands whole). `stale`: an earlier
+run's outputs that this one does not write, removed as its own are written.
 """
 
 from __future__ import annotations
 
 
-def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, threads=1):
+def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, threads=1, stale=()):
     import contextlib
     import json
     import shutil
@@ -102,7 +103,11 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
             files = dict(sorted(files.items(), key=lambda item: order.get(item[0], -1)))
             # All at once: the rasters' reading, copying and Deflate of their overviews release the
             # GIL, so the tables' Python runs beside them.
-            write_files(files, threads=max(usable_cores(), sum(map(callable, files.values()))))
+            write_files(
+                files,
+                threads=max(usable_cores(), sum(map(callable, files.values()))),
+                remove=stale,
+            )
         except OSError as exc:
             raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
         finally:

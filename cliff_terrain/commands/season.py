@@ -98,6 +98,11 @@ def run(args):
         f"{season.cached} from the cache, in {season.seconds:.1f} s; wrote {season.table}, "
         f"{season.out / 'growth.png'}, {season.out / 'season.json'}"
     )
+    if season.removed:
+        print(
+            f"removed {', '.join(p.name for p in season.removed)} from {season.removed[0].parent}: fitted on "
+            "the season this run replaced; run `cliff-terrain traits` again"
+        )
     where = "in this process" if season.runner == "in-process" else f"on {season.runner}"
     hint = "; --workers N forces a cluster" if args.workers is None and season.runner == "in-process" else ""
     print(f"ran {where}: {season.runner_reason}{hint}")

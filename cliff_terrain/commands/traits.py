@@ -34,7 +34,7 @@ def run(args):
     import json
 
     from ..errors import CliffTerrainError
-    from ..measure.tables import table_csv, write_files
+    from ..measure.tables import previous_outputs, table_csv, write_files
     from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, season_traits
     from .out_folder import check_out_folder, finished_outputs
 
@@ -93,7 +93,13 @@ def run(args):
         files[out / "traits_map.png"] = lambda tmp: traits_map(plots, traits, tmp, trait=args.trait)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_files(files)
+        # An earlier run's map and polygons, from a season with plots, do not stay beside a table
+        # of one without them.
+        every = ("traits.csv", "traits.geojson", "growth.png", "traits_map.png")
+        stale = previous_outputs(
+            out, [n for n in every if n not in outputs], markers=("growth.png", "traits_map.png")
+        )
+        write_files(files, remove=stale)
     except OSError as exc:
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
     flagged = sum(1 for t in traits if t["flag"])

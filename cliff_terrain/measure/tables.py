@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -161,13 +162,27 @@ def text_writer(make):
 RENAMING_JOURNAL = ".cliff-terrain-renaming"
 
 
-def write_files(files, *, threads=1):
+def previous_outputs(out, names, *, markers):
+    """The `names` in folder `out` that an earlier run of the command left there: all that exist when
+    one of its `markers` is there (a finished run's) or the renaming journal is (an interrupted
+    one's). A run that does not write them (`heights` without ``--plots``, or windowed: no regions)
+    removes them as it writes its own, so that the folder never holds two runs' outputs side by
+    side. Without a marker or the journal, files of those names are the user's: kept."""
+    if not out.is_dir():
+        return []
+    if not any((out / name).exists() for name in (*markers, RENAMING_JOURNAL)):
+        return []
+    return [out / name for name in names if (out / name).is_file()]
+
+
+def write_files(files, *, threads=1, remove=()):
     """Write {path: text or bytes-writer} all or nothing: each to a temporary name, then all renamed.
 
     Values are ``str`` (written as UTF-8 text) or callables ``write(tmp_path)``. With `threads`
     above 1 the callables run that many at once (they must be thread-safe: the windowed rasters,
     whose compression and reading release the GIL, and :func:`text_writer` s of tables made beside
-    them); the first error is raised once all stopped.
+    them); the first error is raised once all stopped. The paths in `remove` (an earlier run's
+    outputs this one does not write) are removed with the renames, once every file is written.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -196,6 +211,9 @@ def write_files(files, *, threads=1):
             with open(journal, "w", encoding="utf-8") as file:
                 file.write("\n".join(os.path.basename(path) for _, path in temporary) + "\n")
             journals.append(journal)
+        for path in remove:  # within the journal's window: a run killed here looks unfinished
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(path)
         for tmp, path in temporary:
             os.replace(tmp, path)
         for journal in journals:

@@ -21,7 +21,7 @@ from ..io.raster.crs import crs_record
 from ..measure.tables import write_files
 from .cache import file_hash
 from .cluster import choose_runner, run_on_dask
-from .table import chart_rows, date_record, plot_rows, season_columns, write_csv
+from .table import chart_rows, date_record, plot_rows, season_columns, season_csv
 from .task import aligned_result, process_image
 
 
@@ -37,6 +37,7 @@ class Season:
     seconds: float
     worker_peaks: dict = dataclasses.field(default_factory=dict)  # worker -> peak RSS bytes
     dates: list = dataclasses.field(default_factory=list)  # season.json's date records
+    removed: list = dataclasses.field(default_factory=list)  # the stale traits removed (paths)
     runner: str = ""  # where the tasks ran: "in-process", "local cluster, 2 workers", ...
     runner_reason: str = ""  # why there (the estimate of the work, or the setting that forced it)
 
@@ -180,7 +181,7 @@ def run_season(
         dates.append(date_record(job, result, out))
     _flag_shifts(dates, plot_set)
     columns = season_columns(plot_set, jobs[0].indices if jobs else ())
-    write_csv(out / "season.csv", rows, columns)
+    table = season_csv(rows, columns)
     manifest = {
         "version": __version__,
         "plots": jobs[0].plots if jobs else None,
@@ -190,13 +191,16 @@ def run_season(
         "runner": {"runner": runner, "reason": reason},
         "dates": dates,
     }
-    # Written whole or not at all (temporary names, then renamed): a kill leaves no half file.
-    files = {out / "season.json": json.dumps(manifest, indent=2) + "\n"}
+    # Written whole or not at all (temporary names, then renamed, season.json last: the marker of a
+    # finished season): a kill leaves no half file and no table beside another run's record.
+    files = {out / "season.csv": table}
     if chart:
         from .charts import growth_chart
 
         files[out / "growth.png"] = lambda tmp: growth_chart(chart_rows(rows), tmp, color_by=color_by)
-    write_files(files)
+    files[out / "season.json"] = json.dumps(manifest, indent=2) + "\n"
+    stale = _stale_traits(out, table)
+    write_files(files, remove=stale)
     cached = sum(1 for r in results.values() if r.get("cached"))
     return Season(
         rows=rows,
@@ -209,7 +213,20 @@ def run_season(
         dates=dates,
         runner=runner,
         runner_reason=reason,
+        removed=stale,
     )
+
+
+def _stale_traits(out, table):
+    """The default traits folder's outputs (``out/traits``), fitted on the season this run replaces:
+    removed when the table changes (other dates, plots or settings), kept when it is the same."""
+    from ..measure.tables import previous_outputs
+
+    old = out / "season.csv"
+    if not old.is_file() or old.read_text(encoding="utf-8") == table:
+        return []
+    names = ("traits.csv", "traits.geojson", "growth.png", "traits_map.png")
+    return previous_outputs(out / "traits", names, markers=("growth.png", "traits_map.png"))
 
 
 def _set_shifts(jobs, found):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from pathlib import Path
 
 from ..measure.index_figures import index_columns
@@ -120,15 +119,14 @@ def _cell(value):
     return str(value)
 
 
-def write_csv(path, rows, columns):
+def season_csv(rows, columns):
+    """``season.csv``'s text: the `columns`' header, then one line per row."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(columns)
     for row in rows:
         writer.writerow([_cell(row.get(column)) for column in columns])
-    tmp = path.with_name(f".{path.name}.{os.getpid()}")
-    tmp.write_text(buffer.getvalue())
-    os.replace(tmp, path)
+    return buffer.getvalue()
 
 
 def chart_rows(rows):
