@@ -357,6 +357,13 @@ def _plots(ids):
         ("plot,height,unit\n1,70,cm\n2,0.8,m\n", {}, "mixes units"),
         ("plot,height\n1,70\n", {}, "--ruler-units"),
         ("plot,height_cm\n1,tall\n", {}, "is not a number"),
+        # Until 2026-12-07 accepted: --calibrate then fitted a negative slope.
+        (
+            "plot,height_cm\n1,70\n2,-48\n",
+            {},
+            r"height '-48' of plot '2' \(column 'height_cm', row 3\) is not a height",
+        ),
+        ("plot,height_cm\n1,inf\n", {}, "is not a height"),
         ("plot,height_cm\n1,70\n", {"height_column": "ph_cm"}, "no column 'ph_cm'"),
         # Until 2026-12-06: the last of two heights taken silently, and a semicolon file refused as
         # "tried columns  against ...".
@@ -412,6 +419,13 @@ def test_words_that_only_contain_a_heights_letters_are_not_a_height(tmp_path, he
     words = "several height columns" if ",HT," in header else "no column named like a height"
     with pytest.raises(RulerError, match=words):
         read_ruler(path, _plots([1, 2, 3]))
+
+
+def test_a_utf16_field_book_is_read(tmp_path):
+    # Excel's and PowerShell's "Unicode" text: UTF-16 with its byte order mark, once called binary.
+    path = tmp_path / "book.csv"
+    path.write_bytes("plot_id,height_cm\n2,40\n".encode("utf-16"))
+    np.testing.assert_allclose(read_ruler(path, _plots([1, 2, 3])).heights_m, [np.nan, 0.4, np.nan])
 
 
 def test_a_binary_field_book_is_refused(tmp_path):

@@ -28,7 +28,7 @@ from conftest import REPO, empty_raster
 
 from cliff_terrain.build import build_relief
 from cliff_terrain.errors import CliffTerrainError
-from cliff_terrain.io.raster.geotiff import geotiff_tags, write_geotiff
+from cliff_terrain.io.raster.geotiff import geotiff_tags, read_georeference, write_geotiff
 from cliff_terrain.io.raster.geotiff_stream import RasterSpool, TileSpool, encode_block
 from cliff_terrain.io.vector.plot_files import write_plots
 from cliff_terrain.io.vector.plot_polygons import PlotSet, read_plots
@@ -713,3 +713,46 @@ def test_the_plots_pixel_rings_and_boxes_are_each_plots_own(tmp_path):
         else:
             assert np.isnan(box).all()
     assert _plot_boxes(PlotSet([], [], (), None, ""), transform)[1].shape == (0, 4)
+
+
+@pytest.mark.parametrize("extra", [(), ("--windowed", "--window", "256")])
+def test_an_undeclared_no_data_value_is_no_surface_in_either_path(tmp_path, extra):
+    # -9999 where the DSM has no data, not declared in GDAL_NODATA: mixed into its neighbours by the
+    # resampling, it gave plausible heights that pulled the ground down (a potato field's canopy p90
+    # at 19 m, exit 0). Now it is NaN, as a declared hole.
+    need_plots()
+    with tifffile.TiffFile(DSM) as tif:
+        heights = tif.pages[0].asarray().astype(np.float32)
+    transform, crs = read_georeference(DSM)
+    heights[~np.isfinite(heights) | (heights < -1e30)] = np.nan
+    heights[100:200, 100:250] = np.nan
+    declared = tmp_path / "declared.tif"
+    write_geotiff(declared, heights, transform=transform, crs=crs, nodata=float("nan"))
+    sentinel = tmp_path / "sentinel.tif"
+    write_geotiff(
+        sentinel, np.where(np.isnan(heights), np.float32(-9999), heights), transform=transform, crs=crs
+    )
+    _, nan_rows, _ = run_heights(tmp_path, "nan", *extra, dsm=declared)
+    _, sentinel_rows, _ = run_heights(tmp_path, "sentinel", *extra, dsm=sentinel)
+    assert nan_rows == sentinel_rows
+    assert np.nanmax(column(sentinel_rows, "height_p90_m")) < 1.5  # potato, not 19 m trees
+
+
+@pytest.mark.parametrize("extra", [(), ("--windowed", "--window", "256")])
+def test_an_8_bit_orthophotos_black_collar_is_no_data_without_alpha_or_a_declared_value(tmp_path, extra):
+    # The shared pair's orthophoto as 8-bit RGB without alpha (`gdal_translate -b 1 -b 2 -b 3`): its
+    # 16 % black collar was taken for black soil, and the run was refused for want of bare soil.
+    need_plots()
+    with tifffile.TiffFile(ORTHO) as tif:
+        page = tif.pages[0]
+        colour = page.asarray()
+        colour = np.moveaxis(colour, 0, -1) if page.planarconfig == 2 else colour
+    rgb = np.clip(colour[..., :3], 0, 255).astype(np.uint8)
+    assert (~rgb.any(axis=2)).mean() > 0.1  # the collar
+    transform, crs = read_georeference(ORTHO)
+    bare, declared = tmp_path / "bare.tif", tmp_path / "declared.tif"
+    write_geotiff(bare, rgb, transform=transform, crs=crs)
+    write_geotiff(declared, rgb, transform=transform, crs=crs, nodata=0)
+    _, declared_rows, _ = run_heights(tmp_path, "declared", *extra, ortho=declared)
+    _, bare_rows, _ = run_heights(tmp_path, "bare", *extra, ortho=bare)
+    assert bare_rows == declared_rows

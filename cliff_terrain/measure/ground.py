@@ -54,6 +54,7 @@ import numpy as np
 from .. import settings
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
+from ..io.raster.geotiff import surface_data
 from .ground_blocks import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, lowest_surface, naive_block_ground
 from .ground_check import check_ground, ground_sigma, ground_support
 from .ground_detail import DETAIL_CONFIDENCE, blur, canopy_level, detail_above
@@ -292,22 +293,6 @@ def fit_ground(
     return GroundFit(
         ground, chosen, evidence, evidence_source, support, error.astype(np.float32, copy=False), check
     )
-
-
-def surface_data(dsm):
-    """Where `dsm` has a surface: finite, above 1 km below sea level and below 100 km above it.
-
-    No land lies that low (the Dead Sea's shore, the lowest, is 430 m below sea level; ellipsoidal
-    heights differ by at most about 110 m) and nothing a drone flies over that high: such values are
-    a no-data marker the file did not declare (OpenDroneMap's -3.4e38, GDAL's habitual -9999,
-    int16's -32767), and one of them would drag every lower percentile and read as a plant 0 m tall.
-
-    Examples
-    --------
-    >>> surface_data(np.array([101.5, np.nan, -3.4e38, -9999.0, -32767.0, -120.0], np.float32)).tolist()
-    [True, False, False, False, False, True]
-    """
-    return np.isfinite(dsm) & (dsm > -1e3) & (dsm < 1e5)
 
 
 def estimate_ground(dsm, *, soil=None, pixel_size, block_m=DEFAULT_BLOCK_M, detail_m=DEFAULT_DETAIL_M):

@@ -128,12 +128,18 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
         raw = path.read_bytes()
     except OSError as exc:
         raise RulerError(f"cannot read the ruler file {name!r}: {exc.strerror or exc}") from None
-    if b"\x00" in raw[:4096]:
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):  # UTF-16 with its BOM: Excel's "Unicode Text"
+        try:
+            text = raw.decode("utf-16")
+        except UnicodeDecodeError:
+            raise RulerError(f"the ruler file {name!r} is not a text CSV (broken UTF-16)") from None
+    elif b"\x00" in raw[:4096]:
         raise RulerError(f"the ruler file {name!r} is not a text CSV (it holds binary data)")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")
+    else:
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            text = raw.decode("latin-1")
     rows = list(csv.DictReader(text.splitlines()))
     columns = [c for c in (rows[0].keys() if rows else ()) if c is not None]
     if not rows or not columns:
@@ -152,7 +158,7 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
     heights = np.full(len(plots), np.nan)
     unmatched = 0
     seen = {}
-    for number, row in enumerate(rows, start=2):
+    for number_row, row in enumerate(rows, start=2):
         key = _key(row.get(id_column, ""))
         value = (row.get(height_column) or "").strip()
         if key not in index:
@@ -161,18 +167,26 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
         if key in seen:
             raise RulerError(
                 f"the ruler file {name!r}: plot {row.get(id_column)!r} appears twice (rows {seen[key]} and "
-                f"{number}); give one height per plot"
+                f"{number_row}); give one height per plot"
             )
-        seen[key] = number
+        seen[key] = number_row
         if not value or value.lower() in ("na", "nan"):
             continue
         try:
-            heights[index[key]] = float(value) * UNITS[unit]
+            number = float(value)
         except ValueError:
             raise RulerError(
                 f"the ruler file {name!r}: height {value!r} of plot {row.get(id_column)!r} "
                 f"(column {height_column!r}) is not a number"
             ) from None
+        # A height below 0 or infinite is a sign or a unit gone wrong: a calibration on it would
+        # turn every plot's height upside down.
+        if not np.isfinite(number) or number < 0:
+            raise RulerError(
+                f"the ruler file {name!r}: height {value!r} of plot {row.get(id_column)!r} "
+                f"(column {height_column!r}, row {number_row}) is not a height (below 0 or infinite)"
+            )
+        heights[index[key]] = number * UNITS[unit]
     if not np.isfinite(heights).any():
         raise RulerError(f"the ruler file {name!r} gives no height for any of the plots it names")
     return Ruler(heights, id_column, height_column, plot_field, unit, unmatched, name)

@@ -53,7 +53,7 @@ class SurfaceWindows:
 
     def read(self, r0, r1, c0, c1):
         """Heights [r0:r1, c0:c1] (float32, NaN for no data)."""
-        from ..io.raster.geotiff import is_nodata, scaled
+        from ..io.raster.geotiff import is_nodata, scaled, surface_data
 
         raw = self.raster.read_window(r0, r1, c0, c1)[..., 0]
         data = raw.astype(np.float32, copy=True)
@@ -61,6 +61,7 @@ class SurfaceWindows:
         if self.nodata is not None:
             invalid |= is_nodata(raw, self.nodata)
         data = scaled(data, self.scale_offset)
+        invalid |= ~surface_data(data)  # as read_surface: an undeclared -9999 is no surface
         data[invalid] = np.nan
         return data
 

@@ -15,7 +15,7 @@ from ...errors import (
     RasterReadError,
     TruncatedFileError,
 )
-from ..raster._geokeys import GDAL_NODATA, georeference, nodata_value
+from ..raster._geokeys import GDAL_NODATA, MODEL_TIEPOINT, MODEL_TRANSFORMATION, georeference, nodata_value
 from ..raster._tiff_window import TiffRaster
 from ..raster.bands import is_multispectral, read_bands, rgb_rendering
 from ..raster.geotiff import photo_bands, read_tiff
@@ -57,8 +57,11 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
         odd = page.sampleformat == _FLOAT or page.photometric in _GREY or not bits <= {8, 16}
         shape, tags, samples = tiff.shape, tiff.tags, tiff.samples
     # A GeoTIFF that declares its no-data value (GDAL_NODATA): Pillow ignores it, and would read the
-    # area outside the flight as black soil; photo_bands reads it as the windows do.
-    odd = odd or GDAL_NODATA in tags
+    # area outside the flight as black soil; photo_bands reads it as the windows do. So does an
+    # orthophoto of three bands without it (no alpha either): photo_bands takes its black collar for
+    # no data, as the windows do.
+    georeferenced = MODEL_TIEPOINT in tags or MODEL_TRANSFORMATION in tags
+    odd = odd or GDAL_NODATA in tags or (georeferenced and samples == 3)
     multispectral = samples >= 3 and (bands is not None or is_multispectral(name))
     if not multispectral and (samples < 3 or len(page.shape) != 3 or not odd):
         return None
