@@ -756,3 +756,45 @@ def test_an_8_bit_orthophotos_black_collar_is_no_data_without_alpha_or_a_declare
     _, declared_rows, _ = run_heights(tmp_path, "declared", *extra, ortho=declared)
     _, bare_rows, _ = run_heights(tmp_path, "bare", *extra, ortho=bare)
     assert bare_rows == declared_rows
+
+
+def test_overlapping_plots_are_each_measured_whole_as_alone():
+    # Where plots overlap, the later took the pixels: the earlier was measured on part of its area
+    # with no word said, and a plot a later copy covered was "outside the raster".
+    from cliff_terrain.measure.field_plots import plot_layers, plot_table, rasterize_plots
+
+    def square(x0, x1):
+        return [np.array([[x0, 0.0], [x1, 0.0], [x1, -4.0], [x0, -4.0]])]
+
+    rng = np.random.default_rng(1)
+    heights = rng.uniform(0, 1, (4, 9))
+    polygons = [square(0, 4), square(2, 6), square(0, 4), square(5, 9)]  # B overlaps A, C copies A
+    plots = PlotSet(polygons, [{"id": k} for k in "ABCD"], ("id",), None, "")
+    grid = {"transform": [[1, 0, 0], [0, -1, 0]], "shape": heights.shape}
+    layers = plot_layers(plots, **grid)
+    # C and D whole in the first; B in the second (C took its left half); A, under both, in the third.
+    assert len(layers) == 3 and sum(layer.astype(bool).astype(int) for layer in layers).max() == 3
+    table = plot_table(plots, layers, mask=heights > 0.5, heights=heights, pixel_area_m2=1.0)
+    for k, polygon in enumerate(polygons):
+        alone = PlotSet([polygon], [{"id": "ABCD"[k]}], ("id",), None, "")
+        labels = rasterize_plots(alone, **grid)
+        expected = plot_table(alone, labels, mask=heights > 0.5, heights=heights, pixel_area_m2=1.0)[0]
+        assert {**table[k], "plot": 0} == expected, "ABCD"[k]
+    # Without overlaps, the one image rasterize_plots gives.
+    apart = PlotSet([polygons[0], polygons[3]], [{}, {}], (), None, "")
+    (only,) = plot_layers(apart, **grid)
+    np.testing.assert_array_equal(only, rasterize_plots(apart, **grid))
+
+
+@pytest.mark.parametrize("extra", [(), ("--windowed", "--window", "256")])
+def test_a_plot_file_exported_twice_gives_each_copy_its_plots_heights(tmp_path, extra):
+    need_plots()
+    doc = json.loads(PAIR_PLOTS.read_text())
+    doc["features"] = doc["features"] + doc["features"]
+    twice = tmp_path / "twice.geojson"
+    twice.write_text(json.dumps(doc))
+    _, once_rows, _ = run_heights(tmp_path, "once", *extra)
+    _, twice_rows, _ = run_heights(tmp_path, "twice", *extra, plots=twice)
+    n = len(once_rows)
+    for copy in (twice_rows[:n], twice_rows[n:]):
+        assert [{**r, "plot": ""} for r in copy] == [{**r, "plot": ""} for r in once_rows]

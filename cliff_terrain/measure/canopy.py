@@ -442,7 +442,7 @@ def relief_plot_rows(relief, plots, *, source, index_maps=None):
     georeference places the relief's grid). `index_maps` adds the index columns (see
     :func:`cliff_terrain.measure.field_plots.plot_table`).
     """
-    from .field_plots import check_plot_crs, plot_table, rasterize_plots
+    from .field_plots import check_plot_crs, plot_layers, plot_table
 
     if relief.canopy is not None:
         canopy = relief.canopy
@@ -452,7 +452,7 @@ def relief_plot_rows(relief, plots, *, source, index_maps=None):
         transform, crs = photo_grid(source, relief.metadata, relief.mask.shape)
         heights, support, sigma = None, None, None
     check_plot_crs(plots, crs, raster=str(source))
-    labels = rasterize_plots(plots, transform=transform, shape=relief.mask.shape)
+    labels = plot_layers(plots, transform=transform, shape=relief.mask.shape)
     area = float(abs(np.linalg.det(np.asarray(transform)[:2, :2])))
     return plot_table(
         plots,
@@ -473,12 +473,12 @@ def plot_table_files(plots, canopy, *, heights, mask, source, index_maps=None, e
     callable ``rows -> column names``, may add columns to the rows (before ``error``).
     """
     from ..io.vector.geojson import polygon_geometries, table_geojson
-    from .field_plots import check_plot_crs, plot_table, rasterize_plots, table_columns
+    from .field_plots import check_plot_crs, plot_layers, plot_table, table_columns
     from .tables import PLOTS_CSV, PLOTS_GEOJSON, table_csv
 
     check_plot_crs(plots, canopy.crs, raster=source)
-    labels = rasterize_plots(plots, transform=canopy.transform, shape=heights.shape)
-    if not labels.any():
+    labels = plot_layers(plots, transform=canopy.transform, shape=heights.shape)
+    if not any(layer.any() for layer in labels):
         raise GeoreferenceError(f"no plot of {plots.path!r} overlaps the orthophoto {source!r}")
     rows = plot_table(
         plots,

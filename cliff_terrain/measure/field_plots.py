@@ -83,11 +83,62 @@ def rasterize_plots(plots, *, transform, shape):
     rows, cols = (int(n) for n in shape)
     if rows < 1 or cols < 1:
         raise CliffTerrainError(f"`shape` must be (rows, cols) >= 1, got {tuple(shape)}")
-    owners = np.repeat(np.arange(1, len(plots.polygons) + 1), [len(polygon) for polygon in plots.polygons])
+    return _burn(plots.polygons, np.arange(1, len(plots.polygons) + 1), t, (rows, cols))[0]
+
+
+def plot_layers(plots, *, transform, shape):
+    """The plots burnt into as few label images as hold each of them whole: overlapping plots (a
+    buffer reaching into the neighbour, a layer exported twice) in different ones.
+
+    :func:`rasterize_plots` gives an overlap's pixels to the later plot: the earlier lost them, and a
+    plot a later copy covers lost all of them. Here the first image is :func:`rasterize_plots`'s,
+    without the plots that lost pixels in it; they are burnt again, by themselves, into the next
+    (and so on: the last of them always keeps its pixels, so each image holds one plot more at
+    least). Without overlaps, that is the one image. :func:`plot_table` takes the list.
+
+    Returns
+    -------
+    list of (rows, cols) int32 arrays
+        ``i + 1`` where plot ``i`` is, in exactly one of them (0 elsewhere); the one image where no
+        plot overlaps another.
+
+    Examples
+    --------
+    >>> from cliff_terrain.io.vector.plot_polygons import PlotSet
+    >>> square = [np.array([[0.0, 0.0], [2.0, 0.0], [2.0, -2.0], [0.0, -2.0]])]
+    >>> layers = plot_layers(PlotSet([square, square], [{}, {}], (), None, ""), transform=[[1, 0, 0], [0, -1, 0]], shape=(2, 3))
+    >>> [layer.tolist() for layer in layers]
+    [[[2, 2, 0], [2, 2, 0]], [[1, 1, 0], [1, 1, 0]]]
+    """
+    t = as_affine(transform)
+    rows, cols = (int(n) for n in shape)
+    if rows < 1 or cols < 1:
+        raise CliffTerrainError(f"`shape` must be (rows, cols) >= 1, got {tuple(shape)}")
+    polygons = plots.polygons
+    todo = np.arange(1, len(polygons) + 1)
+    layers = []
+    while todo.size:
+        labels, whole = _burn([polygons[k - 1] for k in todo], todo, t, (rows, cols))
+        kept = np.bincount(labels.ravel(), minlength=len(polygons) + 1)[todo]
+        lost = todo[kept < whole]
+        if lost.size:
+            labels[np.isin(labels, lost)] = 0
+        layers.append(labels)
+        todo = lost
+    return layers
+
+
+def _burn(polygons, numbers, t, shape):
+    """(labels, pixels): `polygons` burnt with their `numbers` (ascending; a higher one wins an
+    overlap) on a grid of `shape` whose pixel -> map affine is `t`, and each one's own pixel count
+    (what it would cover alone)."""
+    rows, cols = shape
+    owners = np.repeat(np.asarray(numbers, np.int64), [len(polygon) for polygon in polygons])
     labels = np.zeros((rows, cols), dtype=np.int32)
-    points, sizes = pixel_vertices(plots.polygons, t)
+    whole = np.zeros(len(polygons), np.int64)
+    points, sizes = pixel_vertices(polygons, t)
     if not sizes.size:
-        return labels
+        return labels, whole
     starts = np.cumsum(sizes) - sizes
     # Plots in batches of about _BURN_PIXELS pixels of bounding box (a plot's rings together), so
     # that the runs' pixel indices stay a few tens of MB however much of a large grid the plots cover.
@@ -96,10 +147,12 @@ def rasterize_plots(plots, *, transform, shape):
     area = np.minimum(span_y + 1, rows) * np.minimum(span_x + 1, cols)
     batch = (np.cumsum(area) // _BURN_PIXELS).astype(np.int64)
     batch = batch[np.searchsorted(owners, owners)]  # each ring in its plot's first ring's batch
+    position = {int(k): i for i, k in enumerate(numbers)}
     for r0, r1 in zip(*_runs(batch), strict=True):
         v0, v1 = starts[r0], starts[r1 - 1] + sizes[r1 - 1]
-        _burn_even_odd(labels, points[v0:v1], sizes[r0:r1], owners[r0:r1])
-    return labels
+        for owner, count in _burn_even_odd(labels, points[v0:v1], sizes[r0:r1], owners[r0:r1]).items():
+            whole[position[owner]] += count
+    return labels, whole
 
 
 _BURN_PIXELS = 1 << 22
@@ -127,7 +180,8 @@ def _runs(values):
 
 def _burn_even_odd(labels, points, sizes, owners):
     """Burn into `labels` the pixels whose centre is inside each owner's rings (even-odd rule over
-    all its rings; a higher owner wins where they overlap), every plot of the batch at once.
+    all its rings; a higher owner wins where they overlap), every plot of the batch at once, and
+    return {owner: its pixel count alone}.
 
     `points` (pixel coordinates) holds the rings one after another, `sizes` their vertex counts,
     `owners` the label (>= 1, non-decreasing) of each ring. A scanline fill: each edge crosses the
@@ -158,7 +212,7 @@ def _burn_even_odd(labels, points, sizes, owners):
     counts[((r1 < r0) | (c1 < c0))[group]] = 0  # an owner wholly off the grid
     edge = np.repeat(np.arange(len(x)), counts)
     if edge.size == 0:
-        return
+        return {}
     row = first[edge] + (np.arange(edge.size) - np.repeat(np.cumsum(counts) - counts, counts))
     cross = x[edge] + (row + 0.5 - y[edge]) * (x1[edge] - x[edge]) / (y1[edge] - y[edge])
     owner = group[edge]
@@ -169,7 +223,11 @@ def _burn_even_odd(labels, points, sizes, owners):
     pixels = np.repeat(row * cols + begin - (np.cumsum(length) - length), length) + np.arange(
         int(length.sum())
     )
-    np.maximum.at(labels.reshape(-1), pixels, np.repeat(owners[first_ring][owner].astype(np.int32), length))
+    numbers = owners[first_ring][owner]
+    np.maximum.at(labels.reshape(-1), pixels, np.repeat(numbers.astype(np.int32), length))
+    # Each owner's pixels as if alone (runs of one owner never overlap: even-odd pairs).
+    alone = np.bincount(owner, weights=length, minlength=len(at))
+    return {int(k): int(c) for k, c in zip(owners[first_ring], alone, strict=True)}
 
 
 def plot_table(
@@ -193,8 +251,9 @@ def plot_table(
     Parameters
     ----------
     plots : PlotSet
-    plot_labels : (rows, cols) int array
-        :func:`rasterize_plots` on the grid of `mask` and `heights`.
+    plot_labels : (rows, cols) int array, or a list of them
+        :func:`rasterize_plots` on the grid of `mask` and `heights`, or :func:`plot_layers` (each
+        plot measured whole where plots overlap).
     mask : (rows, cols) bool array
         Plant pixels (the segmentation).
     heights : (rows, cols) float array or None
@@ -238,6 +297,35 @@ def plot_table(
     >>> row["name"], row["area_m2"], row["cover"], row["height_max_m"], row["volume_m3"]
     ('A', 4.0, 0.5, 1.0, 1.5)
     """
+    if isinstance(plot_labels, list | tuple):
+        # Layers (plot_layers): each plot is whole in one of them, and measured there.
+        tables = [
+            _plot_rows(plots, layer, mask, heights, pixel_area_m2, height_units, support, sigma, index_maps)
+            for layer in plot_labels
+        ]
+        rows = [max(candidates, key=lambda row: row["pixels"]) for candidates in zip(*tables, strict=True)]
+    else:
+        rows = _plot_rows(
+            plots, plot_labels, mask, heights, pixel_area_m2, height_units, support, sigma, index_maps
+        )
+    full_areas = [polygon_area(rings) for rings in plots.polygons]
+    for index, row in enumerate(rows):
+        if row["pixels"] == 0:
+            row["error"] = "outside the raster (or smaller than a pixel)"
+        elif heights is not None and row["valid_pixels"] == 0:
+            row["error"] = "no height data in the plot"
+        elif row["area_m2"] < 0.9 * full_areas[index]:
+            inside = row["area_m2"] / full_areas[index]
+            row["error"] = f"partly outside the raster or its data ({inside:.0%} measured)"
+        else:
+            row["error"] = ""
+        del row["pixels"], row["valid_pixels"]
+    return rows
+
+
+def _plot_rows(plots, plot_labels, mask, heights, pixel_area_m2, height_units, support, sigma, index_maps):
+    """:func:`plot_table`'s rows on one label image, with each plot's ``pixels`` and ``valid_pixels``
+    and without ``error``."""
     plot_labels = np.asarray(plot_labels)
     mask = np.asarray(mask, dtype=bool)
     if plot_labels.ndim != 2 or mask.shape != plot_labels.shape:
@@ -279,22 +367,12 @@ def plot_table(
         sums = np.bincount(with_data, weights=np.nan_to_num(sigma.ravel()) ** 2, minlength=n + 1)[1 : n + 1]
         with np.errstate(invalid="ignore", divide="ignore"):
             plot_sigma = np.where(counts > 0, np.sqrt(sums / np.maximum(counts, 1)), np.nan)
-    full_areas = [polygon_area(rings) for rings in plots.polygons]
     indices = index_figures(plot_labels, n, maps=index_maps, mask=mask) if index_maps else None
     rows = []
     for index in range(n):
         attributes = plots.attributes[index]
         row = {"plot": index, **{_attribute_name(k): v for k, v in attributes.items()}, **figures[index]}
-        if figures[index]["pixels"] == 0:
-            row["error"] = "outside the raster (or smaller than a pixel)"
-        elif heights is not None and figures[index]["valid_pixels"] == 0:
-            row["error"] = "no height data in the plot"
-        elif row["area_m2"] < 0.9 * full_areas[index]:
-            inside = row["area_m2"] / full_areas[index]
-            row["error"] = f"partly outside the raster or its data ({inside:.0%} measured)"
-        else:
-            row["error"] = ""
-        del row["pixels"], row["valid_pixels"]
+        row["error"] = ""  # its place among the columns; plot_table words it
         if support is not None:
             row["ground_support"] = float(plot_support[index])
         if sigma is not None:

@@ -272,7 +272,7 @@ def measure_window(task, ground=None, *, sources=None):
     """
     from ..io.vector.plot_polygons import PlotSet
     from ..photo_heights.vegetation import blurred_index
-    from .field_plots import plot_table, rasterize_plots
+    from .field_plots import plot_layers, plot_table
 
     if sources is None:
         sources = worker_sources(task.ortho, task.dsm, task.dtm)
@@ -316,8 +316,8 @@ def measure_window(task, ground=None, *, sources=None):
     if task.mine is not None and task.mine.size:
         n = len(task.plot_ids)
         local = PlotSet(task.pixel_rings.unpack(), [{}] * n, (), None, task.plots_path)
-        labels = rasterize_plots(local, transform=np.eye(3), shape=chm.shape)
-        out["labelled"] = bool(labels.any())
+        labels = plot_layers(local, transform=np.eye(3), shape=chm.shape)
+        out["labelled"] = any(layer.any() for layer in labels)
         polygons = task.polygons.unpack()
         subset = PlotSet(polygons, task.attributes, task.fields, None, task.plots_path)
         table = plot_table(

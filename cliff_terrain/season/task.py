@@ -126,9 +126,9 @@ def _table(plot_set, transform, mask, heights, units, index_maps=None):
     index maps ({name: map} on the grid)."""
     import numpy as np
 
-    from ..measure.field_plots import plot_table, rasterize_plots
+    from ..measure.field_plots import plot_layers, plot_table
 
-    labels = rasterize_plots(plot_set, transform=transform, shape=mask.shape)
+    labels = plot_layers(plot_set, transform=transform, shape=mask.shape)
     rows = plot_table(
         plot_set,
         labels,
