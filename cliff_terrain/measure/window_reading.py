@@ -106,7 +106,7 @@ class WindowSources:
     def __init__(self, ortho, dsm, dtm):
         from ..io.raster.mosaic import MosaicReader
 
-        self.ortho = MosaicReader(ortho)
+        self.ortho = MosaicReader(ortho, black_collar=True)  # as a file read whole
         self.opened = [self.ortho]
         try:
             if self.ortho.transform is None:

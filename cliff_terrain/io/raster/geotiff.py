@@ -201,8 +201,14 @@ def read_orthophoto(path):
     return GeoRaster(data=rgb, transform=transform, crs=crs, nodata=nodata, path=name, valid=valid)
 
 
-def photo_bands(array, name, *, nodata=None, planar=False):
-    """RGB uint8 and a valid mask (or None) from a photo's decoded samples (1, 3 or 4 bands)."""
+def photo_bands(array, name, *, nodata=None, planar=False, collar=None):
+    """RGB uint8 and a valid mask (or None) from a photo's decoded samples (1, 3 or 4 bands).
+
+    `collar`: whether the file's exact black is the collar outside a mosaic's footprint (no data),
+    for integer samples without alpha or a declared no-data value; None decides it from `array`'s
+    own corners (:func:`black_corner`), as for a whole file. Float files' exact zeros are always no
+    data (OpenDroneMap's).
+    """
     if array.ndim == 3 and planar:
         array = np.moveaxis(array, 0, -1)
     elif array.ndim == 3 and array.shape[2] > 4 and array.shape[0] <= 4:
@@ -251,13 +257,21 @@ def photo_bands(array, name, *, nodata=None, planar=False):
     if bands in (2, 4):
         alpha = array[..., -1]
         valid &= alpha > 0
-    elif array.dtype.kind != "f" and nodata is None:
-        # No alpha and no declared no-data: exact zeros in every band are the collar a mosaic's
-        # export leaves outside the flight (`gdal_translate -b 1 -b 2 -b 3`, a GIS's "rendered
-        # image"), as in OpenDroneMap's float files above. Taken for black soil, a 16 % collar had the
-        # soil threshold find no bare soil at all. A pixel that black carries no colour to measure.
+    elif array.dtype.kind != "f" and nodata is None and (black_corner(colour) if collar is None else collar):
+        # No alpha and no declared no-data, and a corner exactly black: the collar a mosaic's export
+        # leaves outside the flight (`gdal_translate -b 1 -b 2 -b 3`, a GIS's "rendered image"), as
+        # in OpenDroneMap's float files above. Taken for black soil, a 16 % collar had the soil
+        # threshold find no bare soil at all. Only then: a photo's own darkest soil (broccoli on
+        # black earth) holds exact black too, and is soil.
         valid &= np.any(colour != 0, axis=2)
     return np.ascontiguousarray(rgb), (None if valid.all() else valid)
+
+
+def black_corner(colour):
+    """Whether any of the four corner pixels of `colour` ((rows, cols, bands)) is exact black in every
+    band: a mosaic's footprint never fills its rectangle, a photo's corners are the scene."""
+    corners = colour[[0, 0, -1, -1], [0, -1, 0, -1]]
+    return bool(np.any(np.all(corners == 0, axis=-1)))
 
 
 def read_georeference(path):

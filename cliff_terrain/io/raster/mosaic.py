@@ -18,7 +18,7 @@ from ..._validate import check_int
 from ...errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 from ._geokeys import GDAL_NODATA, georeference, nodata_value
 from ._tiff_window import TiffRaster
-from .geotiff import photo_bands
+from .geotiff import black_corner, photo_bands
 
 # A striped GeoTIFF is decoded whole: above this many pixels (a 12-bit 150 MP RGB image is 0.9 GB
 # decoded) it is refused with the command that tiles it.
@@ -37,6 +37,10 @@ class MosaicReader:
     max_striped_pixels : int, optional
         A striped (untiled) TIFF up to this many pixels is decoded whole and served from memory;
         above it is refused (:class:`ImageTooLargeError`) with how to tile it.
+    black_collar : bool, optional
+        Take exact black for no data when a corner of the file is exact black and it has neither
+        alpha nor a declared no-data value (a mosaic's collar, as :func:`.geotiff.photo_bands` does
+        for a file read whole). The windowed heights read so; Import Mosaic's tiles do not yet.
 
     Examples
     --------
@@ -44,7 +48,7 @@ class MosaicReader:
     ...     rgb, valid = mosaic.read(0, 512, 0, 512)
     """
 
-    def __init__(self, path, *, max_striped_pixels=MAX_STRIPED_PIXELS):
+    def __init__(self, path, *, max_striped_pixels=MAX_STRIPED_PIXELS, black_collar=False):
         max_striped_pixels = check_int("max_striped_pixels", max_striped_pixels, minimum=1)
         self.raster = TiffRaster(path, what="mosaic", error=ImageReadError)
         self.path = self.raster.path
@@ -73,6 +77,19 @@ class MosaicReader:
                     "example: gdal_translate -co TILED=YES -co COMPRESS=DEFLATE IN.tif OUT.tif"
                 )
         self.tile_shape = self.raster.tile_shape
+        # With `black_collar`, whether exact black is the collar is decided once from the file's
+        # corners, as the whole file's reading decides it (photo_bands), so that every window agrees.
+        # Not for Import Mosaic's tiles yet: their reduced windows (tiles._reach) then no longer give
+        # the whole window's heights on every photo (broccoli clipped from a mosaic).
+        self._collar = False
+        if black_collar:
+            rows, cols = self.shape
+            corners = [
+                self.raster.read_window(r, r + 1, c, c + 1)[0, 0]
+                for r in (0, rows - 1)
+                for c in (0, cols - 1)
+            ]
+            self._collar = black_corner(np.asarray(corners)[:, :3].reshape(2, 2, -1))
         try:
             self.transform, self.crs = georeference(self.raster.tags, self.path)
         except CliffTerrainError:
@@ -106,7 +123,7 @@ class MosaicReader:
                 f"window [{r0}:{r1}, {c0}:{c1}] is not inside the mosaic's {rows} x {cols}"
             )
         raw = self.raster.read_window(r0, r1, c0, c1)
-        return photo_bands(raw, self.path, nodata=self._nodata)
+        return photo_bands(raw, self.path, nodata=self._nodata, collar=self._collar)
 
     def overview(self, *, max_pixels=OVERVIEW_PIXELS):
         """The whole mosaic reduced by an integer step (every `step`-th pixel) to at most `max_pixels`.
