@@ -720,6 +720,10 @@ def test_an_undeclared_no_data_value_is_no_surface_in_either_path(tmp_path, extr
     # -9999 where the DSM has no data, not declared in GDAL_NODATA: mixed into its neighbours by the
     # resampling, it gave plausible heights that pulled the ground down (a potato field's canopy p90
     # at 19 m, exit 0). Now it is NaN, as a declared hole.
+    from cliff_terrain.io.raster.surface_values import surface_data
+
+    values = np.array([251.3, -9999.0, -32767.0, -3.4e38, np.nan, 1e6, -120.0], np.float32)
+    assert surface_data(values).tolist() == [True, False, False, False, False, False, True]
     need_plots()
     with tifffile.TiffFile(DSM) as tif:
         heights = tif.pages[0].asarray().astype(np.float32)

@@ -76,7 +76,6 @@ REACHED_THROUGH = {
     "cliff_terrain.season.align": (("test_season.py",), "`cliff-terrain season`"),
     "cliff_terrain.season.charts": (("test_season.py",), "`cliff-terrain season` (growth.png)"),
     "cliff_terrain.season.security": (("test_season.py",), "`cliff-terrain season --scheduler`"),
-    "cliff_terrain.season.table": (("test_season.py",), "`cliff-terrain season` (season.csv)"),
     "cliff_terrain.season.task": (("test_season.py",), "`cliff-terrain season` (one date)"),
     "cliff_terrain.season.trait_charts": (("test_traits.py",), "`cliff-terrain traits`"),
 }

@@ -54,7 +54,7 @@ import numpy as np
 from .. import settings
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
-from ..io.raster.geotiff import surface_data
+from ..io.raster.surface_values import surface_data
 from .ground_blocks import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, lowest_surface, naive_block_ground
 from .ground_check import check_ground, ground_sigma, ground_support
 from .ground_detail import DETAIL_CONFIDENCE, blur, canopy_level, detail_above

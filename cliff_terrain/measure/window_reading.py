@@ -53,7 +53,8 @@ class SurfaceWindows:
 
     def read(self, r0, r1, c0, c1):
         """Heights [r0:r1, c0:c1] (float32, NaN for no data)."""
-        from ..io.raster.geotiff import is_nodata, scaled, surface_data
+        from ..io.raster.geotiff import is_nodata, scaled
+        from ..io.raster.surface_values import surface_data
 
         raw = self.raster.read_window(r0, r1, c0, c1)[..., 0]
         data = raw.astype(np.float32, copy=True)

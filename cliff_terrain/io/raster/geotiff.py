@@ -42,6 +42,7 @@ from ._tiff_window import TiffRaster
 from .bilinear import is_axis_aligned, on_grid, pixel_map
 from .blocks import block_mean
 from .crs import UserCrs, crs_text, user_geokeys
+from .surface_values import surface_data
 from .transform import as_affine, grid_bounds, pixel_size
 
 # ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
@@ -142,25 +143,6 @@ def read_surface(path):
     if invalid.all():
         raise RasterReadError(f"surface model {name!r} holds no data (every pixel is no-data)")
     return GeoRaster(data=data, transform=transform, crs=crs, nodata=nodata, path=name)
-
-
-def surface_data(dsm):
-    """Where `dsm` has a surface: finite, above 1 km below sea level and below 100 km above it.
-
-    No land lies that low (the Dead Sea's shore, the lowest, is 430 m below sea level; ellipsoidal
-    heights differ by at most about 110 m) and nothing a drone flies over that high: such values are
-    a no-data marker the file did not declare (OpenDroneMap's -3.4e38, GDAL's habitual -9999,
-    int16's -32767), and one of them would drag every lower percentile and read as a plant 0 m tall.
-    The readers (:func:`read_surface` and the windowed one) drop them before any resampling: mixed
-    into its neighbours by the bilinear weights, -9999 gave plausible heights that pulled the ground
-    metres down (canopy heights of 19 m on a potato field).
-
-    Examples
-    --------
-    >>> surface_data(np.array([101.5, np.nan, -3.4e38, -9999.0, -32767.0, -120.0], np.float32)).tolist()
-    [True, False, False, False, False, True]
-    """
-    return np.isfinite(dsm) & (dsm > -1e3) & (dsm < 1e5)
 
 
 def scaled(data, scale_offset):
