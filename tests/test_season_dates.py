@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from PIL import Image
 
 from cliff_terrain.errors import CliffTerrainError
 from cliff_terrain.season.cache import Cache, cache_key, file_hash
-from cliff_terrain.season.dates import date_in_name, parse_given_dates, photo_date
+from cliff_terrain.season.dates import check_given_dates, date_in_name, parse_given_dates, photo_date
 
 RGB = np.full((8, 8, 3), 90, dtype=np.uint8)
 
@@ -37,10 +38,18 @@ def test_exif_original_wins_over_the_tiff_tag_and_the_name(tmp_path):
     assert photo_date(path) == (dt.date(2018, 8, 15), "exif")
 
 
-def test_tiff_datetime_when_no_exif_original(tmp_path):
-    path = tmp_path / "20180101_field.tif"
+def test_tiff_datetime_when_neither_exif_original_nor_the_name_says(tmp_path):
+    path = tmp_path / "field.tif"
     Image.fromarray(RGB).save(path, tiffinfo={306: "2018:09:05 12:00:00"})
     assert photo_date(path) == (dt.date(2018, 9, 5), "tiff")
+
+
+def test_the_name_beats_the_tiff_datetime_of_a_file_saved_again(tmp_path):
+    # An orthomosaic's DateTime is when it was written: re-saved in September, a flight named for
+    # June was dated September and every trait's days moved.
+    path = tmp_path / "2024-06-22.tif"
+    Image.fromarray(RGB).save(path, tiffinfo={306: "2024:09:30 10:00:00"})
+    assert photo_date(path) == (dt.date(2024, 6, 22), "filename")
 
 
 def test_file_name_then_the_option(tmp_path):
@@ -51,13 +60,28 @@ def test_file_name_then_the_option(tmp_path):
     Image.fromarray(RGB).save(bare)
     given = parse_given_dates(["flight_a.png=2018-08-22"])
     assert photo_date(bare, given=given) == (dt.date(2018, 8, 22), "option")
-    # The option never overrides a date the file holds.
-    assert photo_date(named, given={"flight_2018-09-25_rgb.png": dt.date(2000, 1, 1)})[1] == "filename"
+    # What the user says wins over the file's own date, by its name or its path as typed.
+    assert photo_date(named, given={"flight_2018-09-25_rgb.png": dt.date(2000, 1, 1)}) == (
+        dt.date(2000, 1, 1),
+        "option",
+    )
+    relative = os.path.relpath(named)
+    assert photo_date(named, given={relative: dt.date(2001, 1, 1)}) == (dt.date(2001, 1, 1), "option")
+
+
+def test_dates_naming_no_input_or_several_are_refused(tmp_path):
+    a, b = tmp_path / "a" / "odm_orthophoto.tif", tmp_path / "b" / "odm_orthophoto.tif"
+    given = {"odm_orthophoto.tif": dt.date(2024, 6, 1)}
+    with pytest.raises(CliffTerrainError, match=r"names 2 photos .*; give each one's path instead"):
+        check_given_dates(given, [a, b])
+    with pytest.raises(CliffTerrainError, match=r"--dates typo.tif=\.\.\.: no input photo is 'typo.tif'"):
+        check_given_dates({"typo.tif": dt.date(2024, 6, 1)}, [a, b])
+    check_given_dates({str(a): dt.date(2024, 6, 1), str(b): dt.date(2024, 6, 8)}, [a, b])
 
 
 def test_unset_camera_clock_is_no_date(tmp_path):
     path = _jpeg_with_exif(tmp_path / "dji_0001.jpg", original="0000:00:00 00:00:00")
-    with pytest.raises(CliffTerrainError, match=r"no date for '.*dji_0001\.jpg'.*--dates dji_0001\.jpg="):
+    with pytest.raises(CliffTerrainError, match=r"no date for '.*dji_0001\.jpg'.*--dates .*dji_0001\.jpg="):
         photo_date(path)
 
 

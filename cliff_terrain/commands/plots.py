@@ -37,7 +37,14 @@ def configure(parser):
         default=None,
         help="the grid's four outer corners (map), any order",
     )
-    parser.add_argument("--origin", metavar="X,Y", default=None, help="map point of the grid's first corner")
+    parser.add_argument(
+        "--origin",
+        metavar="X,Y",
+        default=None,
+        help="map point of the grid's (0, 0) corner, the one the columns step away from along --angle "
+        "and the plots run from at 90 degrees counter-clockwise: with --angle 0, its south-west "
+        "(lower-left) corner, the grid growing east and north (plot 1's corner is --start)",
+    )
     parser.add_argument(
         "--angle",
         type=float,

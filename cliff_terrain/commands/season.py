@@ -29,8 +29,9 @@ def configure(parser):
         "--dates",
         nargs="+",
         default=(),
-        metavar="NAME=YYYY-MM-DD",
-        help="dates of photos whose file holds none (no EXIF/TIFF date, no date in the name)",
+        metavar="PATH=YYYY-MM-DD",
+        help="a photo's date (its path, or its file name when unique), over the date its file holds "
+        "(EXIF, then a date in the name, then the TIFF's write date)",
     )
     parser.add_argument(
         "--dsm",

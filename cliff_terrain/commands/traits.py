@@ -19,13 +19,17 @@ def configure(parser):
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: SEASON/traits)")
     parser.add_argument(
         "--model", choices=("auto", "logistic", "gompertz", "double", "spline"), default="auto",
-        help="the height curve's model (auto: the lowest AICc, recorded per plot)",
+        help="the height curve's model (default auto: the lowest AICc, recorded per plot)",
     )  # fmt: skip
     parser.add_argument(
-        "--closure", type=float, default=0.9, help="cover at which the canopy is closed (0-1)"
+        "--closure", type=float, default=0.9, help="cover at which the canopy is closed (0-1, default 0.9)"
     )
     parser.add_argument("--color-by", default=None, help="a plot attribute or trait to colour growth.png by")
-    parser.add_argument("--trait", default="max_height_m", help="the trait traits_map.png shows")
+    parser.add_argument(
+        "--trait",
+        default="max_height_m",
+        help="the column of traits.csv that traits_map.png shows (default max_height_m)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 

@@ -1,13 +1,16 @@
 """The date of each photo of a season, and where it came from.
 
-In this order: EXIF ``DateTimeOriginal``, the TIFF ``DateTime`` tag, a ``YYYYMMDD`` or ``YYYY-MM-DD``
-in the file name, then the date given on the command line (``--dates NAME=YYYY-MM-DD``). Only the
-file's header is read. Needs Pillow only.
+In this order: the date given on the command line (``--dates NAME=YYYY-MM-DD``: what the user
+says wins), EXIF ``DateTimeOriginal`` (when the camera took the photo), a ``YYYYMMDD`` or
+``YYYY-MM-DD`` in the file name, then the TIFF ``DateTime`` tag. That tag says when the file was
+written: an orthomosaic's is the day it was processed or saved again, not the flight's (a season
+dated so put a flight of June in September). Only the file's header is read. Needs Pillow only.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import os
 import re
 from pathlib import Path
 
@@ -31,8 +34,8 @@ def photo_date(path, *, given=None):
     path : str or os.PathLike
         The photo.
     given : dict, optional
-        Dates from the command line, keyed by file name or path (``datetime.date`` values); used
-        only when the file itself has no date.
+        Dates from the command line, keyed by the path as given (relative to the working folder or
+        absolute) or by the file name (``datetime.date`` values); they win over the file's own.
 
     Returns
     -------
@@ -50,21 +53,53 @@ def photo_date(path, *, given=None):
     (datetime.date(2018, 8, 15), 'filename')
     """
     path = Path(path)
+    key = given_key(path, given)
+    if key is not None:
+        return given[key], "option"
     exif, tiff = _header_dates(path)
     if exif is not None:
         return exif, "exif"
-    if tiff is not None:
-        return tiff, "tiff"
     named = date_in_name(path.name)
     if named is not None:
         return named, "filename"
-    for key in (str(path), path.name):
-        if given and key in given:
-            return given[key], "option"
+    if tiff is not None:
+        return tiff, "tiff"
     raise CliffTerrainError(
         f"no date for {str(path)!r}: it has no EXIF DateTimeOriginal or TIFF DateTime, its name holds "
-        f"no YYYYMMDD or YYYY-MM-DD; give one with --dates {path.name}=YYYY-MM-DD"
+        f"no YYYYMMDD or YYYY-MM-DD; give one with --dates {path}=YYYY-MM-DD"
     )
+
+
+def given_key(path, given):
+    """The key of `given` (``--dates``) that names `path`: the same file by its path (relative or
+    absolute), else its name; None when none does."""
+    if not given:
+        return None
+    target = os.path.normcase(os.path.abspath(path))
+    for key in given:
+        if os.path.normcase(os.path.abspath(key)) == target:
+            return key
+    return Path(path).name if Path(path).name in given else None
+
+
+def check_given_dates(given, images):
+    """Refuse ``--dates`` keys that name no input, and file names that name several (ODM names every
+    flight's mosaic odm_orthophoto.tif): one line each, with what to give instead."""
+    used = {}
+    for image in images:
+        key = given_key(image, given)
+        if key is not None:
+            used.setdefault(key, []).append(str(image))
+    for key in given or ():
+        if key not in used:
+            raise CliffTerrainError(
+                f"--dates {key}=...: no input photo is {key!r} (give its path or its file name)"
+            )
+        if len(used[key]) > 1:
+            raise CliffTerrainError(
+                f"--dates {key}=... names {len(used[key])} photos ({', '.join(used[key][:3])}"
+                f"{', ...' if len(used[key]) > 3 else ''}); give each one's path instead"
+            )
 
 
 def date_in_name(name):

@@ -13,7 +13,7 @@ from pathlib import Path
 from .. import settings
 from ..errors import CliffTerrainError
 from ..params import ReliefParams
-from .dates import photo_date
+from .dates import check_given_dates, photo_date
 
 SEASON_SETTINGS = ("max_size", "segmentation", "profile", "exaggeration", "height_source")
 IMAGE_SUFFIXES = (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".webp")
@@ -175,6 +175,7 @@ def plan_season(
     indices = parse_indices(indices)
     bands = parse_band_names(bands)
     images = find_images(inputs)
+    check_given_dates(dates, images)
     dsms = pair_dsm(images, dsm)
     jobs, seen = [], {}
     for image in images:
