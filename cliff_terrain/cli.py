@@ -55,6 +55,19 @@ def build_parser():
     return parser
 
 
+def as_typed(message, parser, command):
+    """`message` with the core's parameter names, backticked (`ground_block`), as the options of
+    `command` that set them (`--block`): the user typed the option, not the Python name."""
+    import argparse
+
+    (subparsers,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for action in subparsers.choices[command]._actions:
+        options = [o for o in action.option_strings if o.startswith("--")]
+        if options and action.dest != "help":
+            message = message.replace(f"`{action.dest}`", f"`{options[0]}`")
+    return message
+
+
 _NEGATIVE_PAIR = re.compile(r"-\.?\d[^,=\s]*,[^=\s]*$")
 
 
@@ -68,13 +81,14 @@ def main(argv=None):
     # option; no option of ours looks like a pair of numbers, so such a value gets a leading space,
     # which argparse reads as a value (its rule for values with spaces) and the parsers strip.
     argv = [f" {a}" if isinstance(a, str) and _NEGATIVE_PAIR.match(a) else a for a in argv]
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     _quiet_libraries()
     try:
         check_required()
         return int(command_module(args.command).run(args) or 0)
     except CliffTerrainError as exc:
-        print(f"{PROG} {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{PROG} {args.command}: error: {as_typed(str(exc), parser, args.command)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG} {args.command}: interrupted", file=sys.stderr)

@@ -73,7 +73,7 @@ def test_existing_outputs_are_kept_and_bad_input_is_one_line(field, tmp_path):
     assert (out / "height.tif").read_bytes() == before
     for args, words in [
         (("relief", tmp_path / "missing.jpg", "--out", tmp_path / "x"), "no such file"),
-        (("relief", field, "--out", tmp_path / "x", "--max-size", "3"), "`max_size` must be >= 16, got 3"),
+        (("relief", field, "--out", tmp_path / "x", "--max-size", "3"), "`--max-size` must be >= 16, got 3"),
         (("synthetic", tmp_path / "f.png", "--size", "big"), "`--size` must be ROWSxCOLS"),
         (("relief", field), "the following arguments are required: --out"),
         (("nonsense",), "invalid choice: 'nonsense'"),

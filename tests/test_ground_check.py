@@ -397,22 +397,32 @@ def test_a_ruler_keyed_by_a_plot_number_each_trial_repeats_is_refused_not_joined
     "header, row, unit, metres",
     [
         # A breeding program's export: the trait abbreviated, the unit in a column of its own.
-        ("Plot,Name,HD,HT,MAT,Units", "2,Glenn,52,31,88,inches", "in", 31 * 0.0254),
-        ("Plot,PH_cm,Yield", "2,74,3.1", "cm", 0.74),
-        ("Plot,PLTHT (in)", "2,29.5", "in", 29.5 * 0.0254),
-        ("Plot,plant_height_inch", "2,30", "in", 30 * 0.0254),
+        ("PlotID,Name,HD,HT,MAT,Units", "2,Glenn,52,31,88,inches", "in", 31 * 0.0254),
+        ("PlotID,PH_cm,Yield", "2,74,3.1", "cm", 0.74),
+        ("PlotID,PLTHT (in)", "2,29.5", "in", 29.5 * 0.0254),
+        ("PlotID,plant_height_inch", "2,30", "in", 30 * 0.0254),
+        ("PlotID,PH 2023-07-26 (cm)", "2,74", "cm", 0.74),
     ],
 )
 def test_a_field_books_abbreviated_height_and_inches_are_read(tmp_path, header, row, unit, metres):
     path = tmp_path / "book.csv"
     path.write_text(f"{header}\n{row}\n")
     ruler = read_ruler(path, _plots([1, 2, 3]))
-    # "2" names the plot whose PlotID is 2, not the 0-based plot 2: on a tie the attribute wins.
+    # "2" names the plot whose PlotID is 2 and the 0-based plot 2 alike: the column's name decides.
     assert ruler.unit == unit and ruler.plot_field == "PlotID"
     np.testing.assert_allclose(ruler.heights_m, [np.nan, metres, np.nan])
 
 
-@pytest.mark.parametrize("header", ["Plot,WEIGHT,units", "Plot,phase,units", "Plot,HT,PH,units"])
+@pytest.mark.parametrize(
+    "header",
+    [
+        "Plot,WEIGHT,units",
+        "Plot,phase,units",
+        "Plot,HT,PH,units",
+        "Plot,soil_pH,units",
+        "Plot,HT_notes,units",
+    ],
+)
 def test_words_that_only_contain_a_heights_letters_are_not_a_height(tmp_path, header):
     path = tmp_path / "book.csv"
     path.write_text(f"{header}\n2,1,1,cm\n")
@@ -421,10 +431,24 @@ def test_words_that_only_contain_a_heights_letters_are_not_a_height(tmp_path, he
         read_ruler(path, _plots([1, 2, 3]))
 
 
+def test_ids_that_name_plots_through_two_fields_alike_are_refused_unless_the_column_says_which(tmp_path):
+    # Ids 1 and 2 name the 0-based rows 1, 2 and the PlotIDs 1, 2 alike: one of the two joins every
+    # height to a neighbour. The old code took the index, a first fix the attribute; both were wrong
+    # for someone.
+    path = tmp_path / "book.csv"
+    path.write_text("Plot,height_cm\n1,70\n2,80\n")
+    with pytest.raises(RulerError, match=r"name as many plots through the plots' 'PlotID' and 'plot'"):
+        read_ruler(path, _plots([1, 2, 3]))
+    path.write_text("PlotID,height_cm\n1,70\n2,80\n")
+    assert read_ruler(path, _plots([1, 2, 3])).plot_field == "PlotID"
+    path.write_text("plot,height_cm\n1,70\n2,80\n")  # plots.csv's own 0-based column
+    assert read_ruler(path, _plots([1, 2, 3])).plot_field == "plot"
+
+
 def test_a_utf16_field_book_is_read(tmp_path):
     # Excel's and PowerShell's "Unicode" text: UTF-16 with its byte order mark, once called binary.
     path = tmp_path / "book.csv"
-    path.write_bytes("plot_id,height_cm\n2,40\n".encode("utf-16"))
+    path.write_bytes("PlotID,height_cm\n2,40\n".encode("utf-16"))
     np.testing.assert_allclose(read_ruler(path, _plots([1, 2, 3])).heights_m, [np.nan, 0.4, np.nan])
 
 

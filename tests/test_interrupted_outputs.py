@@ -260,3 +260,8 @@ def test_overwrite_removes_the_earlier_runs_outputs_this_run_does_not_write_and_
     (mine / "plots.csv").write_text("plot,genotype\n1,G1\n")
     assert cli.main([*heights_args(mine, "--no-progress"), "--overwrite"]) == 0
     assert (mine / "plots.csv").read_text() == "plot,genotype\n1,G1\n"
+    # ... and so they stay beside a finished run that did not write them (its summary.json lists
+    # what it wrote): a reviewer's only copy of the plots was deleted so.
+    (mine / "plots.geojson").write_text("{}")
+    assert cli.main([*heights_args(mine, "--no-progress"), "--overwrite"]) == 0
+    assert (mine / "plots.geojson").read_text() == "{}" and (mine / "plots.csv").is_file()

@@ -439,7 +439,7 @@ def test_growth_chart_coloured_by_an_attribute(soybean, serial, tmp_path):
     )
     assert (
         bad.returncode == 2
-        and "`color_by` must be one of the plots' attributes (fid, ID, treatment), got 'genotype'"
+        and "`--color-by` must be one of the plots' attributes (fid, ID, treatment), got 'genotype'"
         in bad.stderr
     )
 
@@ -534,7 +534,7 @@ def test_dsm_gives_measured_heights(tmp_path):
         "odm_orthophoto.tif=2019-07-01",
     ]
     bad = season(*args, "--heights", "measured")
-    assert bad.returncode == 2 and "`height_source` 'measured' needs `dsm`" in bad.stderr
+    assert bad.returncode == 2 and "`--height-source` 'measured' needs `--dsm`" in bad.stderr
     done = season(*args, "--dsm", folder / "dsm.tif")
     assert done.returncode == 0, done.stderr
     (row,) = read_table(tmp_path / "out" / "season.csv")

@@ -67,10 +67,16 @@ def test_file_name_then_the_option(tmp_path):
     )
     relative = os.path.relpath(named)
     assert photo_date(named, given={relative: dt.date(2001, 1, 1)}) == (dt.date(2001, 1, 1), "option")
+    linked = tmp_path / "linked"
+    linked.symlink_to(tmp_path)  # the photo found through a link, the date given by the real path
+    assert photo_date(linked / named.name, given={str(named): dt.date(2002, 1, 1)})[0] == dt.date(2002, 1, 1)
 
 
 def test_dates_naming_no_input_or_several_are_refused(tmp_path):
     a, b = tmp_path / "a" / "odm_orthophoto.tif", tmp_path / "b" / "odm_orthophoto.tif"
+    for photo in (a, b):
+        photo.parent.mkdir()
+        Image.fromarray(RGB).save(photo)
     given = {"odm_orthophoto.tif": dt.date(2024, 6, 1)}
     with pytest.raises(CliffTerrainError, match=r"names 2 photos .*; give each one's path instead"):
         check_given_dates(given, [a, b])

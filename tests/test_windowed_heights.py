@@ -784,6 +784,11 @@ def test_overlapping_plots_are_each_measured_whole_as_alone():
         labels = rasterize_plots(alone, **grid)
         expected = plot_table(alone, labels, mask=heights > 0.5, heights=heights, pixel_area_m2=1.0)[0]
         assert {**table[k], "plot": 0} == expected, "ABCD"[k]
+    # A row whose every plot reaches into the next (a buffer too wide): a few images, not one per plot.
+    row = PlotSet([square(3 * k, 3 * k + 4) for k in range(60)], [{}] * 60, (), None, "")
+    chain = plot_layers(row, transform=[[1, 0, 0], [0, -1, 0]], shape=(4, 190))
+    assert len(chain) <= 3
+    assert all(sum(int((layer == k + 1).sum()) for layer in chain) == 16 for k in range(60))
     # Without overlaps, the one image rasterize_plots gives.
     apart = PlotSet([polygons[0], polygons[3]], [{}, {}], (), None, "")
     (only,) = plot_layers(apart, **grid)

@@ -260,6 +260,7 @@ def run(args):
         "ortho": str(args.ortho),
         "dsm": str(args.dsm),
         "dtm": None if args.dtm is None else str(args.dtm),
+        "outputs": outputs,  # what this run wrote: a later --overwrite removes only these
     }
     files[out / "summary.json"] = json.dumps(json_safe(summary), indent=2) + "\n"
     try:
@@ -297,11 +298,11 @@ ALL_OUTPUTS = (
 
 def stale_outputs(out, outputs):
     """An earlier run's outputs in `out` that this run, writing `outputs`, does not write (its plots
-    without --plots, its regions when windowed, its ruler.png without --ruler): removed as this run's
-    are written (:func:`~cliff_terrain.commands.out_folder.previous_outputs`)."""
+    without --plots, its regions when windowed, its ruler.png without --ruler), as its summary.json
+    lists them: removed as this run's are written (:func:`~cliff_terrain.measure.tables.previous_outputs`)."""
     from ..measure.tables import previous_outputs
 
-    return previous_outputs(out, [n for n in ALL_OUTPUTS if n not in outputs], markers=("summary.json",))
+    return previous_outputs(out, [n for n in ALL_OUTPUTS if n not in outputs], record="summary.json")
 
 
 def _windowed(args):

@@ -81,7 +81,9 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
                 threads=threads,
             )
         try:
-            files, summary, ruler_columns, ruler_record = _files(args, result, ruler, window, estimate_gib)
+            files, summary, ruler_columns, ruler_record = _files(
+                args, result, ruler, window, estimate_gib, args_outputs=outputs
+            )
             rows = result.rows
             if plots is not None:
                 columns = table_columns(plots, support=True, sigma=True)
@@ -142,7 +144,7 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
     return 0
 
 
-def _files(args, result, ruler, window, estimate_gib):
+def _files(args, result, ruler, window, estimate_gib, args_outputs=()):
     """({path: writer} of the rasters and ruler.png, the summary, the ruler's columns and record)."""
     out = args.out
     nan = float("nan")
@@ -194,5 +196,6 @@ def _files(args, result, ruler, window, estimate_gib):
         "ortho": str(args.ortho),
         "dsm": str(args.dsm),
         "dtm": None if args.dtm is None else str(args.dtm),
+        "outputs": list(args_outputs),  # what this run wrote: a later --overwrite removes only these
     }
     return files, summary, ruler_columns, ruler_record

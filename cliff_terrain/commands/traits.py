@@ -97,13 +97,10 @@ def run(args):
         files[out / "traits_map.png"] = lambda tmp: traits_map(plots, traits, tmp, trait=args.trait)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        # An earlier run's map and polygons, from a season with plots, do not stay beside a table
-        # of one without them.
+        # An interrupted run's map and polygons (its renaming journal lists them), from a season with
+        # plots, do not stay beside a table of one without them.
         every = ("traits.csv", "traits.geojson", "growth.png", "traits_map.png")
-        stale = previous_outputs(
-            out, [n for n in every if n not in outputs], markers=("growth.png", "traits_map.png")
-        )
-        write_files(files, remove=stale)
+        write_files(files, remove=previous_outputs(out, [n for n in every if n not in outputs]))
     except OSError as exc:
         raise CliffTerrainError(f"cannot write into {str(out)!r}: {exc}") from None
     flagged = sum(1 for t in traits if t["flag"])

@@ -92,9 +92,10 @@ def plot_layers(plots, *, transform, shape):
 
     :func:`rasterize_plots` gives an overlap's pixels to the later plot: the earlier lost them, and a
     plot a later copy covers lost all of them. Here the first image is :func:`rasterize_plots`'s,
-    without the plots that lost pixels in it; they are burnt again, by themselves, into the next
-    (and so on: the last of them always keeps its pixels, so each image holds one plot more at
-    least). Without overlaps, that is the one image. :func:`plot_table` takes the list.
+    without the plots that lost pixels in it. Those are coloured greedily so that no two whose
+    boxes overlap share a colour, and each colour is burnt into an image of its own: a grid whose
+    every plot reaches into its neighbours takes a handful (its boxes' overlaps), not one image
+    per plot. Without overlaps, that is the one image. :func:`plot_table` takes the list.
 
     Returns
     -------
@@ -115,17 +116,48 @@ def plot_layers(plots, *, transform, shape):
     if rows < 1 or cols < 1:
         raise CliffTerrainError(f"`shape` must be (rows, cols) >= 1, got {tuple(shape)}")
     polygons = plots.polygons
-    todo = np.arange(1, len(polygons) + 1)
-    layers = []
-    while todo.size:
-        labels, whole = _burn([polygons[k - 1] for k in todo], todo, t, (rows, cols))
-        kept = np.bincount(labels.ravel(), minlength=len(polygons) + 1)[todo]
-        lost = todo[kept < whole]
-        if lost.size:
-            labels[np.isin(labels, lost)] = 0
-        layers.append(labels)
-        todo = lost
+    numbers = np.arange(1, len(polygons) + 1)
+    labels, whole = _burn(polygons, numbers, t, (rows, cols))
+    kept = np.bincount(labels.ravel(), minlength=len(polygons) + 1)[1:]
+    lost = numbers[kept < whole]
+    if not lost.size:
+        return [labels]
+    labels[np.isin(labels, lost)] = 0
+    colour = _box_colours([polygons[k - 1] for k in lost], t)
+    layers = [labels]
+    for c in range(int(colour.max()) + 1):
+        group = lost[colour == c]
+        layers.append(_burn([polygons[k - 1] for k in group], group, t, (rows, cols))[0])
     return layers
+
+
+def _box_colours(polygons, t):
+    """A colour (0, 1, ...) for each polygon, greedy in their order, that no polygon whose pixel box
+    overlaps its own has: polygons of one colour share no pixel."""
+    points, sizes = pixel_vertices(polygons, t)
+    rings = np.array([len(polygon) for polygon in polygons])
+    first = (np.cumsum(sizes) - sizes)[np.cumsum(rings) - rings]  # each polygon's first vertex
+    x0, x1 = np.minimum.reduceat(points[:, 0], first), np.maximum.reduceat(points[:, 0], first)
+    y0, y1 = np.minimum.reduceat(points[:, 1], first), np.maximum.reduceat(points[:, 1], first)
+    cell = max(1.0, float(np.median(np.maximum(x1 - x0, y1 - y0))))
+    grid = {}  # (cell column, cell row) -> polygons already coloured whose box reaches it
+    colour = np.zeros(len(polygons), np.int64)
+    for i in range(len(polygons)):
+        cells = [
+            (a, b)
+            for a in range(int(x0[i] // cell), int(x1[i] // cell) + 1)
+            for b in range(int(y0[i] // cell), int(y1[i] // cell) + 1)
+        ]
+        near = {j for key in cells for j in grid.get(key, ())}
+        used = {
+            int(colour[j])
+            for j in near
+            if x0[i] < x1[j] and x0[j] < x1[i] and y0[i] < y1[j] and y0[j] < y1[i]
+        }
+        colour[i] = next(c for c in range(len(used) + 1) if c not in used)
+        for key in cells:
+            grid.setdefault(key, []).append(i)
+    return colour
 
 
 def _burn(polygons, numbers, t, shape):

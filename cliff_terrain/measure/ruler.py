@@ -149,11 +149,12 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
             f"the ruler file {name!r}: its header is one column, {columns[0]!r}: save it comma-separated"
         )
     height_column = _height_column(name, columns, height_column)
-    # The plots' own attributes before the 0-based index: on a tie (a few rows of ids 1, 2, ... that
-    # both name), the ids are the attribute's. An attribute named `plot` stands for the index.
+    # The 0-based index as `plot`, unless an attribute is named so (then it stands for it).
     fields = {field: [_key(a.get(field, "")) for a in plots.attributes] for field in plots.fields}
     fields.setdefault("plot", [str(i) for i in range(len(plots))])
-    id_column, plot_field, index = _id_column(name, rows, columns, id_column, fields, height_column)
+    id_column, plot_field, index = _id_column(
+        name, rows, columns, id_column, fields, height_column, plots_fields=plots.fields
+    )
     unit = _unit(name, rows, columns, height_column, units)
     heights = np.full(len(plots), np.nan)
     unmatched = 0
@@ -209,19 +210,25 @@ def _height_column(name, columns, wanted):
 
 
 def _names_a_height(column):
-    """Whether a column's name names a height: holds "height", or one of its words is a field book's
-    abbreviation of it (``HT``, ``PH_cm``, ``PLTHT 2023-07-26``), not merely contains it (``WEIGHT``,
-    ``phase``)."""
+    """Whether a column's name names a height: holds "height", or is a field book's abbreviation of
+    it with at most a unit and a date beside it (``HT``, ``PH_cm``, ``PLTHT (in)``, ``PH 2023-07-26``).
+    Not a name that merely holds its letters (``WEIGHT``, ``phase``) nor one that says more of it
+    (``soil_pH``, ``HT_notes``, ``PH_date``, ``PHT_flag``)."""
     text = column.strip().lower()
-    return "height" in text or any(word in _HEIGHT_WORDS for word in re.split(r"[^a-z]+", text))
+    if "height" in text:
+        return True
+    words = [w for w in re.split(r"[^a-z]+", text) if w and w not in (*UNITS, *_UNIT_NAMES)]
+    return len(words) == 1 and words[0] in _HEIGHT_WORDS
 
 
-def _id_column(name, rows, columns, wanted, fields, height_column):
+def _id_column(name, rows, columns, wanted, fields, height_column, plots_fields=()):
+    index_is_row = "plot" not in plots_fields
     candidates = [wanted] if wanted is not None else [c for c in columns if c != height_column]
     if wanted is not None and wanted not in columns:
         raise RulerError(f"the ruler file {name!r} has no column {wanted!r} (it has {', '.join(columns)})")
     best = (0, None, None)
     shared = (0, None, None)  # the best match with an attribute that names several plots each
+    tied = []  # the fields that name as many of the best column's ids as the best
     for column in candidates:
         keys = [_key(r.get(column, "")) for r in rows]
         for field, values in fields.items():
@@ -231,7 +238,27 @@ def _id_column(name, rows, columns, wanted, fields, height_column):
                     shared = (hits, column, field)
                 continue
             if hits > best[0]:
-                best = (hits, column, field)
+                best, tied = (hits, column, field), [field]
+            elif hits == best[0] and hits and column == best[1]:
+                tied.append(field)
+    if len(tied) > 1:
+        # The ids name as many plots through two fields (a 0-based index and a 1-based number): one of
+        # them joins every height to a neighbour. The field named as the column is meant; else ask.
+        # (`plot`, the 0-based row, only by that exact name: the column plots.csv writes; a field
+        # book's "Plot" is the breeder's number.)
+        column = best[1].strip()
+        named = [
+            f
+            for f in tied
+            if (column == "plot" if f == "plot" and index_is_row else f.strip().lower() == column.lower())
+        ]
+        if len(named) != 1:
+            raise RulerError(
+                f"the ruler file {name!r}: the ids of its column {best[1]!r} name as many plots through "
+                f"the plots' {' and '.join(repr(f) for f in tied)} ('plot' is the 0-based row); name "
+                "the column as the one meant"
+            )
+        best = (best[0], best[1], named[0])
     if shared[0] and shared[0] >= best[0] and (best[0] == 0 or best[2] == "plot"):
         # The ids name plots through an attribute several plots share (a plot number repeated in
         # each trial); the 0-based index matching them instead would join every height to another

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import math
 import os
 
@@ -162,17 +163,26 @@ def text_writer(make):
 RENAMING_JOURNAL = ".cliff-terrain-renaming"
 
 
-def previous_outputs(out, names, *, markers):
-    """The `names` in folder `out` that an earlier run of the command left there: all that exist when
-    one of its `markers` is there (a finished run's) or the renaming journal is (an interrupted
-    one's). A run that does not write them (`heights` without ``--plots``, or windowed: no regions)
-    removes them as it writes its own, so that the folder never holds two runs' outputs side by
-    side. Without a marker or the journal, files of those names are the user's: kept."""
+def previous_outputs(out, names, *, record=None, markers=()):
+    """The `names` in folder `out` that an earlier run of the command wrote there, as it says: listed
+    in its `record` (a JSON file of that run with ``"outputs"``, its summary) or in the renaming
+    journal an interrupted run left; with `markers` (a folder only the command writes to), every
+    name when one of them is there. A run that does not write them (`heights` without
+    ``--plots``, or windowed: no regions) removes them as it writes its own, so that the folder
+    never holds two runs' outputs side by side. Files the earlier run did not write are the user's:
+    kept (a field book saved as plots.geojson beside a run without plots)."""
     if not out.is_dir():
         return []
-    if not any((out / name).exists() for name in (*markers, RENAMING_JOURNAL)):
-        return []
-    return [out / name for name in names if (out / name).is_file()]
+    written = set()
+    journal = out / RENAMING_JOURNAL
+    with contextlib.suppress(OSError, UnicodeDecodeError):
+        written.update(journal.read_text(encoding="utf-8").splitlines())
+    if record is not None:
+        with contextlib.suppress(OSError, ValueError, TypeError, AttributeError):
+            written.update(str(n) for n in json.loads((out / record).read_text(encoding="utf-8"))["outputs"])
+    if any((out / name).exists() for name in markers):
+        written.update(names)
+    return [out / name for name in names if name in written and (out / name).is_file()]
 
 
 def write_files(files, *, threads=1, remove=()):

@@ -9,6 +9,7 @@ dated so put a flight of June in September). Only the file's header is read. Nee
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import os
 import re
@@ -79,6 +80,10 @@ def given_key(path, given):
     for key in given:
         if os.path.normcase(os.path.abspath(key)) == target:
             return key
+        # The same file however it is reached (a symbolic link, macOS's /tmp, another case).
+        with contextlib.suppress(OSError):
+            if os.path.samefile(key, path):
+                return key
     return Path(path).name if Path(path).name in given else None
 
 

@@ -223,7 +223,10 @@ def _stale_traits(out, table):
     from ..measure.tables import previous_outputs
 
     old = out / "season.csv"
-    if not old.is_file() or old.read_text(encoding="utf-8") == table:
+    try:  # bytes: a table saved again in another encoding has changed too
+        if old.read_bytes() == table.encode("utf-8"):
+            return []
+    except OSError:
         return []
     names = ("traits.csv", "traits.geojson", "growth.png", "traits_map.png")
     return previous_outputs(out / "traits", names, markers=("growth.png", "traits_map.png"))
