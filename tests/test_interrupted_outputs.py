@@ -265,3 +265,7 @@ def test_overwrite_removes_the_earlier_runs_outputs_this_run_does_not_write_and_
     (mine / "plots.geojson").write_text("{}")
     assert cli.main([*heights_args(mine, "--no-progress"), "--overwrite"]) == 0
     assert (mine / "plots.geojson").read_text() == "{}" and (mine / "plots.csv").is_file()
+    # A summary.json of a run from before it listed its outputs: nothing is taken for that run's.
+    (mine / "summary.json").write_text('{"ground": "estimated"}')
+    assert cli.main([*heights_args(mine, "--no-progress"), "--overwrite"]) == 0
+    assert (mine / "plots.geojson").read_text() == "{}" and (mine / "plots.csv").is_file()

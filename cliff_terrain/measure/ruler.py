@@ -88,9 +88,11 @@ def read_ruler(path, plots, *, id_column=None, height_column=None, units=None):
         The plots (:func:`cliff_terrain.io.vector.plot_polygons.read_plots`); an id matches one of their
         attributes (the one that matches most rows) or ``plot``, the 0-based index.
     id_column, height_column : str, optional
-        The file's columns; default: the column whose values match the plots best, and the one
-        column named like a height: its name holds "height", or one of its words is a field book's
-        abbreviation (``HT``, ``PH``, ``PHT``, ``PLHT``, ``PLTHT``, ``HGT``).
+        The file's columns; default: the column whose values match the plots best (when they name
+        as many plots through two plot fields, the field named as the column, else a
+        :class:`RulerError`), and the one column named like a height: its name holds "height", or
+        it is a field book's abbreviation (``HT``, ``PH``, ``PHT``, ``PLHT``, ``PLTHT``, ``HGT``)
+        with at most a unit and a date beside it.
     units : {"m", "cm", "mm", "in"}, optional
         The heights' unit; default: from a ``unit``/``units`` column, else from the height column's
         name (``height_cm``, ``Height (m)``, ``PH_in``; ``inch`` and ``inches`` are ``in``). One of

@@ -178,7 +178,7 @@ def previous_outputs(out, names, *, record=None, markers=()):
     with contextlib.suppress(OSError, UnicodeDecodeError):
         written.update(journal.read_text(encoding="utf-8").splitlines())
     if record is not None:
-        with contextlib.suppress(OSError, ValueError, TypeError, AttributeError):
+        with contextlib.suppress(OSError, ValueError, TypeError, LookupError):  # no record: nothing
             written.update(str(n) for n in json.loads((out / record).read_text(encoding="utf-8"))["outputs"])
     if any((out / name).exists() for name in markers):
         written.update(names)
