@@ -15,11 +15,12 @@ from cliff_terrain.data.synthetic_surface import synthetic_surface
 from cliff_terrain.errors import CliffTerrainError, GroundError, RulerError
 from cliff_terrain.io.raster.geotiff import read_surface
 from cliff_terrain.io.vector.plot_polygons import PlotSet
+from cliff_terrain.measure.field_book import read_ruler
 from cliff_terrain.measure.ground import fit_ground, naive_block_ground
 from cliff_terrain.measure.ground_check import robust_error, spatial_folds
 from cliff_terrain.measure.ground_detail import canopy_level
 from cliff_terrain.measure.ground_evidence import soil_peak
-from cliff_terrain.measure.ruler import Z90, agreement, calibrate, calibrated_err, read_ruler
+from cliff_terrain.measure.ruler import Z90, agreement, calibrate, calibrated_err
 
 
 def beds(*, rows=400, cols=600, pixel=0.05, height=0.7, seed=0):
