@@ -99,6 +99,9 @@ def test_surface_model_transformation_tag(tmp_path):
         ({"keys": geokeys(2264, units=9002)}, GeoreferenceError, "feet"),
         ({"keys": geokeys(UTM16N, vertical=9003)}, GeoreferenceError, "heights in US survey feet"),
         ({"keys": geokeys(4326, model=2, units=None)}, GeoreferenceError, "degrees"),
+        # A code alone implies its unit (GeoTIFF 1.1, 7.4): Florida East in US survey feet, WGS 84.
+        ({"keys": geokeys(2236, units=None)}, GeoreferenceError, "US survey feet (EPSG:2236)"),
+        ({"keys": geokeys(4326, units=None)}, GeoreferenceError, "degrees (geographic CRS EPSG:4326)"),
         ({"keys": geokeys(UTM16N), "nodata": "-9999", "fill": -9999.0}, RasterReadError, "holds no data"),
     ],
 )
@@ -202,6 +205,22 @@ def test_feet_a_photos_scale_is_converted_by_its_own_foot_a_raster_in_them_refus
             GeoreferenceError, match=f"ft.tif' has map units in {name}; Cliff Terrain needs metres"
         ):
             read_orthophoto(path)
+
+
+def test_a_code_alone_gives_a_photos_unit_and_the_writer_refuses_a_code_not_in_metres(tmp_path):
+    from cliff_terrain.io.photo import read_metadata
+    from cliff_terrain.io.raster.geotiff import write_geotiff
+
+    rgb = np.full((20, 30, 3), 90, np.uint8)
+    path = write_tiff(
+        tmp_path / "ft.tif", rgb, scale=(2.0, 2.0), keys=geokeys(2236, units=None), photometric="rgb"
+    )
+    assert read_metadata(path).gsd_m_per_px == pytest.approx(2.0 * 1200.0 / 3937.0, rel=1e-12)
+    # The writer's unit key says metre: a code in feet would make the file contradict itself.
+    for code, words in ((2236, "US survey feet"), (4326, "degrees")):
+        with pytest.raises(GeoreferenceError, match=f"`crs` {code} .*{words}"):
+            write_geotiff(tmp_path / "w.tif", np.ones((4, 4), np.float32), transform=np.eye(3), crs=code)
+    assert not (tmp_path / "w.tif").exists()
 
 
 def test_ex2_orthophoto_loads_as_a_photo():

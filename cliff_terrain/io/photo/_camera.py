@@ -26,6 +26,7 @@ from ..raster._geokeys import (
     MODEL_TRANSFORMATION,
     PROJ_LINEAR_UNITS,
     PROJECTED_CS_TYPE,
+    code_metres,
     geo_keys,
     unit_metres,
 )
@@ -182,8 +183,8 @@ def geotiff_pixel_size(tags):
     if keys.get(GT_MODEL_TYPE) != MODEL_PROJECTED or keys.get(PROJECTED_CS_TYPE) in _WEB_MERCATOR:
         return None
     unit = unit_metres(keys.get(PROJ_LINEAR_UNITS))
-    if unit is None and _is_utm_in_metres(keys.get(PROJECTED_CS_TYPE)):
-        unit = 1.0
+    if unit is None and PROJ_LINEAR_UNITS not in keys:
+        unit = code_metres(keys.get(PROJECTED_CS_TYPE))
     if unit is None:
         return None
     size = None
@@ -200,13 +201,6 @@ def geotiff_pixel_size(tags):
     if size is None or not math.isfinite(size) or size <= 0:
         return None
     return size * unit
-
-
-def _is_utm_in_metres(code):
-    # WGS 84 / UTM (326xx north, 327xx south), NAD83 / UTM (269xx), ETRS89 / UTM (258xx).
-    return isinstance(code, int) and (
-        32601 <= code <= 32660 or 32701 <= code <= 32760 or 26901 <= code <= 26923 or 25828 <= code <= 25838
-    )
 
 
 def _sensor_from_focal_plane(exif_ifd, width):

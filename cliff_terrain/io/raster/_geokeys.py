@@ -100,6 +100,60 @@ def unit_metres(code):
     return None if unit is None else unit[1]
 
 
+def check_metric_code(code, what, *, linear=True):
+    """Refuse EPSG `code` when its unit is not the metre (:mod:`.epsg_units`): a GeoTIFF may give its
+    CRS by the code alone, which then implies the unit (GeoTIFF 1.1, section 7.4). A geographic code
+    is always refused; one in feet only with `linear` (a unit key of the file's own overrides it).
+    `what` names the file in the message.
+
+    Examples
+    --------
+    >>> check_metric_code(32616, "raster 'dsm.tif'")
+    >>> check_metric_code(2236, "raster 'dsm.tif'")
+    Traceback (most recent call last):
+    ...
+    cliff_terrain.errors.GeoreferenceError: raster 'dsm.tif' has map units in US survey feet (EPSG:2236); \
+Cliff Terrain needs metres: reproject it to a projected CRS in metres (e.g. its UTM zone)
+    """
+    from .epsg_units import GEOGRAPHIC, UNITS, code_unit
+
+    unit = code_unit(code)
+    if unit is None or (unit != GEOGRAPHIC and not linear):
+        return
+    if unit == GEOGRAPHIC:
+        raise GeoreferenceError(
+            f"{what} is in degrees (geographic CRS EPSG:{code}); "
+            "reproject it to a projected CRS in metres (e.g. its UTM zone)"
+        )
+    name = LINEAR_UNITS[unit][0] if unit in LINEAR_UNITS else f"{UNITS[unit][0]} units"
+    raise GeoreferenceError(
+        f"{what} has map units in {name} (EPSG:{code}); Cliff Terrain needs metres: "
+        "reproject it to a projected CRS in metres (e.g. its UTM zone)"
+    )
+
+
+def code_metres(code):
+    """Metres per map unit that a projected EPSG `code` implies, or None when unknown here: the
+    unit's factor for a code in feet or another unit (:mod:`.epsg_units`), 1 for a UTM zone of
+    WGS 84, NAD83 or ETRS89 (the metric codes photos carry).
+
+    Examples
+    --------
+    >>> code_metres(32616), code_metres(2236), code_metres(4326)
+    (1.0, 0.30480060960121924, None)
+    """
+    from .epsg_units import GEOGRAPHIC, UNITS, code_unit
+
+    if not isinstance(code, int):
+        return None
+    unit = code_unit(code)
+    if unit is not None:
+        return None if unit == GEOGRAPHIC else UNITS[unit][1]
+    # WGS 84 / UTM (326xx north, 327xx south), NAD83 / UTM (269xx), ETRS89 / UTM (258xx).
+    utm = 32601 <= code <= 32660 or 32701 <= code <= 32760 or 26901 <= code <= 26923 or 25828 <= code <= 25838
+    return 1.0 if utm else None
+
+
 def georeference(tags, name):
     """(3x3 transform, CRS) from the GeoTIFF tags (tag code -> value), refusing what is not a metric map.
 
@@ -149,6 +203,9 @@ def georeference(tags, name):
             f"raster {name!r} has heights in {LINEAR_UNITS[vertical][0]}; Cliff Terrain needs metres"
         )
     code = keys.get(PROJECTED_CS_TYPE)
+    if code is not None and code != USER_DEFINED:
+        # Without the unit key the code implies the unit; with it the key wins, as in GDAL.
+        check_metric_code(code, f"raster {name!r}", linear=units is None)
     if code is None or code == USER_DEFINED:
         from .crs import geokeys_crs
 

@@ -34,6 +34,7 @@ from ._geokeys import (
     MODEL_PIXEL_SCALE,
     MODEL_TIEPOINT,
     MODEL_TRANSFORMATION,
+    check_metric_code,
     georeference,
     nodata_value,
     scale_offset,
@@ -388,6 +389,8 @@ def geotiff_tags(transform, crs, *, nodata=None):
         keys, doubles, text = user_geokeys(crs)
         geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
     else:
+        # The unit key says metre: a code in feet or degrees would make the file contradict itself.
+        check_metric_code(int(crs), f"`crs` {crs!r}")
         keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
     extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
     if nodata is not None:
