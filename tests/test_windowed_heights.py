@@ -736,9 +736,15 @@ def test_an_undeclared_no_data_value_is_no_surface_in_either_path(tmp_path, extr
     write_geotiff(
         sentinel, np.where(np.isnan(heights), np.float32(-9999), heights), transform=transform, crs=crs
     )
+    # gdalwarp without -dstnodata fills outside the footprint with 0 and declares nothing: plants
+    # measured 100 m tall. A float file with a corner at exactly 0 has its zeros taken as no data.
+    assert np.isnan(heights[[0, 0, -1, -1], [0, -1, 0, -1]]).any()
+    zeros = tmp_path / "zeros.tif"
+    write_geotiff(zeros, np.where(np.isnan(heights), np.float32(0), heights), transform=transform, crs=crs)
     _, nan_rows, _ = run_heights(tmp_path, "nan", *extra, dsm=declared)
     _, sentinel_rows, _ = run_heights(tmp_path, "sentinel", *extra, dsm=sentinel)
-    assert nan_rows == sentinel_rows
+    _, zero_rows, _ = run_heights(tmp_path, "zeros", *extra, dsm=zeros)
+    assert nan_rows == sentinel_rows == zero_rows
     assert np.nanmax(column(sentinel_rows, "height_p90_m")) < 1.5  # potato, not 19 m trees
 
 

@@ -34,6 +34,7 @@ class SurfaceWindows:
     def __init__(self, path, *, what="surface model"):
         from ..io.raster._geokeys import GDAL_METADATA, GDAL_NODATA, georeference, nodata_value, scale_offset
         from ..io.raster._tiff_window import TiffRaster
+        from ..io.raster.surface_values import zero_fill
 
         self.raster = TiffRaster(path)
         self.path = self.raster.path
@@ -43,6 +44,13 @@ class SurfaceWindows:
             self.transform, self.crs = georeference(self.raster.tags, self.path)
             self.nodata = nodata_value(self.raster.tags.get(GDAL_NODATA), self.path)
             self.scale_offset = scale_offset(self.raster.tags.get(GDAL_METADATA))
+            rows, cols = self.raster.shape
+            corners = [
+                self.raster.read_window(r, r + 1, c, c + 1)[0, 0, 0]
+                for r in (0, rows - 1)
+                for c in (0, cols - 1)
+            ]
+            self.zero_fill = zero_fill(np.array(corners), nodata=self.nodata)  # as read_surface decides
         except CliffTerrainError:
             self.raster.close()
             raise
@@ -61,6 +69,8 @@ class SurfaceWindows:
         invalid = ~np.isfinite(data)
         if self.nodata is not None:
             invalid |= is_nodata(raw, self.nodata)
+        elif self.zero_fill:
+            invalid |= raw == 0
         data = scaled(data, self.scale_offset)
         invalid |= ~surface_data(data)  # as read_surface: an undeclared -9999 is no surface
         data[invalid] = np.nan

@@ -22,3 +22,29 @@ def surface_data(dsm):
     [True, False, False, False, False, True]
     """
     return np.isfinite(dsm) & (dsm > -1e3) & (dsm < 1e5)
+
+
+def zero_fill(corners, *, nodata):
+    """Whether a surface model's exact zeros are the fill outside its footprint, from its corner
+    samples as stored (before any scale) and its declared no-data value.
+
+    ``gdalwarp`` without ``-dstnodata`` fills what lies outside a warped DSM with 0 and declares
+    nothing: read as heights, a field 270 m above sea level stood on a ground dragged toward 0 and
+    its plants measured 100 m tall (with the held-out check passing). A photogrammetric surface in
+    floating point never holds exactly 0.0 at a corner of its rectangle (its heights are continuous,
+    and even at sea level an exact 0.0 is one value among billions), so a float file without a
+    declared no-data value and with a corner at exactly 0 has its exact zeros taken as no data, in
+    memory and in windows alike (the decision is the file's, from its corners). Integer files
+    (centimetres, millimetres) keep theirs: 0 is a plausible stored height there.
+
+    Examples
+    --------
+    >>> zero_fill(np.array([0.0, 271.2, 270.9, 0.0], np.float32), nodata=None)
+    True
+    >>> zero_fill(np.array([270.1, 271.2, 270.9, 270.5], np.float32), nodata=None)
+    False
+    >>> zero_fill(np.array([0, 27120, 27090, 0], np.int16), nodata=None)
+    False
+    """
+    corners = np.asarray(corners)
+    return nodata is None and corners.dtype.kind == "f" and bool(np.any(corners == 0))
