@@ -422,6 +422,12 @@ def test_plot_table_equals_direct_computation():
         assert row["volume_m3"] == pytest.approx(h[ok].sum() * gsd * gsd)
     assert [row["error"] for row in rows[:3]] == ["", "", ""]
     assert "partly outside" in rows[3]["error"]
+    # A DSM that covers a plot only in part: its figures stand on that part, and the row says so.
+    heights[:, 120:] = np.nan
+    rows = plot_table(plots, labels, mask=truth.labels > 0, heights=heights, pixel_area_m2=gsd * gsd)
+    share = np.isfinite(heights[10:140, 10:200]).mean()
+    assert rows[0]["error"] == f"partly outside the raster or its data ({share:.0%} measured)"
+    assert rows[0]["area_m2"] == pytest.approx(130 * 190 * gsd * gsd)  # the plot's pixels
 
 
 def test_read_plots_geojson_and_shapefile(tmp_path):
