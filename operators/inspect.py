@@ -6,7 +6,7 @@ The values come from :mod:`scene.probe` (the relief's own rasters); the colours 
 
 import bpy
 
-from ..scene.probe import PROBE_KEY
+from ..scene.probe import PROBE_KEY, forget_reliefs
 from ..scene.record import is_relief
 from .reports import report_failure
 
@@ -208,9 +208,16 @@ SHORTCUT = {"type": "P", "value": "PRESS", "ctrl": True, "alt": True}
 _KEYMAPS = []
 
 
+@bpy.app.handlers.persistent
+def _forget_reliefs(*_args):
+    """A newly opened file: the cached relief is another file's (about 1 GB for a large one)."""
+    forget_reliefs()
+
+
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
+    bpy.app.handlers.load_post.append(_forget_reliefs)
     if not bpy.app.background:
         _BAR["handle"] = bpy.types.SpaceView3D.draw_handler_add(draw_colour_bar, (), "WINDOW", "POST_PIXEL")
     keyconfig = bpy.context.window_manager.keyconfigs.addon  # None in background mode
@@ -228,5 +235,8 @@ def unregister():
     if _BAR["handle"] is not None:
         bpy.types.SpaceView3D.draw_handler_remove(_BAR["handle"], "WINDOW")
         _BAR["handle"] = None
+    if _forget_reliefs in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_forget_reliefs)
+    forget_reliefs()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

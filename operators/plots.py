@@ -24,10 +24,14 @@ class _OnAGrid:
 
     @classmethod
     def poll(cls, context):
-        from ..scene.plot_grid_object import active_grid
+        from ..scene.plot_grid_object import GRID_KEY, active_grid, grid_relief
 
-        if active_grid(context) is None:
+        grid = active_grid(context)
+        if grid is None:
             cls.poll_message_set("Select a plot grid (Add Plot Grid)")
+            return False
+        if grid_relief(grid) is None:
+            cls.poll_message_set(f"The relief {grid[GRID_KEY]!r} of this plot grid is gone")
             return False
         return True
 

@@ -75,11 +75,20 @@ ReliefParameters.__annotations__.update(
 
 def _grid_changed(settings, context):
     """Rebuild the active plot grid from the new layout (its placement stays where the user put it)."""
-    from ..scene.plot_grid_object import active_grid, update_grid_mesh
+    from ..scene.colour_by import colour_relief, measured_grids
+    from ..scene.plot_grid_object import TABLE_KEY, active_grid, grid_relief, update_grid_mesh
 
     grid = active_grid(context)
-    if grid is not None:
-        update_grid_mesh(grid, settings)
+    if grid is None:
+        return
+    # Read before the table goes: once no grid has one, Plot Trait is no item and reads as "".
+    showed_table = TABLE_KEY in grid and settings.color_by == "PLOT_TRAIT"
+    update_grid_mesh(grid, settings)
+    if showed_table:  # the relief showed the plots as they were, with their colour bar
+        if not measured_grids():
+            settings.color_by = "PHOTO"  # recolours every relief
+        elif (relief := grid_relief(grid)) is not None:
+            colour_relief(relief, "PHOTO", settings=settings)
 
 
 _COLOUR_MODES = (

@@ -29,9 +29,13 @@ def reliefs(scene):
 
 def measured_grids():
     """{relief name: a plot grid over it with a plot table (Measure Plots)}, in one pass over the objects."""
-    from .plot_grid_object import GRID_KEY, TABLE_KEY
+    from .plot_grid_object import GRID_KEY, TABLE_KEY, grid_relief
 
-    return {obj[GRID_KEY]: obj for obj in bpy.data.objects if GRID_KEY in obj and obj.get(TABLE_KEY)}
+    grids = {}
+    for obj in bpy.data.objects:
+        if GRID_KEY in obj and obj.get(TABLE_KEY) and (relief := grid_relief(obj)) is not None:
+            grids[relief.name] = obj
+    return grids
 
 
 def measured_grid(relief):

@@ -16,6 +16,9 @@ from mathutils import Vector
 from .record import Record
 
 GRID_KEY = "cliff_terrain_plot_grid"  # custom property: the name of the relief the grid belongs to
+# Custom property: the relief object itself (an ID pointer, which follows a rename; the name alone
+# broke Fit, Measure and Export once the user renamed the relief in the Outliner).
+RELIEF_KEY = "cliff_terrain_relief"
 FIT_KEY = "cliff_terrain_fit"  # custom property: the last fit's report
 TABLE_KEY = "cliff_terrain_plot_table"  # custom property: the last Measure Plots' rows
 GRID_RGBA = (1.0, 0.85, 0.1, 1.0)
@@ -29,7 +32,11 @@ def active_grid(context):
 
 
 def grid_relief(grid):
-    """The relief object a grid was added over (None when it is gone)."""
+    """The relief object a grid was added over (None when it is gone): the one it points at, renamed
+    or not, or for a grid from an earlier version the object of its recorded name."""
+    relief = grid.get(RELIEF_KEY)
+    if isinstance(relief, bpy.types.Object):
+        return relief if relief.name in bpy.data.objects and relief.users else None
     return bpy.data.objects.get(grid.get(GRID_KEY, ""))
 
 
@@ -120,6 +127,11 @@ def update_grid_mesh(grid, settings):
         attribute.data.foreach_set("value", values)
     mesh.update(calc_edges=True)
     mesh.validate()
+    # The last fit's figures and red wire describe the plots as they were (Fit to Field writes its
+    # own after its alleys rebuild the mesh).
+    if FIT_KEY in grid:
+        del grid[FIT_KEY]
+    grid.color = GRID_RGBA
     if TABLE_KEY in grid:  # measured on the plots as they were
         del grid[TABLE_KEY]
     return layout
@@ -133,6 +145,7 @@ def new_grid(context, relief, settings, *, created):
     grid = bpy.data.objects.new(f"{relief.name} plots", mesh)
     created.append(grid)
     grid[GRID_KEY] = relief.name
+    grid[RELIEF_KEY] = relief
     grid["cliff_terrain_scale"] = frame.scale
     layout = update_grid_mesh(grid, settings)
     across, along = layout.extent

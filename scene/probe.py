@@ -7,14 +7,23 @@ the next clicks answer at once. A point is read from the pixel under it: the val
 height raster (``height.tif``) holds there, whatever mesh shows it.
 """
 
+import json
+
 from mathutils import Vector
 
 from .record import Record
 
 PROBE_KEY = "cliff_terrain_probe"  # custom property of the relief: the last probe's values
-# The last relief rebuilt for probing: (object name, mask digest) -> Relief. One at a time: a relief
-# of a 4000-pixel grid holds about 1 GB of stages.
+# The last relief rebuilt for probing: (object name, its whole record) -> Relief. The whole record,
+# not only the mask's digest: a relief rebuilt under the same name with another exaggeration or
+# profile has the same mask and other heights. One at a time: a relief of a 4000-pixel grid holds
+# about 1 GB of stages.
 _RELIEFS = {}
+
+
+def forget_reliefs():
+    """Drop the cached relief (the add-on's unregister, and a newly opened file)."""
+    _RELIEFS.clear()
 
 
 def relief_of(obj):
@@ -22,7 +31,7 @@ def relief_of(obj):
     from ..cliff_terrain.errors import CliffTerrainError
 
     record = Record.of(obj)
-    key = (obj.name, record.mask_digest)
+    key = (obj.name, json.dumps(record.as_properties(), sort_keys=True, default=str))
     if key in _RELIEFS:
         return _RELIEFS[key]
     from ..cliff_terrain.build import build_relief

@@ -198,3 +198,32 @@ def test_the_blender_guide_script_runs_as_pasted(scene, tmp_path, capsys):
     exec(compile(block.replace("/path/to/field.jpg", str(field)), "docs/blender.md", "exec"), {})
     out = capsys.readouterr().out
     assert "'height':" in out and "'unit':" in out and "'region':" in out
+
+
+def test_probe_reads_a_relief_rebuilt_under_the_same_name_with_other_heights(scene):
+    # The probe's cache was keyed by the relief's name and its mask: rebuilt with exaggeration 3
+    # (same mask, other heights), it answered with the first build's heights.
+    import bpy
+
+    from cliff_terrain import build_relief
+
+    photo = _photo(BROCCOLI)
+    settings = scene.cliff_terrain
+    settings.filepath = str(photo)
+    settings.max_size = 200
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    name = obj.name
+    reference = build_relief(str(photo), max_size=200, mesh=None)
+    points, pixels = _world_points(obj, reference, 2, seed=3)
+    (x, y), (row, col) = points[0], pixels[0]
+    assert bpy.ops.cliff_terrain.probe_height(location=(x, y)) == {"FINISHED"}
+    first = obj["cliff_terrain_probe"]["height"]
+    assert first == pytest.approx(float(reference.heights[row, col]), abs=0.01 * reference.heights.max())
+    bpy.data.objects.remove(obj)
+    settings.exaggeration = 3.0
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj.name == name
+    assert bpy.ops.cliff_terrain.probe_height(location=(x, y)) == {"FINISHED"}
+    assert first > 0 and obj["cliff_terrain_probe"]["height"] == pytest.approx(3 * first, rel=0.02)

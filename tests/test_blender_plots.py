@@ -204,3 +204,49 @@ def test_undo_takes_back_add_and_fit(relief):
     assert "cliff_terrain_fit" not in grid
     bpy.ops.ed.undo()  # the grid
     assert sorted(bpy.data.objects.keys()) == before
+
+
+def test_a_grid_follows_its_renamed_relief_and_greys_out_when_it_is_gone(relief, tmp_path):
+    # The grid recorded its relief's name only: renamed in the Outliner, Fit, Measure and Export
+    # still looked runnable and each failed "the relief ... is gone".
+    import bpy
+
+    from cliff_terrain.io.vector.plot_polygons import read_plots
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 2, 3
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    grid = bpy.context.active_object
+    relief.name = "Field A 2024"
+    assert bpy.ops.cliff_terrain.export_plots.poll()
+    assert bpy.ops.cliff_terrain.export_plots(filepath=str(tmp_path / "p.geojson")) == {"FINISHED"}
+    assert len(read_plots(tmp_path / "p.geojson")) == 6
+    assert bpy.ops.cliff_terrain.plot_table() == {"FINISHED"}
+    settings.color_by = "PLOT_TRAIT"  # offered: the renamed relief has a measured grid
+    assert relief["cliff_terrain_legend"]["mode"] == "PLOT_TRAIT"
+    # A layout edit drops the table: the relief goes back to its photo, without the colour bar.
+    settings.plot_rows = 4
+    assert settings.color_by == "PHOTO" and "cliff_terrain_legend" not in relief
+    bpy.data.objects.remove(relief)
+    bpy.context.view_layer.objects.active = grid
+    for op in (
+        bpy.ops.cliff_terrain.fit_plot_grid,
+        bpy.ops.cliff_terrain.plot_table,
+        bpy.ops.cliff_terrain.export_plots,
+    ):
+        assert not op.poll()
+
+
+def test_a_layout_edit_drops_the_last_fits_figures_and_red_wire(relief):
+    import bpy
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 4, 9
+    settings.plot_width, settings.plot_length = 14.2, 4.8
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    grid = bpy.context.active_object
+    grid["cliff_terrain_fit"] = {"confidence": 0.1}
+    grid.color = (0.9, 0.1, 0.1, 1.0)  # as a fit unsure of its plots leaves it
+    settings.plot_rows = 8
+    assert "cliff_terrain_fit" not in grid
+    assert tuple(grid.color) == pytest.approx((1.0, 0.85, 0.1, 1.0))

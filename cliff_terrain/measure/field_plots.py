@@ -342,26 +342,20 @@ def plot_table(
         )
     full_areas = [polygon_area(rings) for rings in plots.polygons]
     for index, row in enumerate(rows):
+        # The share of its area the figures stand on: its pixels in the raster, with heights those
+        # that have one (a DSM over half a plot gave the other half's p90, silently).
+        inside = row["area_m2"] / full_areas[index] if full_areas[index] > 0 else 1.0
+        inside *= row["valid_pixels"] / row["pixels"] if heights is not None and row["pixels"] else 1.0
         if row["pixels"] == 0:
             row["error"] = "outside the raster (or smaller than a pixel)"
         elif heights is not None and row["valid_pixels"] == 0:
             row["error"] = "no height data in the plot"
-        elif (inside := _measured_share(row, full_areas[index], heights is not None)) < 0.9:
+        elif inside < 0.9:
             row["error"] = f"partly outside the raster or its data ({inside:.0%} measured)"
         else:
             row["error"] = ""
         del row["pixels"], row["valid_pixels"]
     return rows
-
-
-def _measured_share(row, full_area, with_heights):
-    """The share of a plot's whole area that its figures stand on: its pixels inside the raster,
-    and of those, with heights, the ones that have one (a DSM that covers half a plot gave a p90 of
-    the other half and a third of its volume, with no word said)."""
-    share = row["area_m2"] / full_area if full_area > 0 else 1.0
-    if with_heights and row["pixels"]:
-        share *= row["valid_pixels"] / row["pixels"]
-    return share
 
 
 def _plot_rows(plots, plot_labels, mask, heights, pixel_area_m2, height_units, support, sigma, index_maps):
