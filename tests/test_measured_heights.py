@@ -207,6 +207,17 @@ def test_feet_a_photos_scale_is_converted_by_its_own_foot_a_raster_in_them_refus
             read_orthophoto(path)
 
 
+def test_the_epsg_units_table_knows_feet_metres_and_degrees():
+    # Checked against pyproj's EPSG database (tools/epsg_units.py writes the table from it).
+    from cliff_terrain.io.raster.epsg_units import GEOGRAPHIC, UNITS, code_unit
+
+    feet = {2222: 9002, 2227: 9003, 2236: 9003, 2263: 9003, 3435: 9003}
+    assert {code: code_unit(code) for code in feet} == feet
+    assert [code_unit(code) for code in (27700, 3857, 2193, 32631, 32616)] == [None] * 5
+    assert code_unit(4269) == code_unit(6318) == code_unit(4326) == GEOGRAPHIC
+    assert UNITS[9003][1] == pytest.approx(1200 / 3937, rel=1e-15)
+
+
 def test_a_code_alone_gives_a_photos_unit_and_the_writer_refuses_a_code_not_in_metres(tmp_path):
     from cliff_terrain.io.photo import read_metadata
     from cliff_terrain.io.raster.geotiff import write_geotiff

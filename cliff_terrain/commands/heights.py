@@ -228,11 +228,18 @@ def run(args):
         tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan"), overviews=True
     )
     if canopy.support is not None:
+        # NaN declared as no data: a support or error of exactly 0 is a value (a reader that takes
+        # an undeclared corner of 0 for gdalwarp's fill would drop it).
         files[out / "ground_support.tif"] = lambda tmp: write_geotiff(
-            tmp, canopy.support, transform=canopy.transform, crs=canopy.crs, overviews=True
+            tmp,
+            canopy.support,
+            transform=canopy.transform,
+            crs=canopy.crs,
+            nodata=float("nan"),
+            overviews=True,
         )
         files[out / "chm_err.tif"] = lambda tmp: write_geotiff(
-            tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs, overviews=True
+            tmp, canopy.sigma, transform=canopy.transform, crs=canopy.crs, nodata=float("nan"), overviews=True
         )
     if ruler_rows:
         files[out / "ruler.png"] = lambda tmp: plot_rows_ruler_figure(ruler_rows, ruler_record).save(

@@ -150,10 +150,9 @@ def _files(args, result, ruler, window, estimate_gib, args_outputs=()):
     nan = float("nan")
     files = {}
     for name, spool in result.spools.items():
-        nodata = nan if name == "chm" else None
 
-        def write(tmp, spool=spool, nodata=nodata):
-            spool.write_geotiff(tmp, transform=result.transform, crs=result.crs, nodata=nodata)
+        def write(tmp, spool=spool):  # NaN declared as no data, as in memory
+            spool.write_geotiff(tmp, transform=result.transform, crs=result.crs, nodata=nan)
 
         files[out / f"{name}.tif"] = write
     ruler_columns, ruler_record = [], {}
