@@ -11,6 +11,7 @@ import bpy
 from ..cliff_terrain.io.raster.crs import crs_text
 from ..scene.record import Record, is_relief
 from .file_operator import FileOperator
+from .properties import show_grid_settings
 from .reports import report_failure
 
 
@@ -96,6 +97,8 @@ class CLIFF_TERRAIN_OT_fit_plot_grid(_OnAGrid, bpy.types.Operator):
 
         grid = context.active_object
         settings = context.scene.cliff_terrain
+        # The fields show this grid's own layout: the fitted alleys below change it, not another's.
+        show_grid_settings(grid, settings)
         try:
             layout = layout_of(settings)
             frame, corners = grid_map_corners(grid, layout)

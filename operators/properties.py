@@ -73,22 +73,50 @@ ReliefParameters.__annotations__.update(
 )
 
 
-def _grid_changed(settings, context):
+# While the sidebar's fields take a selected grid's own layout, they rebuild nothing.
+_SHOWING = {"grid": False}
+
+
+def show_grid_settings(grid, settings):
+    """Put `grid`'s own layout (what it was drawn with) into the sidebar's fields, rebuilding nothing:
+    selecting a grid shows its layout, and an edit then changes that grid as shown."""
+    from ..scene.plot_grid_object import LAYOUT_FIELDS, grid_settings
+
+    own = grid_settings(grid, settings)
+    _SHOWING["grid"] = True
+    try:
+        for name in LAYOUT_FIELDS:
+            if getattr(settings, name) != getattr(own, name):
+                setattr(settings, name, getattr(own, name))
+    finally:
+        _SHOWING["grid"] = False
+
+
+def _grid_changed(settings, context, *, rebuild=True):
     """Rebuild the active plot grid from the new layout (its placement stays where the user put it)."""
     from ..scene.colour_by import colour_relief, measured_grids
-    from ..scene.plot_grid_object import TABLE_KEY, active_grid, grid_relief, update_grid_mesh
+    from ..scene.plot_grid_object import TABLE_KEY, active_grid, grid_relief, keep_layout, update_grid_mesh
 
     grid = active_grid(context)
-    if grid is None:
+    if grid is None or _SHOWING["grid"]:
         return
     # Read before the table goes: once no grid has one, Plot Trait is no item and reads as "".
     showed_table = TABLE_KEY in grid and settings.color_by == "PLOT_TRAIT"
-    update_grid_mesh(grid, settings)
+    if rebuild:
+        update_grid_mesh(grid, settings)
+    else:  # the numbering: the same plots, other numbers (the table's are the old ones)
+        keep_layout(grid, settings)
+        if TABLE_KEY in grid:
+            del grid[TABLE_KEY]
     if showed_table:  # the relief showed the plots as they were, with their colour bar
         if not measured_grids():
             settings.color_by = "PHOTO"  # recolours every relief
         elif (relief := grid_relief(grid)) is not None:
             colour_relief(relief, "PHOTO", settings=settings)
+
+
+def _numbering_changed(settings, context):
+    _grid_changed(settings, context, rebuild=False)
 
 
 _COLOUR_MODES = (
@@ -200,6 +228,7 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
             ("columns", "Columns", "Along each column first"),
         ),
         default="serpentine",
+        update=_numbering_changed,
     )
     plot_start: EnumProperty(
         name="Plot 1",
@@ -211,6 +240,7 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
             ("bottom-right", "Bottom Right", ""),
         ),
         default="top-left",
+        update=_numbering_changed,
     )
     # ---- Inspecting: what the reliefs show ----
     color_by: EnumProperty(
@@ -244,13 +274,40 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
 CLASSES = (CliffTerrainSettings,)
 
 
+# The owner of the subscription to the active object (selecting a grid shows its layout).
+_OWNER = object()
+
+
+def _active_changed():
+    from ..scene.plot_grid_object import LAYOUT_KEY, active_grid
+
+    context = bpy.context
+    grid = active_grid(context)
+    if grid is not None and LAYOUT_KEY in grid and getattr(context, "scene", None) is not None:
+        show_grid_settings(grid, context.scene.cliff_terrain)
+
+
+@bpy.app.handlers.persistent
+def _subscribe(*_args):
+    """Follow the active object (again after a file is opened: opening one drops subscriptions)."""
+    bpy.msgbus.clear_by_owner(_OWNER)
+    bpy.msgbus.subscribe_rna(
+        key=(bpy.types.LayerObjects, "active"), owner=_OWNER, args=(), notify=_active_changed
+    )
+
+
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.Scene.cliff_terrain = PointerProperty(type=CliffTerrainSettings)
+    _subscribe()
+    bpy.app.handlers.load_post.append(_subscribe)
 
 
 def unregister():
+    if _subscribe in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_subscribe)
+    bpy.msgbus.clear_by_owner(_OWNER)
     del bpy.types.Scene.cliff_terrain
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -289,7 +289,7 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        from ..scene.plot_grid_object import FIT_KEY, GRID_KEY, TABLE_KEY, grid_relief
+        from ..scene.plot_grid_object import FIT_KEY, GRID_KEY, TABLE_KEY, grid_relief, grid_settings
 
         layout = self.layout
         layout.use_property_split = True
@@ -318,9 +318,9 @@ class CLIFF_TERRAIN_PT_plots(bpy.types.Panel):
         grid = context.active_object
         if grid is not None and GRID_KEY in grid:
             box = layout.box()
-            relief = grid_relief(grid)
+            relief, own = grid_relief(grid), grid_settings(grid, settings)
             box.label(
-                text=f"{settings.plot_columns * settings.plot_rows} plots over "
+                text=f"{own.plot_columns * own.plot_rows} plots over "
                 + (relief.name if relief is not None else f"{grid[GRID_KEY]} (gone)"),
                 icon="MESH_GRID",
             )

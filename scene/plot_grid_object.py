@@ -40,8 +40,38 @@ def grid_relief(grid):
     return bpy.data.objects.get(grid.get(GRID_KEY, ""))
 
 
+# Custom property: the layout the grid was drawn with (its sidebar fields). Each grid keeps its own:
+# read from the scene's fields, a grid drew 32 plots and exported 4 once another grid was edited.
+LAYOUT_KEY = "cliff_terrain_layout"
+LAYOUT_FIELDS = (
+    "plot_columns",
+    "plot_rows",
+    "plot_width",
+    "plot_length",
+    "plot_alley_across",
+    "plot_alley_along",
+    "plot_numbering",
+    "plot_start",
+)
+
+
+def grid_settings(grid, settings):
+    """The grid's own layout fields (what it was drawn with), as attributes like the scene's
+    `settings`; a grid from an earlier version, which kept none, takes the scene's."""
+    from types import SimpleNamespace
+
+    own = grid.get(LAYOUT_KEY)
+    own = own.to_dict() if hasattr(own, "to_dict") else (own or {})
+    return SimpleNamespace(**{name: own.get(name, getattr(settings, name)) for name in LAYOUT_FIELDS})
+
+
+def keep_layout(grid, settings):
+    """Record the scene's layout fields as the grid's own (:func:`grid_settings`)."""
+    grid[LAYOUT_KEY] = {name: getattr(settings, name) for name in LAYOUT_FIELDS}
+
+
 def layout_of(settings):
-    """The core layout of the scene's grid settings."""
+    """The core layout of grid settings (the scene's, or a grid's own: :func:`grid_settings`)."""
     from ..cliff_terrain.measure.plot_grid import grid_layout
 
     return grid_layout(
@@ -108,9 +138,11 @@ def grid_mesh_arrays(layout, scale):
 
 
 def update_grid_mesh(grid, settings):
-    """Replace the grid's mesh with the settings' layout (one bulk write per array)."""
+    """Replace the grid's mesh with the settings' layout (one bulk write per array), and keep the
+    layout as the grid's own."""
     frame_scale = float(grid.get("cliff_terrain_scale", 1.0))
     layout = layout_of(settings)
+    keep_layout(grid, settings)
     vertices, columns, rows = grid_mesh_arrays(layout, frame_scale)
     mesh = grid.data
     mesh.clear_geometry()
@@ -202,14 +234,11 @@ def grid_plots(grid, settings):
     """The grid as numbered plots in the relief's CRS (:class:`cliff_terrain.io.vector.plot_polygons.PlotSet`), and the frame."""
     from ..cliff_terrain.measure.plot_grid import Placement, plots_from
 
-    layout = layout_of(settings)
+    own = grid_settings(grid, settings)
+    layout = layout_of(own)
     frame, corners = grid_map_corners(grid, layout)
     plots = plots_from(
-        layout,
-        Placement(corners),
-        numbering=settings.plot_numbering,
-        start=settings.plot_start,
-        crs=frame.crs,
+        layout, Placement(corners), numbering=own.plot_numbering, start=own.plot_start, crs=frame.crs
     )
     return plots, frame
 

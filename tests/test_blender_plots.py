@@ -250,3 +250,38 @@ def test_a_layout_edit_drops_the_last_fits_figures_and_red_wire(relief):
     settings.plot_rows = 8
     assert "cliff_terrain_fit" not in grid
     assert tuple(grid.color) == pytest.approx((1.0, 0.85, 0.1, 1.0))
+
+
+def test_each_grid_keeps_its_own_layout_and_selecting_one_shows_it(relief, tmp_path):
+    # The layout was the scene's: once a second grid was edited to 2 x 2, the first, drawn with
+    # 32 plots, exported and measured 4.
+    import bpy
+    from cliff_terrain_addon.operators.properties import show_grid_settings
+
+    from cliff_terrain.io.vector.plot_polygons import read_plots
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 4, 8
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    first = bpy.context.active_object
+    bpy.context.view_layer.objects.active = relief
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    second = bpy.context.active_object
+    settings.plot_columns, settings.plot_rows = 2, 2
+    settings.plot_numbering = "columns"
+    assert len(second.data.polygons) == 4 and len(first.data.polygons) == 32
+    bpy.context.view_layer.objects.active = first
+    out = tmp_path / "first.geojson"
+    assert bpy.ops.cliff_terrain.export_plots(filepath=str(out)) == {"FINISHED"}
+    assert len(read_plots(out)) == 32
+    assert bpy.ops.cliff_terrain.plot_table() == {"FINISHED"}
+    assert len(first["cliff_terrain_plot_table"]) == 32
+    # Selecting it shows its layout in the fields (Blender calls this on a change of the active
+    # object), rebuilding nothing: its table stays.
+    show_grid_settings(first, settings)
+    assert (settings.plot_columns, settings.plot_rows, settings.plot_numbering) == (4, 8, "serpentine")
+    assert "cliff_terrain_plot_table" in first and len(second.data.polygons) == 4
+    # A numbering edit renumbers the same plots: their table (old numbers) goes, the mesh stays.
+    settings.plot_start = "bottom-right"
+    assert "cliff_terrain_plot_table" not in first and len(first.data.polygons) == 32
+    assert first["cliff_terrain_layout"]["plot_start"] == "bottom-right"
