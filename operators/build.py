@@ -72,6 +72,9 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         # Also here, not only in invoke: headless and from scripts Blender calls execute directly.
         self.take_scene_settings(context)
         path = bpy.path.abspath(self.filepath)
+        # A path relative to the .blend (``//``) is recorded and loaded as given: a project folder
+        # moved or copied to a colleague still finds its photo and surface model.
+        stored = self.filepath if self.filepath.startswith("//") else path
         created = []
         try:
             params = self.relief_params()
@@ -85,8 +88,9 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
                 )
                 progress(PIPELINE_SHARE, "building the mesh")
                 obj = build_relief_object(
-                    context, relief, path, params, created=created, mesh=mesh, figures=figures
+                    context, relief, stored, params, created=created, mesh=mesh, figures=figures
                 )
+                keep_relative_paths(obj, self)
                 progress(1.0, "done")
         except Exception as exc:
             return cancel_build(self, exc, created)
@@ -119,6 +123,19 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
             ),
         )
         return {"FINISHED"}
+
+
+def keep_relative_paths(obj, properties):
+    """Record the relief's path parameters (its surface and terrain models) as the user gave them
+    when they are relative to the .blend; the build itself read them resolved."""
+    from ..cliff_terrain import settings
+    from ..scene.record import KEY
+
+    params = obj[KEY]["params"]
+    for name, parameter in settings.PARAMETERS.items():
+        given = getattr(properties, name, "") if parameter.kind == "path" else ""
+        if isinstance(given, str) and given.startswith("//") and name in params:
+            params[name] = given
 
 
 def build_beside_the_mesh(build_relief, path, params, progress, created):

@@ -14,6 +14,9 @@ from ..cliff_terrain.photo_heights import indices
 
 # Names of the parameters passed to the core's build_relief (besides the image path): the
 # declarations shown in the sidebar.
+# Paths relative to the .blend ("//photos/a.tif") are kept as given; Blender 4.5+ warns on one unless
+# the property says it takes them (4.2-4.4 have no such option and take them silently).
+RELATIVE_PATHS = {"options": {"PATH_SUPPORTS_BLEND_RELATIVE"}} if bpy.app.version >= (4, 5, 0) else {}
 PARAMETER_NAMES = tuple(name for name, p in settings.PARAMETERS.items() if p.sidebar)
 # Blender's unit of a declared unit (the others, e.g. metres with a GSD else pixels, have none).
 _UNITS = {"m": "LENGTH"}
@@ -33,7 +36,7 @@ def relief_property(parameter):
     if parameter.kind == "bool":
         return BoolProperty(default=parameter.default, **common)
     if parameter.kind == "path":
-        return StringProperty(subtype="FILE_PATH", **common)
+        return StringProperty(subtype="FILE_PATH", **RELATIVE_PATHS, **common)
     limits = {}
     minimum = parameter.minimum if parameter.sidebar_minimum is None else parameter.sidebar_minimum
     if minimum is not None:
@@ -59,6 +62,7 @@ class ReliefParameters:
         name="Photo",
         description="UAV photo to turn into a relief (JPEG, PNG or TIFF)",
         subtype="FILE_PATH",
+        **RELATIVE_PATHS,
     )
 
     def relief_params(self):
@@ -176,6 +180,7 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
         name="Output Folder",
         description="Folder for rendered views and figures",
         subtype="DIR_PATH",
+        **RELATIVE_PATHS,
         default="//cliff_terrain_renders/",
     )
     # Results of the last Evaluate (shown in the panel, written by the evaluate operator).
@@ -183,7 +188,10 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
     ssim: FloatProperty(name="SSIM", description="SSIM of the top view against the photo", default=0.0)
     # Folder of the views the last Render Views job wrote (listed in the panel).
     last_views: StringProperty(
-        name="Last Views", description="Folder of the last rendered views", subtype="DIR_PATH"
+        name="Last Views",
+        description="Folder of the last rendered views",
+        subtype="DIR_PATH",
+        **RELATIVE_PATHS,
     )
 
     # ---- The plot grid (Add Plot Grid): edits rebuild the active grid object at once ----

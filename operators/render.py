@@ -176,11 +176,11 @@ def relief_from_record(record):
     from ..cliff_terrain import CliffTerrainError, build_relief
     from ..cliff_terrain.params import ReliefParams
 
-    source = str(record.source)
+    source = str(record.source_file)
     if not os.path.isfile(source):
         return None, f"the photo {source!r} is not there any more"
     try:
-        params = ReliefParams.from_properties(dict(record.params))
+        params = ReliefParams.from_properties(record.file_params())
         relief = build_relief(source, params, mesh=None)
     except (CliffTerrainError, OSError) as exc:
         return None, f"the photo {source!r} no longer builds: {exc}"

@@ -129,7 +129,7 @@ def index_legend(relief, index):
     from .probe import grid_cells
 
     record = Record.of(relief)
-    bands = read_bands(record.source, names=record.bands or None)
+    bands = read_bands(record.source_file, names=record.bands or None)
     values = index_maps(bands, (index,), shape=record.grid_shape)[index]
     row, col = grid_cells(record, positions(relief.data)[:, :2])
     per_vertex = values[row, col].astype(np.float64)

@@ -77,7 +77,7 @@ def load_photo(path, *, metadata=None, fallback_rgb=None, name=None):
         # Rare (rotated or unusual files): decode again, oriented and at full resolution.
         from ..cliff_terrain.io.photo import load_image
 
-        fallback_rgb, _ = load_image(path)
+        fallback_rgb, _ = load_image(bpy.path.abspath(path))
     return image_from_array(name or bpy.path.basename(path), fallback_rgb), True
 
 

@@ -104,12 +104,12 @@ class MapFrame:
         else:
             from ..cliff_terrain.io.raster.geotiff import read_georeference
 
-            transform, self.crs = read_georeference(record.source)
+            transform, self.crs = read_georeference(record.source_file)
             # The mesh's local (0, 0) is the photo's bottom-left corner.
             self.offset = transform[:2, :2] @ [0.0, float(record.image_height)] + transform[:2, 2]
         self.matrix = np.array(relief.matrix_world, dtype=np.float64)
         self.inverse = np.linalg.inv(self.matrix)
-        self.source = record.source
+        self.source = record.source_file
 
     def to_map(self, world_xy):
         world = np.asarray(world_xy, dtype=np.float64).reshape(-1, 2)

@@ -37,8 +37,8 @@ def relief_of(obj):
     from ..cliff_terrain.build import build_relief
     from ..cliff_terrain.params import ReliefParams
 
-    params = ReliefParams.from_properties(record.params)
-    relief = build_relief(record.source, params, mesh=None)
+    params = ReliefParams.from_properties(record.file_params())
+    relief = build_relief(record.source_file, params, mesh=None)
     if record.mask_digest and relief.mask_digest != record.mask_digest:
         raise CliffTerrainError(
             f"{record.source!r} no longer gives the relief {obj.name!r} was built from (the photo "

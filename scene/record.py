@@ -105,6 +105,18 @@ class Record:
         }
 
     @property
+    def source_file(self):
+        """`source` as a file: a path relative to the .blend (``//photos/a.tif``, kept as the user
+        gave it, so a moved project folder still finds its photo) resolved against the open file."""
+        return _file(self.source)
+
+    def file_params(self):
+        """`params` with their paths (a surface or terrain model) resolved as :attr:`source_file`."""
+        return {
+            k: _file(v) if isinstance(v, str) and v.startswith("//") else v for k, v in self.params.items()
+        }
+
+    @property
     def metres(self):
         """True when sizes are in metres (a known ground sampling distance)."""
         return self.units == "m"
@@ -130,6 +142,15 @@ def write_record(obj, relief, path, params, scale, *, figures=None):
     (:class:`~cliff_terrain.params.ReliefParams`, or its recorded properties), `scale` Blender units
     per core unit. `figures`: :func:`record_figures` of the relief, if already worked out."""
     obj[KEY] = build_record(relief, path, params, scale, figures=figures).as_properties()
+
+
+def _file(path):
+    """A stored path as a file: blend-relative ``//`` paths resolved against the open .blend."""
+    if isinstance(path, str) and path.startswith("//"):
+        import bpy
+
+        return bpy.path.abspath(path)
+    return path
 
 
 def build_record(relief, path, params, scale, *, figures=None):

@@ -215,7 +215,7 @@ def evaluate_relief(obj, rig, lit_path, flat_path, *, source=None):
     record = Record.of(obj)
     size = rig.sizes["xy"]
     bands = record.bands or None  # a multispectral photo's, when its file names none
-    reference, description = reference_image(source or record.source, size, bands=bands)
+    reference, description = reference_image(source or record.source_file, size, bands=bands)
     grid = record.grid_shape
     width = rig.bounds.size[0]
     slope = slope_degrees(front_corner_heights(obj, grid), width / grid[1])

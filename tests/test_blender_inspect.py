@@ -227,3 +227,35 @@ def test_probe_reads_a_relief_rebuilt_under_the_same_name_with_other_heights(sce
     assert obj.name == name
     assert bpy.ops.cliff_terrain.probe_height(location=(x, y)) == {"FINISHED"}
     assert first > 0 and obj["cliff_terrain_probe"]["height"] == pytest.approx(3 * first, rel=0.02)
+
+
+def test_a_project_folder_moved_with_its_blend_still_finds_its_photo(scene, tmp_path):
+    # Every path was stored absolute: a project folder moved (or copied to a colleague) lost its
+    # texture, and Probe and Measure failed "cannot read image". A path given relative to the
+    # .blend is now recorded and loaded as given.
+    import shutil
+
+    import bpy
+
+    photo = _photo(BROCCOLI)
+    project = tmp_path / "trial"
+    (project / "photos").mkdir(parents=True)
+    shutil.copy(photo, project / "photos" / photo.name)
+    bpy.ops.wm.save_as_mainfile(filepath=str(project / "trial.blend"))
+    settings = bpy.context.scene.cliff_terrain
+    settings.filepath = f"//photos/{photo.name}"
+    settings.max_size = 200
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["cliff_terrain"]["source"] == f"//photos/{photo.name}"
+    assert bpy.ops.cliff_terrain.probe_height(location=(1.0, 1.0)) == {"FINISHED"}
+    before, name = obj["cliff_terrain_probe"].to_dict(), obj.name
+    bpy.ops.wm.save_as_mainfile(filepath=str(project / "trial.blend"))
+    moved = tmp_path / "moved"
+    shutil.move(project, moved)
+    bpy.ops.wm.open_mainfile(filepath=str(moved / "trial.blend"))
+    obj = bpy.data.objects[name]
+    images = [image for image in bpy.data.images if image.filepath]
+    assert images and all((moved / image.filepath[2:]).is_file() for image in images)
+    assert bpy.ops.cliff_terrain.probe_height(location=(1.0, 1.0)) == {"FINISHED"}
+    assert obj["cliff_terrain_probe"].to_dict() == before
