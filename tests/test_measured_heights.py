@@ -798,3 +798,23 @@ def test_bare_soil_leaves_out_dull_leaves_that_the_threshold_calls_soil():
     assert (soil & plants).sum() < 0.5 * (not_plant & plants).sum()
     # ... while most of the real soil still counts.
     assert soil[~plants].mean() > 0.8
+
+
+def test_the_resolution_checks_box_mean_leaves_no_data_out():
+    from scipy import ndimage
+
+    from cliff_terrain.measure.resolution_check import box_mean, doubled_box, resolution_check
+
+    rng = np.random.default_rng(5)
+    heights = rng.random((40, 50))
+    heights[rng.random((40, 50)) < 0.2] = np.nan
+    ok = np.isfinite(heights)
+    for box in (2, 3, doubled_box(0.2, 1.35)):
+        total = ndimage.uniform_filter(np.where(ok, heights, 0), box, mode="mirror")
+        count = ndimage.uniform_filter(ok.astype(float), box, mode="mirror")
+        inner = (slice(box, -box), slice(box, -box))  # the borders: OpenCV's reflection differs
+        got = box_mean(heights, box)[inner]
+        expected = np.where(ok, total / np.where(count > 0, count, 1), np.nan)[inner]
+        np.testing.assert_allclose(got, expected, rtol=1e-9)
+    # No plot with a height: nothing to say.
+    assert resolution_check([np.nan], [np.nan], [0.03], grid_pixel_m=0.2, surface_pixel_m=0.3)["passed"] is None

@@ -147,6 +147,37 @@ def test_the_windowed_command_agrees_with_the_in_memory_one_on_the_real_pair(tmp
         got = chm_w if name == "chm" else tifffile.imread(win / f"{name}.tif")
         np.testing.assert_array_equal(got, expected, err_msg=name)
     assert np.isfinite(chm_w).mean() > 0.7
+    # The resolution check (the 0.27 m DSM smooths these plants little) is the same in both.
+    memory_summary = json.loads((memory / "summary.json").read_text())
+    assert summary["resolution_check"] == memory_summary["resolution_check"]
+    assert summary["resolution_check"]["passed"] is True
+
+
+@pytest.mark.parametrize("extra", [(), ("--windowed", "--window", "256")])
+def test_a_surface_model_too_coarse_for_the_plants_is_said_and_the_same_in_both_paths(tmp_path, extra):
+    # The pair's DSM averaged to 1.35 m pixels: the plots read 14 cm low with a stated error of 3 cm,
+    # exit 0 and no word (the held-out check even improves: a smoother surface predicts its soil).
+    # One more doubling of the smoothing still lowers the median plot by more than that error.
+    from cliff_terrain.io.raster.blocks import block_mean
+
+    need_plots()
+    with tifffile.TiffFile(DSM) as tif:
+        heights = tif.pages[0].asarray().astype(np.float32)
+    heights[~np.isfinite(heights) | (heights < -1e30)] = np.nan
+    transform, crs = read_georeference(DSM)
+    coarse = tmp_path / "coarse.tif"
+    scaled = np.array(transform, float)
+    scaled[:2, :2] *= 5
+    write_geotiff(coarse, block_mean(heights, 5), transform=scaled, crs=crs, nodata=float("nan"))
+    out, rows, stdout = run_heights(tmp_path, "coarse", *extra, dsm=coarse)
+    _, fine_rows, _ = run_heights(tmp_path, "fine", *extra)
+    low = column(fine_rows, "height_p90_m") - column(rows, "height_p90_m")
+    stated = column(rows, "height_p90_err_m")
+    assert np.nanmedian(low) > 0.1 and np.nanmedian(stated) < 0.05  # what the check is for
+    check = json.loads((out / "summary.json").read_text())["resolution_check"]
+    assert check["passed"] is False and check["surface_pixel_m"] == pytest.approx(1.352, abs=1e-3)
+    assert check["stated_error_m"] < check["p90_drop_m"] < np.nanmedian(low)
+    assert f"note: {check['note']}" in stdout and "1.35 m pixel" in check["note"]
 
 
 def test_the_windowed_command_reads_a_ruler_as_the_in_memory_one_does(tmp_path):

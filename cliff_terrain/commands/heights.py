@@ -144,7 +144,7 @@ def run(args):
     from ..errors import CliffTerrainError
     from ..evaluate.views import json_safe
     from ..figures.ruler_chart import plot_rows_ruler_figure
-    from ..io.raster.geotiff import write_geotiff
+    from ..io.raster.geotiff import read_georeference, write_geotiff
     from ..io.vector.plot_polygons import read_plots
     from ..measure.canopy import relief_tables
     from ..measure.key_figures import figures_line, key_figures
@@ -221,8 +221,20 @@ def run(args):
         ruler_rows.extend(rows)
         return columns
 
-    extra = with_ruler if ruler is not None else None
+    plot_rows = []
+
+    def extra(rows):  # the plot rows, for the resolution check, and the ruler's columns
+        plot_rows.extend(rows)
+        return with_ruler(rows) if ruler is not None else []
+
     tables = relief_tables(relief, plots=plots, source=str(args.ortho), index_maps=maps, extra=extra)
+    resolution = None
+    if plots is not None:
+        from ..measure.resolution_check import plots_resolution_check
+
+        resolution = plots_resolution_check(
+            plots, plot_rows, canopy.chm, canopy.transform, surface_transform=read_georeference(args.dsm)[0]
+        )
     files = {out / name: text for name, text in tables.items()}
     files[out / "chm.tif"] = lambda tmp: write_geotiff(
         tmp, canopy.chm, transform=canopy.transform, crs=canopy.crs, nodata=float("nan"), overviews=True
@@ -255,6 +267,7 @@ def run(args):
         "ground_support": check.get("support_where_guessed"),
         "ground_check": check or None,
         "ruler": ruler_record or None,
+        "resolution_check": resolution,
         "threshold": relief.params["threshold"],
         "grid": {
             "rows": int(relief.mask.shape[0]),
@@ -280,9 +293,10 @@ def run(args):
         from ..measure.ground_evidence import evidence_note
 
         ground += f" ({check['method']}, held-out bare soil within {check['candidates'][check['method']]['error_m'] * 100:.1f} cm{evidence_note(check)})"
+    from ..measure.resolution_check import resolution_line
     from ..measure.ruler import ruler_line
 
-    against = ruler_line(ruler_record)
+    against = ruler_line(ruler_record) + resolution_line(resolution)
     print(
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )

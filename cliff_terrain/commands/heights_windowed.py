@@ -134,9 +134,10 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
         ok = np.isfinite(p90)
         if ok.any():
             measured = f", {int(ok.sum())} of {len(rows)} plots with a height, median p90 {np.median(p90[ok]) * 100:.1f} cm"
+    from ..measure.resolution_check import resolution_line
     from ..measure.ruler import ruler_line
 
-    against = ruler_line(ruler_record)
+    against = ruler_line(ruler_record) + resolution_line(summary.get("resolution_check"))
     print(
         f"{args.ortho}: windowed ({result.windows} windows), ground {ground}, cover "
         f"{result.plant_pixels / max(1, result.valid_pixels):.1%}{measured}{against}; wrote {', '.join(outputs)} into {out}"
@@ -166,6 +167,18 @@ def _files(args, result, ruler, window, estimate_gib, args_outputs=()):
         )
     check = result.check or {}
     rows, cols = result.shape
+    resolution = None
+    if result.rows is not None:
+        from ..io.raster.geotiff import read_georeference
+        from ..measure.resolution_check import pixel_metres, resolution_check
+
+        resolution = resolution_check(
+            [row["height_p90_m"] for row in result.rows],
+            result.p90_doubled,
+            [row.get("height_p90_err_m", nan) for row in result.rows],
+            grid_pixel_m=pixel_metres(result.transform),
+            surface_pixel_m=pixel_metres(read_georeference(args.dsm)[0]),
+        )
     summary = {
         "cover": result.plant_pixels / max(1, result.valid_pixels),
         "plots": None if result.rows is None else len(result.rows),
@@ -174,6 +187,7 @@ def _files(args, result, ruler, window, estimate_gib, args_outputs=()):
         "ground_support": check.get("support_where_guessed"),
         "ground_check": check or None,
         "ruler": ruler_record or None,
+        "resolution_check": resolution,
         "threshold": {
             "index": result.index,
             "threshold": result.threshold,

@@ -256,6 +256,9 @@ class WindowTask:
     encode: bool = False
     # The plot table's columns: the rows come back with their CSV lines and GeoJSON features too.
     columns: list | None = None
+    # The resolution check's box (measure.resolution_check.doubled_box): its plots' p90 come back
+    # on the canopy height smoothed by it too.
+    doubled_box: int = 0
 
 
 def measure_window(task, ground=None, *, sources=None):
@@ -334,6 +337,18 @@ def measure_window(task, ground=None, *, sources=None):
             if i in wanted:
                 row["plot"] = i
                 out["rows"][i] = row
+        if task.doubled_box:
+            from .resolution_check import box_mean
+
+            smooth = box_mean(chm, task.doubled_box)
+            area = float(abs(np.linalg.det(transform[:2, :2])))
+            doubled = plot_table(
+                subset, labels, mask=np.zeros(chm.shape, bool), heights=smooth, pixel_area_m2=area
+            )
+            ids = task.plot_ids.tolist()
+            out["p90_doubled"] = {
+                i: row["height_p90_m"] for i, row in zip(ids, doubled, strict=True) if i in wanted
+            }
         if task.columns is not None:  # the tables' text, made here on every worker at once
             from ..io.vector.geojson import feature_texts, polygon_geometry
             from .tables import csv_lines
@@ -372,6 +387,12 @@ def window_tasks(sources, plots, window, result):
         owner = (centre_r // window).astype(np.int64) * across + (centre_c // window).astype(np.int64)
     dtm = None if sources.dtm is None else sources.dtm.path
     columns = None if plots is None else table_columns(plots, support=True, sigma=True)
+    box = 0
+    if plots is not None:
+        from .resolution_check import doubled_box, pixel_metres
+
+        box = doubled_box(pixel_metres(transform), pixel_metres(sources.dsm.transform))
+        halo += box  # the smoothing reaches this far beyond a plot: as on the whole grid
     for k, (r0, r1, c0, c1) in enumerate(windows(shape, window)):
         R0, R1 = max(0, r0 - halo), min(rows, r1 + halo)
         C0, C1 = max(0, c0 - halo), min(cols, c1 + halo)
@@ -393,4 +414,5 @@ def window_tasks(sources, plots, window, result):
                 task.attributes = [plots.attributes[i] for i in touching]
                 task.fields, task.plots_path = plots.fields, plots.path
                 task.columns = columns
+                task.doubled_box = box
         yield task

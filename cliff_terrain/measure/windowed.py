@@ -130,6 +130,7 @@ class WindowedCanopy:
     index: str
     check: dict | None = None
     rows: list | None = None
+    p90_doubled: list | None = None  # each plot's p90 for the resolution check (its module)
     spools: dict = field(default_factory=dict)
     windows: int = 0
     plant_pixels: int = 0
@@ -437,6 +438,7 @@ def _full_grid(sources, plots, window, result, ground, step, run):
     rows_out = [None] * len(plots) if plots is not None else None
     lines = [None] * len(plots) if plots is not None else None
     features = [None] * len(plots) if plots is not None else None
+    doubled = [float("nan")] * len(plots) if plots is not None else None
     labelled = False
     for k, out in enumerate(outputs):
         r0, _, c0, _ = out["core"]
@@ -448,6 +450,8 @@ def _full_grid(sources, plots, window, result, ground, step, run):
         if rows_out is not None:
             for i, row in out["rows"].items():
                 rows_out[i] = row
+            for i, value in out.get("p90_doubled", {}).items():
+                doubled[i] = value
             for i, line in out.get("csv", {}).items():
                 lines[i] = line
             for i, text in out.get("features", {}).items():
@@ -459,6 +463,6 @@ def _full_grid(sources, plots, window, result, ground, step, run):
             raise GeoreferenceError(
                 f"no plot of {plots.path!r} overlaps the orthophoto {sources.ortho.path!r}"
             )
-        result.rows = rows_out
+        result.rows, result.p90_doubled = rows_out, doubled
         if all(line is not None for line in lines) and all(text is not None for text in features):
             result.table_text = {"csv": lines, "features": features}
