@@ -174,6 +174,9 @@ def colour_relief(relief, mode, *, settings=None, trait="height_p90_m", index="N
     if material is not None:
         ensure_colour_nodes(material)
     legend = None
+    if mode != "PHOTO" and (problem := Record.of(relief).frame_error(relief)):
+        print(f"Cliff Terrain: {problem}; it shows its photo")  # an update callback reports nowhere else
+        mode = "PHOTO"
     if mode == "HEIGHT":
         t, legend = height_legend(relief)
     elif mode == "PLOT_TRAIT":

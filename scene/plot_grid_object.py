@@ -89,6 +89,10 @@ class MapFrame:
         record = Record.of(relief)
         if record is None:
             raise ValueError(f"{relief.name!r} is not a Cliff Terrain relief")
+        if problem := record.frame_error(relief):
+            from ..cliff_terrain.errors import CliffTerrainError
+
+            raise CliffTerrainError(problem)
         self.scale = record.blender_units_per_unit
         if not record.metres:
             from ..cliff_terrain.errors import CliffTerrainError

@@ -115,7 +115,10 @@ def probe(obj, local):
     from ..cliff_terrain.errors import CliffTerrainError
     from ..cliff_terrain.measure.field_plots import region_figures
 
-    pixel = pixel_of(Record.of(obj), local)
+    record = Record.of(obj)
+    if problem := record.frame_error(obj):
+        raise CliffTerrainError(problem)
+    pixel = pixel_of(record, local)
     if pixel is None:
         raise CliffTerrainError(f"the point is outside the relief {obj.name!r}")
     relief = relief_of(obj)

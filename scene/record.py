@@ -116,6 +116,29 @@ class Record:
             k: _file(v) if isinstance(v, str) and v.startswith("//") else v for k, v in self.params.items()
         }
 
+    def frame_error(self, obj):
+        """Why `obj`'s mesh no longer lies in the frame it was built in, or "" when it does.
+
+        The relief's rasters are read through the mesh's local coordinates: x from 0 to the grid's
+        width, y from 0 to its height, in :attr:`blender_pixel` steps. Applying a scale or rotation
+        (Object > Apply) moves the vertices themselves, and the probe then read the wrong pixel
+        ("outside the relief" on the relief) and Color By Height the wrong height.
+        """
+        size = self.blender_pixel
+        rows, cols = self.grid_shape
+        xs = [corner[0] for corner in obj.bound_box]
+        ys = [corner[1] for corner in obj.bound_box]
+        tolerance = 0.5 * size
+        if (
+            max(abs(min(xs)), abs(max(xs) - cols * size), abs(min(ys)), abs(max(ys) - rows * size))
+            <= tolerance
+        ):
+            return ""
+        return (
+            f"the relief {obj.name!r} no longer lies in the frame it was built in (a transform applied "
+            "with Object > Apply, or its mesh edited): undo that, or build it again"
+        )
+
     @property
     def metres(self):
         """True when sizes are in metres (a known ground sampling distance)."""

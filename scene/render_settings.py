@@ -141,10 +141,11 @@ _STATE = (
 
 
 class KeptRenderSettings:
-    """Context manager: the scene's camera and render settings are as before when it exits.
+    """Context manager: the scene's camera, world and render settings are as before when it exits
+    (the rig's sky replaces the world while the views render: the user's HDRI comes back).
 
-    A setting that cannot be put back (a value another add-on's engine no longer accepts) is
-    listed in `not_restored` as ``"path.name"`` and passed to `log` in one message.
+        A setting that cannot be put back (a value another add-on's engine no longer accepts) is
+        listed in `not_restored` as ``"path.name"`` and passed to `log` in one message.
     """
 
     def __init__(self, scene, *, log=None):
@@ -162,6 +163,7 @@ class KeptRenderSettings:
 
     def __enter__(self):
         self.camera = self.scene.camera
+        self.world = self.scene.world
         self.values = []
         for path, names in _STATE:
             owner = self._owner(path)
@@ -185,4 +187,6 @@ class KeptRenderSettings:
             self.log(f"render settings not put back: {', '.join(self.not_restored)}")
         if self.camera is None or self.camera.name in bpy.data.objects:
             self.scene.camera = self.camera
+        if self.world is None or self.world.name in bpy.data.worlds:
+            self.scene.world = self.world
         return False

@@ -737,3 +737,9 @@ def test_kept_render_settings_come_back_and_name_what_cannot(addon, scene):
         kept.values.append(("render", scene.render, "engine", "NO_SUCH_ENGINE"))
     assert kept.not_restored == ["render.engine"]
     assert messages == ["render settings not put back: render.engine"]
+    # The user's world (an HDRI, say) comes back after the rig's sky replaced it.
+    mine = bpy.data.worlds.new("My HDRI world")
+    scene.world = mine
+    with render_settings.KeptRenderSettings(scene):
+        scene.world = bpy.data.worlds.new("Cliff Terrain Sky")
+    assert scene.world == mine

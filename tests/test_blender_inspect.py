@@ -259,3 +259,30 @@ def test_a_project_folder_moved_with_its_blend_still_finds_its_photo(scene, tmp_
     assert images and all((moved / image.filepath[2:]).is_file() for image in images)
     assert bpy.ops.cliff_terrain.probe_height(location=(1.0, 1.0)) == {"FINISHED"}
     assert obj["cliff_terrain_probe"].to_dict() == before
+
+
+def test_an_applied_transform_is_refused_in_one_line_and_a_turned_relief_is_not_scored(scene):
+    # Applying a scale moved the vertices the probe reads pixels through: "outside the relief" on
+    # the relief, and Color By Height the wrong heights. A rotated relief's top view, compared with
+    # the photo, scored 7.6 dB as a fact.
+    import bpy
+
+    photo = _photo(BROCCOLI)
+    settings = scene.cliff_terrain
+    settings.filepath = str(photo)
+    settings.max_size = 120
+    assert bpy.ops.cliff_terrain.build_relief() == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert bpy.ops.cliff_terrain.evaluate.poll() and bpy.ops.cliff_terrain.render_views.poll()
+    obj.scale = (2.0, 2.0, 2.0)  # scaled, not applied: still read through its frame
+    bpy.context.view_layer.update()
+    assert bpy.ops.cliff_terrain.probe_height(location=(3.0, 3.0)) == {"FINISHED"}
+    obj.rotation_euler = (0.0, 0.0, 0.5)
+    bpy.context.view_layer.update()
+    assert not bpy.ops.cliff_terrain.evaluate.poll() and not bpy.ops.cliff_terrain.render_views.poll()
+    obj.rotation_euler = (0.0, 0.0, 0.0)
+    bpy.ops.object.transform_apply(location=False, rotation=False, scale=True)
+    with pytest.raises(RuntimeError, match="no longer lies in the frame it was built in"):
+        bpy.ops.cliff_terrain.probe_height(location=(3.0, 3.0))
+    settings.color_by = "HEIGHT"  # the relief keeps its photo rather than wrong colours
+    assert "cliff_terrain_legend" not in obj

@@ -817,4 +817,6 @@ def test_the_resolution_checks_box_mean_leaves_no_data_out():
         expected = np.where(ok, total / np.where(count > 0, count, 1), np.nan)[inner]
         np.testing.assert_allclose(got, expected, rtol=1e-9)
     # No plot with a height: nothing to say.
-    assert resolution_check([np.nan], [np.nan], [0.03], grid_pixel_m=0.2, surface_pixel_m=0.3)["passed"] is None
+    assert (
+        resolution_check([np.nan], [np.nan], [0.03], grid_pixel_m=0.2, surface_pixel_m=0.3)["passed"] is None
+    )
