@@ -211,6 +211,7 @@ def test_ctrl_c_on_a_local_clusters_terminal_prints_one_line_and_leaves_nothing(
         [sys.executable, "-m", "cliff_terrain", *command, "--no-progress", "--windowed", "--window", "64",
          "--workers", "2"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a shell starts it
     )  # fmt: skip
 
     def read(path):  # a thread or a short-lived child can end between a listing and a read
@@ -231,10 +232,18 @@ def test_ctrl_c_on_a_local_clusters_terminal_prints_one_line_and_leaves_nothing(
         mask = int(next(line for line in status.splitlines() if line.startswith("SigIgn:")).split()[1], 16)
         return bool(mask & (1 << (signal.SIGINT - 1)))
 
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None and (len(workers()) < 2 or ignores_ctrl_c()):
+    deadline = start = time.monotonic()
+    deadline += 120
+    seen = []  # (seconds, workers, ignoring) as they changed: what the failure message shows
+    while time.monotonic() < deadline and proc.poll() is None:
+        with contextlib.suppress(FileNotFoundError, StopIteration):
+            state = (len(workers()), ignores_ctrl_c())
+            if not seen or seen[-1][1:] != state:
+                seen.append((round(time.monotonic() - start, 2), *state))
+            if state[0] >= 2 and not state[1]:
+                break
         time.sleep(0.05)
-    assert proc.poll() is None, "the run ended before it could be interrupted"
+    assert proc.poll() is None, f"the run ended before it could be interrupted: {seen}, {proc.communicate()}"
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal sends it: to every process of the group
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130 and err == "cliff-terrain heights: interrupted\n", err

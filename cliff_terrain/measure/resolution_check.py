@@ -47,8 +47,8 @@ def box_mean(heights, box):
 
     Examples
     --------
-    >>> box_mean(np.array([[0.0, 2.0, np.nan]]), 2).tolist()
-    [[0.0, 1.0, nan]]
+    >>> box_mean(np.array([[1.0, 2.0, 3.0, np.nan, 5.0]]), 3)[0, 1:].tolist()  # (1 + 2 + 3) / 3, (2 + 3) / 2
+    [2.0, 2.5, nan, 5.0]
     """
     import cv2
 
