@@ -25,6 +25,7 @@ from ..scene.mesh_data import allocate_mesh, checked_topology, fill_topology
 from ..scene.record import Record, record_figures
 from ..scene.relief_object import build_relief_object, relief_name
 from ..scene.viewport import show_relief
+from .progress import Progress
 from .properties import PARAMETER_NAMES, ReliefParameters
 from .reports import cancel_build
 
@@ -78,7 +79,7 @@ class CLIFF_TERRAIN_OT_build_relief(ReliefParameters, bpy.types.Operator):
         created = []
         try:
             params = self.relief_params()
-            with _Progress(context) as progress:
+            with Progress(context) as progress:
 
                 def on_progress(fraction, stage):
                     progress(PIPELINE_SHARE * fraction, stage)
@@ -215,33 +216,6 @@ def build_beside_the_mesh(build_relief, path, params, progress, created):
         relief, mesh=vertices, mesh_kind=kind, mesh_rule=rule, params={**relief.params, "mesh": params.mesh}
     )
     return relief, mesh, None
-
-
-class _Progress:
-    """Progress bar and status-bar text while building (both may be missing in background mode)."""
-
-    def __init__(self, context):
-        self.wm = context.window_manager
-        self.workspace = context.workspace
-
-    def __enter__(self):
-        self.wm.progress_begin(0, 100)
-        return self
-
-    def __call__(self, fraction, stage):
-        self.wm.progress_update(int(round(100 * min(max(fraction, 0.0), 1.0))))
-        if self.workspace is not None:
-            self.workspace.status_text_set(f"Cliff Terrain: {stage} ({fraction:.0%})")
-            # The window redraws only between operators: draw the status bar once per stage.
-            if stage != getattr(self, "stage", None) and not bpy.app.background:
-                self.stage = stage
-                bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=1)
-
-    def __exit__(self, *exc):
-        self.wm.progress_end()
-        if self.workspace is not None:
-            self.workspace.status_text_set(None)
-        return False
 
 
 CLASSES = (CLIFF_TERRAIN_OT_build_relief,)

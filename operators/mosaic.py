@@ -21,6 +21,7 @@ from ..scene.datablocks import textured_object
 from ..scene.material import image_from_array
 from ..scene.mesh_data import mesh_from_arrays
 from .file_operator import FileOperator
+from .progress import Progress
 from .reports import cancel_build
 
 GPU_TEXTURE_LIMIT = 16384
@@ -34,6 +35,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     filepath: StringProperty(name="Mosaic", description="A tiled GeoTIFF orthomosaic", subtype="FILE_PATH")
+    filter_glob: StringProperty(default="*.tif;*.tiff", options={"HIDDEN"})  # the file browser's
     tile: IntProperty(
         name="Tile",
         description="Side of each tile in mosaic pixels (one object and one texture each)",
@@ -54,6 +56,7 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
         min=0.0,
         default=0.0,
         precision=4,
+        unit="LENGTH",
     )
 
     def execute(self, context):
@@ -96,7 +99,10 @@ class CLIFF_TERRAIN_OT_import_mosaic(FileOperator, bpy.types.Operator):
                     "max_error": max_error,
                     "max_error_rule": rule,
                 }
+                count = -(-reader.shape[0] // self.tile) * -(-reader.shape[1] // self.tile)
+                progress = stack.enter_context(Progress(context))
                 for k, tile in enumerate(tiles):
+                    progress(k / count, f"tile {k + 1} of {count}")
                     r0, r1, c0, c1 = tile.core
                     part = f"{name}_{k:04d}"
                     data = mesh_from_arrays(part, tile.mesh)

@@ -183,6 +183,15 @@ class CLIFF_TERRAIN_OT_export_plots(_OnAGrid, FileOperator, bpy.types.Operator):
         from ..scene.plot_grid_object import grid_plots
 
         path = Path(bpy.path.abspath(self.filepath))
+        if not path.suffix:  # a name typed without one: GeoJSON, as the file browser offers
+            path = path.with_suffix(".geojson")
+        elif path.suffix.lower() not in (".geojson", ".json", ".shp"):
+            # GeoJSON text under .gpkg is a file QGIS will not open.
+            self.report(
+                {"ERROR"},
+                f"Export Plots writes GeoJSON (.geojson) or a Shapefile (.shp), not {path.suffix!r}",
+            )
+            return {"CANCELLED"}
         try:
             plots, frame = grid_plots(context.active_object, context.scene.cliff_terrain)
             written = write_plots(plots, path, crs=frame.crs)

@@ -60,7 +60,7 @@ class ReliefParameters:
 
     filepath: StringProperty(
         name="Photo",
-        description="UAV photo to turn into a relief (JPEG, PNG or TIFF)",
+        description="UAV photo to turn into a relief (JPEG, PNG, TIFF, WebP or BMP)",
         subtype="FILE_PATH",
         **RELATIVE_PATHS,
     )

@@ -76,6 +76,14 @@ class _ViewSettings:
         """Render `view_names` of the active relief into `out_dir` and compare its top views with the photo."""
         obj = active_relief(context)
         scene = context.scene
+        source = Record.of(obj).source_file
+        if not os.path.isfile(source):  # before minutes of rendering, not after them
+            from ..cliff_terrain.errors import CliffTerrainError
+
+            raise CliffTerrainError(
+                f"the photo {source!r} the relief was built from is not there: the views are compared "
+                "with it (put it back, or build the relief again)"
+            )
 
         def warn(message):
             self.report({"WARNING"}, message)
@@ -136,7 +144,9 @@ class CLIFF_TERRAIN_OT_render_views(_ViewSettings, bpy.types.Operator):
 
     def run_operator(self, context):
         obj = active_relief(context)
-        folder = bpy.path.abspath(context.scene.cliff_terrain.output_dir) or "."
+        # As the background job's: beside an unsaved file "//" is the temporary folder, not the
+        # working directory (Blender's install folder on Windows, where nothing may be written).
+        folder = render_job.output_folder(context.scene.cliff_terrain)
         out_dir = os.path.join(folder, bpy.path.clean_name(obj.name))
         os.makedirs(out_dir, exist_ok=True)  # views are replaced, as F12 replaces its result
         metrics = self.run(context, out_dir, tuple(views.VIEW_FILES))

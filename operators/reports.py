@@ -1,5 +1,6 @@
 """How an operator reports a failure: the core's own message for bad input, the exception's name for a bug."""
 
+import re
 import traceback
 
 from ..scene.datablocks import remove_datablocks
@@ -15,11 +16,32 @@ def report_failure(operator, exc):
     from ..cliff_terrain.errors import CliffTerrainError
 
     if isinstance(exc, CliffTerrainError):
-        operator.report({"ERROR"}, str(exc))
+        operator.report({"ERROR"}, as_labelled(str(exc), operator))
     else:
         traceback.print_exc()
         operator.report({"ERROR"}, f"Cliff Terrain failed: {type(exc).__name__}: {exc}")
     return {"CANCELLED"}
+
+
+def as_labelled(message, operator):
+    """`message` with the core's parameter names, backticked (`height_source`), as the sidebar's
+    labels of the properties that set them (Height Source): the user set a field, not a Python name
+    (as the command line names its options)."""
+    import bpy
+
+    sources = [operator.bl_rna.properties]
+    settings = getattr(getattr(bpy.context, "scene", None), "cliff_terrain", None)
+    if settings is not None:
+        sources.append(settings.bl_rna.properties)
+
+    def label(match):
+        for properties in sources:
+            prop = properties.get(match.group(1))
+            if prop is not None and prop.name:
+                return prop.name
+        return match.group(0)
+
+    return re.sub(r"`(\w+)`", label, message)
 
 
 def cancel_build(operator, exc, created):

@@ -29,6 +29,9 @@ from .mesh_data import mesh_from_arrays
 from .render_settings import engine_id, gpu_available, set_colour_management
 
 COLLECTION = "Cliff Terrain Season"
+# The scene the season is built in: its own, so that the user's scene keeps its timeline markers,
+# frame range, camera and render settings (they were all replaced).
+SEASON_SCENE = "Cliff Terrain Season"
 CAMERA = "Season Camera"
 VIDEO_SCENE = "Cliff Terrain Season Video"
 FRAMES_DIR = "frames"
@@ -54,7 +57,8 @@ class SeasonScene:
 def build_season_scene(
     context, season, *, plots=None, colours=None, colour_plots=None, size=(1280, 720), engine="WORKBENCH"
 ):
-    """Build the season's animation in the context's scene (replacing an earlier season's collection).
+    """Build the season's animation in a scene of its own, ``Cliff Terrain Season`` (replacing an
+    earlier season's), shown in the context's window: the user's scene is left as it was.
 
     Parameters
     ----------
@@ -77,8 +81,11 @@ def build_season_scene(
     -------
     SeasonScene
     """
-    scene = context.scene
-    remove_season(scene)
+    remove_season()
+    scene = bpy.data.scenes.get(SEASON_SCENE) or bpy.data.scenes.new(SEASON_SCENE)
+    window = getattr(context, "window", None)
+    if window is not None:  # headless there is none: the scene is rendered by name
+        window.scene = scene
     collection = bpy.data.collections.new(COLLECTION)
     scene.collection.children.link(collection)
 
@@ -123,8 +130,9 @@ def build_season_scene(
     )
 
 
-def remove_season(scene):
-    """Remove a season collection (objects, meshes, materials, camera) made earlier, if any."""
+def remove_season():
+    """Remove a season collection (objects, meshes, materials, camera) made earlier, if any (its
+    scene stays, emptied, and takes the next season)."""
     remove_collection(COLLECTION)
 
 

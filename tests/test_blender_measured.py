@@ -95,7 +95,8 @@ def test_measured_heights_without_a_dsm_is_reported(scene):
     settings.filepath = ex2("odm_orthophoto.tif")
     settings.height_source = "measured"
     settings.max_size = 100
-    with pytest.raises(RuntimeError, match="needs a `dsm`"):
+    # The sidebar's labels, not the core's parameter names (`height_source`, `dsm`).
+    with pytest.raises(RuntimeError, match="Height Source 'measured' needs a Surface Model"):
         bpy.ops.cliff_terrain.build_relief()
     assert not bpy.data.objects
 

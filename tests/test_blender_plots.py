@@ -285,3 +285,20 @@ def test_each_grid_keeps_its_own_layout_and_selecting_one_shows_it(relief, tmp_p
     settings.plot_start = "bottom-right"
     assert "cliff_terrain_plot_table" not in first and len(first.data.polygons) == 32
     assert first["cliff_terrain_layout"]["plot_start"] == "bottom-right"
+
+
+def test_export_plots_writes_what_its_name_says_and_reports_the_files_written(relief, tmp_path):
+    import bpy
+
+    from cliff_terrain.io.vector.plot_polygons import read_plots
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 2, 2
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    assert bpy.ops.cliff_terrain.export_plots(filepath=str(tmp_path / "plots")) == {"FINISHED"}
+    assert len(read_plots(tmp_path / "plots.geojson")) == 4 and not (tmp_path / "plots").exists()
+    with pytest.raises(RuntimeError, match=r"GeoJSON \(.geojson\) or a Shapefile \(.shp\), not '.gpkg'"):
+        bpy.ops.cliff_terrain.export_plots(filepath=str(tmp_path / "plots.gpkg"))
+    assert not (tmp_path / "plots.gpkg").exists()
+    assert bpy.ops.cliff_terrain.export_plots(filepath=str(tmp_path / "upper.SHP")) == {"FINISHED"}
+    assert len(read_plots(tmp_path / "upper.shp")) == 4

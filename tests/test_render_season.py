@@ -206,8 +206,14 @@ def test_sidebar_operator_builds_and_renders_the_season(addon, scene, season_dir
 
     from cliff_terrain.season.reader import read_season
 
+    # The user's scene, which the animation replaced the markers, frames and camera of.
+    scene.timeline_markers.new("spraying", frame=40)
+    scene.frame_start, scene.frame_end = 1, 250
     result = bpy.ops.cliff_terrain.season_animation(directory=str(season_dir), show_plots=True, render=True)
     assert result == {"FINISHED"}
+    assert [m.name for m in scene.timeline_markers] == ["spraying"] and scene.frame_end == 250
+    assert scene.camera is None and scene.render.filepath == "/tmp/"
+    scene = bpy.data.scenes["Cliff Terrain Season"]  # the season's own
     season = read_season(season_dir)
     dates = [d.date for d in season.dates]
     assert [m.name for m in sorted(scene.timeline_markers, key=lambda m: m.frame)] == dates

@@ -182,9 +182,11 @@ def write_plots(plots, path, *, crs):
             # Shapefile outer rings run clockwise.
             writer.poly([ring[::-1].tolist() if _ccw(ring) else ring.tolist() for ring in rings])
             writer.record(*[attributes.get(name) for name in plots.fields])
-    prj = path.with_suffix(".prj")
+    # pyshp names the files in lower case whatever the name's case ("plots.SHP" -> plots.shp).
+    base = path.with_suffix("")
+    prj = base.with_suffix(".prj")
     prj.write_text(epsg_wkt(crs))
-    return [path, path.with_suffix(".shx"), path.with_suffix(".dbf"), prj]
+    return [base.with_suffix(".shp"), base.with_suffix(".shx"), base.with_suffix(".dbf"), prj]
 
 
 def _ccw(ring):
