@@ -820,3 +820,15 @@ def test_the_resolution_checks_box_mean_leaves_no_data_out():
     assert (
         resolution_check([np.nan], [np.nan], [0.03], grid_pixel_m=0.2, surface_pixel_m=0.3)["passed"] is None
     )
+
+
+def test_a_surface_model_of_whole_numbers_without_a_scale_is_refused_by_both_readers(tmp_path):
+    # An int16 DSM in centimetres without its GDAL scale read 100 times too tall ("no ground
+    # candidate"), one in millimetres "held no data": neither said what was wrong.
+    from cliff_terrain.measure.window_reading import SurfaceWindows
+
+    for dtype in (np.int16, np.int32, np.uint16):
+        path = write_tiff(tmp_path / "cm.tif", np.full((8, 8), 27000, dtype), keys=geokeys(UTM16N))
+        for read in (read_surface, SurfaceWindows):
+            with pytest.raises(RasterReadError, match=r"'.*cm.tif' stores whole numbers .* without a scale"):
+                read(path)

@@ -34,7 +34,7 @@ class SurfaceWindows:
     def __init__(self, path, *, what="surface model"):
         from ..io.raster._geokeys import GDAL_METADATA, GDAL_NODATA, georeference, nodata_value, scale_offset
         from ..io.raster._tiff_window import TiffRaster
-        from ..io.raster.surface_values import zero_fill
+        from ..io.raster.surface_values import check_scaled, zero_fill
 
         self.raster = TiffRaster(path)
         self.path = self.raster.path
@@ -44,6 +44,7 @@ class SurfaceWindows:
             self.transform, self.crs = georeference(self.raster.tags, self.path)
             self.nodata = nodata_value(self.raster.tags.get(GDAL_NODATA), self.path)
             self.scale_offset = scale_offset(self.raster.tags.get(GDAL_METADATA))
+            check_scaled(self.raster.page.dtype, self.scale_offset, self.path)
             rows, cols = self.raster.shape
             corners = [
                 self.raster.read_window(r, r + 1, c, c + 1)[0, 0, 0]

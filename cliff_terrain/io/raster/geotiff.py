@@ -43,7 +43,7 @@ from ._tiff_window import TiffRaster
 from .bilinear import is_axis_aligned, on_grid, pixel_map
 from .blocks import block_mean
 from .crs import UserCrs, crs_text, user_geokeys
-from .surface_values import surface_data, zero_fill
+from .surface_values import check_scaled, surface_data, zero_fill
 from .transform import as_affine, grid_bounds, pixel_size
 
 # ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
@@ -133,14 +133,14 @@ def read_surface(path):
         raise RasterReadError(f"surface model {name!r} has {bands} bands, expected 1")
     if array.ndim != 2:
         raise RasterReadError(f"surface model {name!r} is not a single-band raster (shape {array.shape})")
-    nodata = nodata_value(tags.get(GDAL_NODATA), name)
-    data = array.astype(np.float32, copy=True)
+    check_scaled(array.dtype, factors := scale_offset(tags.get(GDAL_METADATA)), name)
+    nodata, data = nodata_value(tags.get(GDAL_NODATA), name), array.astype(np.float32, copy=True)
     invalid = ~np.isfinite(data)
     if nodata is not None:
         invalid |= is_nodata(array, nodata)
     elif zero_fill(array[[0, 0, -1, -1], [0, -1, 0, -1]], nodata=nodata):
         invalid |= array == 0  # gdalwarp's fill outside the footprint, undeclared
-    data = scaled(data, scale_offset(tags.get(GDAL_METADATA)))
+    data = scaled(data, factors)
     invalid |= ~surface_data(data)  # an undeclared -9999 is no surface either
     data[invalid] = np.nan
     if invalid.all():

@@ -48,3 +48,32 @@ def zero_fill(corners, *, nodata):
     """
     corners = np.asarray(corners)
     return nodata is None and corners.dtype.kind == "f" and bool(np.any(corners == 0))
+
+
+def check_scaled(dtype, scale_offset, name):
+    """Refuse a surface model stored as whole numbers without a GDAL scale.
+
+    Crop heights need centimetres: in whole metres a surface cannot show a plant, and in whole
+    centimetres or millimetres (how integer DSMs are kept) its heights read 100 or 1000 times too
+    tall. Without the scale the file cannot say which: an int16 DSM in centimetres was refused for
+    "no ground candidate" (plants 100 times too tall), one in millimetres for "holds no data".
+
+    Examples
+    --------
+    >>> check_scaled(np.dtype(np.float32), (1.0, 0.0), "dsm.tif")
+    >>> check_scaled(np.dtype(np.int16), (0.01, 0.0), "dsm.tif")
+    >>> check_scaled(np.dtype(np.int16), (1.0, 0.0), "dsm.tif")
+    Traceback (most recent call last):
+    ...
+    cliff_terrain.errors.RasterReadError: surface model 'dsm.tif' stores whole numbers (int16) without \
+a scale: ...
+    """
+    from ...errors import RasterReadError
+
+    if np.dtype(dtype).kind in "iu" and tuple(scale_offset)[0] == 1.0:
+        raise RasterReadError(
+            f"surface model {name!r} stores whole numbers ({np.dtype(dtype).name}) without a scale: in metres "
+            "it cannot show a plant, in centimetres or millimetres its heights read 100 or 1000 times too "
+            "tall; give it its unit as a GDAL scale (gdal_edit.py -scale 0.01 for centimetres) or save it "
+            "in floating point"
+        )
