@@ -96,31 +96,48 @@ def show_grid_settings(grid, settings):
         _SHOWING["grid"] = False
 
 
-def _grid_changed(settings, context, *, rebuild=True):
-    """Rebuild the active plot grid from the new layout (its placement stays where the user put it)."""
+def _layout_edit(name, *, rebuild=True):
+    """The update of the layout field `name`: the active grid takes it, with the rest of its own
+    layout (not the other fields as they stand: after an undo they may show another grid's)."""
+
+    def update(settings, context):
+        _grid_changed(settings, context, name, rebuild=rebuild)
+
+    return update
+
+
+def _grid_changed(settings, context, name, *, rebuild=True):
+    """Rebuild the active plot grid with field `name` changed (its placement stays where the user put
+    it); the numbering (``rebuild=False``) only renumbers it."""
     from ..scene.colour_by import colour_relief, measured_grids
-    from ..scene.plot_grid_object import TABLE_KEY, active_grid, grid_relief, keep_layout, update_grid_mesh
+    from ..scene.plot_grid_object import (
+        TABLE_KEY,
+        active_grid,
+        grid_relief,
+        grid_settings,
+        keep_layout,
+        update_grid_mesh,
+    )
 
     grid = active_grid(context)
     if grid is None or _SHOWING["grid"]:
         return
     # Read before the table goes: once no grid has one, Plot Trait is no item and reads as "".
     showed_table = TABLE_KEY in grid and settings.color_by == "PLOT_TRAIT"
+    own = grid_settings(grid, settings)
+    setattr(own, name, getattr(settings, name))
     if rebuild:
-        update_grid_mesh(grid, settings)
-    else:  # the numbering: the same plots, other numbers (the table's are the old ones)
-        keep_layout(grid, settings)
+        update_grid_mesh(grid, own)
+    else:  # the same plots, other numbers (the table's are the old ones)
+        keep_layout(grid, own)
         if TABLE_KEY in grid:
             del grid[TABLE_KEY]
+    show_grid_settings(grid, settings)  # the other fields show this grid's own
     if showed_table:  # the relief showed the plots as they were, with their colour bar
         if not measured_grids():
             settings.color_by = "PHOTO"  # recolours every relief
         elif (relief := grid_relief(grid)) is not None:
             colour_relief(relief, "PHOTO", settings=settings)
-
-
-def _numbering_changed(settings, context):
-    _grid_changed(settings, context, rebuild=False)
 
 
 _COLOUR_MODES = (
@@ -201,7 +218,7 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
         min=1,
         soft_max=200,
         default=4,
-        update=_grid_changed,
+        update=_layout_edit("plot_columns"),
     )
     plot_rows: IntProperty(
         name="Rows",
@@ -209,23 +226,23 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
         min=1,
         soft_max=200,
         default=8,
-        update=_grid_changed,
+        update=_layout_edit("plot_rows"),
     )
     plot_width: FloatProperty(
         name="Plot Width", description="Metres across the columns", min=0.01, soft_max=50.0, default=1.5,
-        unit="LENGTH", update=_grid_changed,
+        unit="LENGTH", update=_layout_edit("plot_width"),
     )  # fmt: skip
     plot_length: FloatProperty(
         name="Plot Length", description="Metres along the columns", min=0.01, soft_max=50.0, default=5.0,
-        unit="LENGTH", update=_grid_changed,
+        unit="LENGTH", update=_layout_edit("plot_length"),
     )  # fmt: skip
     plot_alley_across: FloatProperty(
         name="Column Alley", description="Gap between columns, metres", min=0.0, soft_max=10.0, default=0.3,
-        unit="LENGTH", update=_grid_changed,
+        unit="LENGTH", update=_layout_edit("plot_alley_across"),
     )  # fmt: skip
     plot_alley_along: FloatProperty(
         name="Row Alley", description="Gap between rows, metres", min=0.0, soft_max=10.0, default=1.0,
-        unit="LENGTH", update=_grid_changed,
+        unit="LENGTH", update=_layout_edit("plot_alley_along"),
     )  # fmt: skip
     plot_numbering: EnumProperty(
         name="Numbering",
@@ -236,7 +253,7 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
             ("columns", "Columns", "Along each column first"),
         ),
         default="serpentine",
-        update=_numbering_changed,
+        update=_layout_edit("plot_numbering", rebuild=False),
     )
     plot_start: EnumProperty(
         name="Plot 1",
@@ -248,7 +265,7 @@ class CliffTerrainSettings(ReliefParameters, bpy.types.PropertyGroup):
             ("bottom-right", "Bottom Right", ""),
         ),
         default="top-left",
-        update=_numbering_changed,
+        update=_layout_edit("plot_start", rebuild=False),
     )
     # ---- Inspecting: what the reliefs show ----
     color_by: EnumProperty(
@@ -296,6 +313,12 @@ def _active_changed():
 
 
 @bpy.app.handlers.persistent
+def _after_undo(*_args):
+    """After an undo or redo the fields show what the undo step kept, which may be another grid's."""
+    _active_changed()
+
+
+@bpy.app.handlers.persistent
 def _subscribe(*_args):
     """Follow the active object (again after a file is opened: opening one drops subscriptions)."""
     bpy.msgbus.clear_by_owner(_OWNER)
@@ -310,11 +333,18 @@ def register():
     bpy.types.Scene.cliff_terrain = PointerProperty(type=CliffTerrainSettings)
     _subscribe()
     bpy.app.handlers.load_post.append(_subscribe)
+    bpy.app.handlers.undo_post.append(_after_undo)
+    bpy.app.handlers.redo_post.append(_after_undo)
 
 
 def unregister():
-    if _subscribe in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.remove(_subscribe)
+    for handlers, handler in (
+        (bpy.app.handlers.load_post, _subscribe),
+        (bpy.app.handlers.undo_post, _after_undo),
+        (bpy.app.handlers.redo_post, _after_undo),
+    ):
+        if handler in handlers:
+            handlers.remove(handler)
     bpy.msgbus.clear_by_owner(_OWNER)
     del bpy.types.Scene.cliff_terrain
     for cls in reversed(CLASSES):

@@ -26,6 +26,7 @@ import bpy
 from bpy.props import StringProperty
 
 from ..cliff_terrain.figures.writer import RENDERS
+from ..scene.record import absolute_paths
 
 ADDON_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHILD_SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "render_job_child.py")
@@ -67,8 +68,10 @@ class Job:
         self.tail = []
         self.folder = tempfile.mkdtemp(prefix="cliff_terrain_job_")
         copy = os.path.join(self.folder, "scene.blend")
-        # A copy: the user's file (and its name, its unsaved state) stays as it is.
-        bpy.ops.wm.save_as_mainfile(filepath=copy, copy=True, check_existing=False)
+        # A copy: the user's file (and its name, its unsaved state) stays as it is; the records'
+        # paths relative to the file are written absolute into it (the copy lies elsewhere).
+        with absolute_paths():
+            bpy.ops.wm.save_as_mainfile(filepath=copy, copy=True, check_existing=False)
         settings = context.scene.cliff_terrain
         self.out_parent = output_folder(settings)
         self.out_dir = os.path.join(self.out_parent, bpy.path.clean_name(obj.name))

@@ -16,8 +16,10 @@ from mathutils import Vector
 from .record import Record
 
 GRID_KEY = "cliff_terrain_plot_grid"  # custom property: the name of the relief the grid belongs to
-# Custom property: the relief object itself (an ID pointer, which follows a rename; the name alone
-# broke Fit, Measure and Export once the user renamed the relief in the Outliner).
+# Custom properties: an id the relief carries, and the grid the id of its relief. The name alone broke
+# Fit, Measure and Export once the user renamed the relief in the Outliner; an ID pointer counted as
+# a user, so a relief deleted in the viewport lived on hidden (measured, saved with the file).
+RELIEF_ID_KEY = "cliff_terrain_id"
 RELIEF_KEY = "cliff_terrain_relief"
 FIT_KEY = "cliff_terrain_fit"  # custom property: the last fit's report
 TABLE_KEY = "cliff_terrain_plot_table"  # custom property: the last Measure Plots' rows
@@ -34,10 +36,13 @@ def active_grid(context):
 def grid_relief(grid):
     """The relief object a grid was added over (None when it is gone): the one it points at, renamed
     or not, or for a grid from an earlier version the object of its recorded name."""
-    relief = grid.get(RELIEF_KEY)
-    if isinstance(relief, bpy.types.Object):
-        return relief if relief.name in bpy.data.objects and relief.users else None
-    return bpy.data.objects.get(grid.get(GRID_KEY, ""))
+    key, name = grid.get(RELIEF_KEY), grid.get(GRID_KEY, "")
+    if isinstance(key, str):
+        found = [obj for obj in bpy.data.objects if obj.get(RELIEF_ID_KEY) == key and obj.users_scene]
+        # A relief duplicated (Shift D) carries the same id: the one of the recorded name first.
+        return next((obj for obj in found if obj.name == name), found[0] if found else None)
+    relief = bpy.data.objects.get(name)
+    return relief if relief is not None and relief.users_scene else None
 
 
 # Custom property: the layout the grid was drawn with (its sidebar fields). Each grid keeps its own:
@@ -57,12 +62,46 @@ LAYOUT_FIELDS = (
 
 def grid_settings(grid, settings):
     """The grid's own layout fields (what it was drawn with), as attributes like the scene's
-    `settings`; a grid from an earlier version, which kept none, takes the scene's."""
+    `settings`. A grid from an earlier version kept none: its layout is read off its mesh (the
+    numbering, which the mesh does not hold, is the scene's)."""
     from types import SimpleNamespace
 
     own = grid.get(LAYOUT_KEY)
-    own = own.to_dict() if hasattr(own, "to_dict") else (own or {})
+    own = own.to_dict() if hasattr(own, "to_dict") else (own or _layout_from_mesh(grid))
     return SimpleNamespace(**{name: own.get(name, getattr(settings, name)) for name in LAYOUT_FIELDS})
+
+
+def _layout_from_mesh(grid):
+    """The layout fields of a grid's mesh as :func:`update_grid_mesh` made it (four vertices a plot,
+    the plots in (row, column) order with ``column`` and ``row`` face attributes), or {}."""
+    mesh = getattr(grid, "data", None)
+    n = len(mesh.polygons) if mesh is not None else 0
+    if (
+        not n
+        or len(mesh.vertices) != 4 * n
+        or "column" not in mesh.attributes
+        or "row" not in mesh.attributes
+    ):
+        return {}
+    columns, rows = np.zeros(n, np.int32), np.zeros(n, np.int32)
+    mesh.attributes["column"].data.foreach_get("value", columns)
+    mesh.attributes["row"].data.foreach_get("value", rows)
+    xyz = np.zeros(3 * 4 * n, np.float32)
+    mesh.vertices.foreach_get("co", xyz)
+    corners = xyz.reshape(n, 4, 3).astype(np.float64) / float(grid.get("cliff_terrain_scale", 1.0))
+    layout = {
+        "plot_columns": int(columns.max()) + 1,
+        "plot_rows": int(rows.max()) + 1,
+        "plot_width": float(corners[0, 1, 0] - corners[0, 0, 0]),
+        "plot_length": float(corners[0, 2, 1] - corners[0, 1, 1]),
+    }
+    if layout["plot_columns"] > 1:  # the next plot along the row, less the plot
+        pitch = corners[(rows == 0) & (columns == 1)][0, 0, 0] - corners[0, 0, 0]
+        layout["plot_alley_across"] = float(pitch - layout["plot_width"])
+    if layout["plot_rows"] > 1:
+        pitch = corners[(rows == 1) & (columns == 0)][0, 0, 1] - corners[0, 0, 1]
+        layout["plot_alley_along"] = float(pitch - layout["plot_length"])
+    return layout
 
 
 def keep_layout(grid, settings):
@@ -180,8 +219,12 @@ def new_grid(context, relief, settings, *, created):
     created.append(mesh)
     grid = bpy.data.objects.new(f"{relief.name} plots", mesh)
     created.append(grid)
+    if not isinstance(relief.get(RELIEF_ID_KEY), str):
+        import uuid
+
+        relief[RELIEF_ID_KEY] = uuid.uuid4().hex
     grid[GRID_KEY] = relief.name
-    grid[RELIEF_KEY] = relief
+    grid[RELIEF_KEY] = relief[RELIEF_ID_KEY]
     grid["cliff_terrain_scale"] = frame.scale
     layout = update_grid_mesh(grid, settings)
     across, along = layout.extent

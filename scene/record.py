@@ -12,6 +12,7 @@ panel, the operators and ``scene/`` gets the same one.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass, field
 
@@ -174,6 +175,34 @@ def _file(path):
 
         return bpy.path.abspath(path)
     return path
+
+
+@contextlib.contextmanager
+def absolute_paths():
+    """Every relief's recorded ``//`` paths made absolute for the duration (then put back).
+
+    A copy of the file saved elsewhere (the render job's, in a temporary folder) gets its images'
+    relative paths remapped by Blender, not the paths in the records: resolved there, they pointed
+    into the temporary folder, and the job failed "the photo ... is not there".
+    """
+    import bpy
+
+    kept = []
+    for obj in bpy.data.objects:
+        if KEY not in obj:
+            continue
+        record = obj[KEY]
+        params = record.get("params", {})
+        for owner, name in [(record, "source"), *((params, k) for k in params.keys())]:
+            value = owner.get(name)
+            if isinstance(value, str) and value.startswith("//"):
+                kept.append((owner, name, value))
+                owner[name] = bpy.path.abspath(value)
+    try:
+        yield
+    finally:
+        for owner, name, value in kept:
+            owner[name] = value
 
 
 def build_record(relief, path, params, scale, *, figures=None):

@@ -251,6 +251,14 @@ def test_a_project_folder_moved_with_its_blend_still_finds_its_photo(scene, tmp_
     assert bpy.ops.cliff_terrain.probe_height(location=(1.0, 1.0)) == {"FINISHED"}
     before, name = obj["cliff_terrain_probe"].to_dict(), obj.name
     bpy.ops.wm.save_as_mainfile(filepath=str(project / "trial.blend"))
+    # Render Views' job renders a copy saved in a temporary folder: its records hold the paths
+    # resolved (Blender remaps the images' relative paths, not the records'); this file keeps "//".
+    from cliff_terrain_addon.scene.record import absolute_paths
+
+    (tmp_path / "job").mkdir()
+    with absolute_paths():
+        bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "job" / "scene.blend"), copy=True)
+    assert obj["cliff_terrain"]["source"] == f"//photos/{photo.name}"
     moved = tmp_path / "moved"
     shutil.move(project, moved)
     bpy.ops.wm.open_mainfile(filepath=str(moved / "trial.blend"))
@@ -259,6 +267,9 @@ def test_a_project_folder_moved_with_its_blend_still_finds_its_photo(scene, tmp_
     assert images and all((moved / image.filepath[2:]).is_file() for image in images)
     assert bpy.ops.cliff_terrain.probe_height(location=(1.0, 1.0)) == {"FINISHED"}
     assert obj["cliff_terrain_probe"].to_dict() == before
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "job" / "scene.blend"))
+    source = bpy.data.objects[name]["cliff_terrain"]["source"]
+    assert source == str(project / "photos" / photo.name)  # where the photo was when the job started
 
 
 def test_an_applied_transform_is_refused_in_one_line_and_a_turned_relief_is_not_scored(scene):

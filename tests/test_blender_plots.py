@@ -227,7 +227,12 @@ def test_a_grid_follows_its_renamed_relief_and_greys_out_when_it_is_gone(relief,
     # A layout edit drops the table: the relief goes back to its photo, without the colour bar.
     settings.plot_rows = 4
     assert settings.color_by == "PHOTO" and "cliff_terrain_legend" not in relief
-    bpy.data.objects.remove(relief)
+    # Deleted as a user deletes it (X in the viewport): freed, not kept alive by its grid.
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj == relief)
+    bpy.context.view_layer.objects.active = relief
+    assert bpy.ops.object.delete() == {"FINISHED"}
+    assert "Field A 2024" not in bpy.data.objects
     bpy.context.view_layer.objects.active = grid
     for op in (
         bpy.ops.cliff_terrain.fit_plot_grid,
@@ -302,3 +307,46 @@ def test_export_plots_writes_what_its_name_says_and_reports_the_files_written(re
     assert not (tmp_path / "plots.gpkg").exists()
     assert bpy.ops.cliff_terrain.export_plots(filepath=str(tmp_path / "upper.SHP")) == {"FINISHED"}
     assert len(read_plots(tmp_path / "upper.shp")) == 4
+
+
+def test_an_edit_changes_only_its_field_and_a_grid_from_an_earlier_version_keeps_its_drawn_layout(
+    relief, tmp_path
+):
+    # After an undo the fields may show another grid's layout (the undo step holds the fields as
+    # they were): an edit then mixed the two. And a grid made before grids kept their layout took the
+    # scene's fields: drawn with 32 plots, it exported 4.
+    import bpy
+    from cliff_terrain_addon.operators.properties import show_grid_settings
+
+    from cliff_terrain.io.vector.plot_polygons import read_plots
+
+    settings = bpy.context.scene.cliff_terrain
+    settings.plot_columns, settings.plot_rows = 4, 8
+    settings.plot_width, settings.plot_length, settings.plot_alley_across = 3.0, 5.0, 0.5
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    first = bpy.context.active_object
+    bpy.context.view_layer.objects.active = relief
+    assert bpy.ops.cliff_terrain.add_plot_grid() == {"FINISHED"}
+    second = bpy.context.active_object
+    settings.plot_columns, settings.plot_rows = 2, 2
+    bpy.context.view_layer.objects.active = first
+    show_grid_settings(second, settings)  # the fields as an undo may leave them: the other grid's
+    settings.plot_columns = 3
+    assert len(first.data.polygons) == 3 * 8 and (settings.plot_columns, settings.plot_rows) == (3, 8)
+    # An earlier version's grid: no layout of its own, its mesh says what it is.
+    del first["cliff_terrain_layout"]
+    settings.plot_columns, settings.plot_rows = 1, 1  # edits the active grid...
+    assert len(first.data.polygons) == 1
+    settings.plot_columns, settings.plot_rows = 3, 8
+    del first["cliff_terrain_layout"]
+    bpy.context.view_layer.objects.active = second  # ...so the fields change with another active
+    settings.plot_columns, settings.plot_rows = 2, 1
+    bpy.context.view_layer.objects.active = first
+    out = tmp_path / "old.geojson"
+    assert bpy.ops.cliff_terrain.export_plots(filepath=str(out)) == {"FINISHED"}
+    plots = read_plots(out)
+    assert len(plots) == 24
+    ring = plots.polygons[0][0]
+    assert np.ptp(ring[:, 0]) == pytest.approx(3.0, abs=1e-3) or np.ptp(ring[:, 1]) == pytest.approx(
+        3.0, abs=1e-3
+    )

@@ -227,11 +227,14 @@ def test_a_code_alone_gives_a_photos_unit_and_the_writer_refuses_a_code_not_in_m
         tmp_path / "ft.tif", rgb, scale=(2.0, 2.0), keys=geokeys(2236, units=None), photometric="rgb"
     )
     assert read_metadata(path).gsd_m_per_px == pytest.approx(2.0 * 1200.0 / 3937.0, rel=1e-12)
-    # The writer's unit key says metre: a code in feet would make the file contradict itself.
-    for code, words in ((2236, "US survey feet"), (4326, "degrees")):
-        with pytest.raises(GeoreferenceError, match=f"`crs` {code} .*{words}"):
-            write_geotiff(tmp_path / "w.tif", np.ones((4, 4), np.float32), transform=np.eye(3), crs=code)
+    # A geographic code is no projected CRS: the writer refuses it. A code in feet with the metre
+    # key (a file read so: its key wins) is written as it was read, and reads back the same.
+    with pytest.raises(GeoreferenceError, match="`crs` 4326 .*degrees"):
+        write_geotiff(tmp_path / "w.tif", np.ones((4, 4), np.float32), transform=np.eye(3), crs=4326)
     assert not (tmp_path / "w.tif").exists()
+    transform = np.array([[0.5, 0, 1000.0], [0, -0.5, 2000.0], [0, 0, 1]])
+    write_geotiff(tmp_path / "w.tif", np.ones((4, 4), np.float32), transform=transform, crs=2236)
+    assert read_surface(tmp_path / "w.tif").crs == 2236
 
 
 def test_ex2_orthophoto_loads_as_a_photo():
@@ -432,12 +435,15 @@ def test_plot_table_equals_direct_computation():
             assert row[name] == pytest.approx(value, abs=1e-9)
         assert row["volume_m3"] == pytest.approx(h[ok].sum() * gsd * gsd)
     assert [row["error"] for row in rows[:3]] == ["", "", ""]
-    assert "partly outside" in rows[3]["error"]
+    assert rows[3]["error"].startswith("partly measured (")
     # A DSM that covers a plot only in part: its figures stand on that part, and the row says so.
     heights[:, 120:] = np.nan
     rows = plot_table(plots, labels, mask=truth.labels > 0, heights=heights, pixel_area_m2=gsd * gsd)
     share = np.isfinite(heights[10:140, 10:200]).mean()
-    assert rows[0]["error"] == f"partly outside the raster or its data ({share:.0%} measured)"
+    assert (
+        rows[0]["error"]
+        == f"partly measured ({share:.0%} of its area: the rest outside the raster or without data)"
+    )
     assert rows[0]["area_m2"] == pytest.approx(130 * 190 * gsd * gsd)  # the plot's pixels
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from .. import settings
 from .._progress import add_progress_argument
+from ..measure.tables import TABLES
 from ..params import add_option
 from .cluster_options import add_cluster_arguments
 from .index_options import add_index_arguments
@@ -304,17 +305,7 @@ def run(args):
 
 
 # Every file `heights` may write; summary.json, written last, marks a finished run.
-ALL_OUTPUTS = (
-    "chm.tif",
-    "ground_support.tif",
-    "chm_err.tif",
-    "regions.csv",
-    "regions.geojson",
-    "plots.csv",
-    "plots.geojson",
-    "ruler.png",
-    "summary.json",
-)
+ALL_OUTPUTS = ("chm.tif", "ground_support.tif", "chm_err.tif", *TABLES, "ruler.png", "summary.json")
 
 
 def stale_outputs(out, outputs):

@@ -39,21 +39,18 @@ def run(args):
 
     from ..errors import CliffTerrainError
     from ..measure.tables import previous_outputs, table_csv, write_files
-    from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, season_traits
+    from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, TRAITS_OUTPUTS, season_traits
     from .out_folder import check_out_folder, finished_outputs
 
     table = args.season / "season.csv"
     if not table.is_file():
         raise CliffTerrainError(f"{str(table)!r} does not exist: run `cliff-terrain season` first")
     out = args.out or args.season / "traits"
-    outputs = ["traits.csv", "growth.png", "traits_map.png"]
     manifest = args.season / "season.json"
     season = json.loads(manifest.read_text()) if manifest.is_file() else {}
     plots_path = season.get("plots")
-    if plots_path:
-        outputs.insert(1, "traits.geojson")
-    else:
-        outputs.remove("traits_map.png")
+    # Without plot polygons there is neither a GeoJSON nor a map.
+    outputs = [n for n in TRAITS_OUTPUTS if plots_path or n not in ("traits.geojson", "traits_map.png")]
     check_out_folder(out)
     if not args.overwrite:  # the last file written marks a finished run
         existing = finished_outputs(out, outputs, marker=outputs[-1])

@@ -351,7 +351,9 @@ def plot_table(
         elif heights is not None and row["valid_pixels"] == 0:
             row["error"] = "no height data in the plot"
         elif inside < 0.9:
-            row["error"] = f"partly outside the raster or its data ({inside:.0%} measured)"
+            row["error"] = (
+                f"partly measured ({inside:.0%} of its area: the rest outside the raster or without data)"
+            )
         else:
             row["error"] = ""
         del row["pixels"], row["valid_pixels"]

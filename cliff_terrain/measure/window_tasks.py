@@ -338,17 +338,11 @@ def measure_window(task, ground=None, *, sources=None):
                 row["plot"] = i
                 out["rows"][i] = row
         if task.doubled_box:
-            from .resolution_check import box_mean
+            from .resolution_check import box_mean, plot_p90s
 
-            smooth = box_mean(chm, task.doubled_box)
-            area = float(abs(np.linalg.det(transform[:2, :2])))
-            doubled = plot_table(
-                subset, labels, mask=np.zeros(chm.shape, bool), heights=smooth, pixel_area_m2=area
-            )
+            doubled = plot_p90s(labels, box_mean(chm, task.doubled_box), n)
             ids = task.plot_ids.tolist()
-            out["p90_doubled"] = {
-                i: row["height_p90_m"] for i, row in zip(ids, doubled, strict=True) if i in wanted
-            }
+            out["p90_doubled"] = {i: float(v) for i, v in zip(ids, doubled, strict=True) if i in wanted}
         if task.columns is not None:  # the tables' text, made here on every worker at once
             from ..io.vector.geojson import feature_texts, polygon_geometry
             from .tables import csv_lines

@@ -221,6 +221,7 @@ def _stale_traits(out, table):
     """The default traits folder's outputs (``out/traits``), fitted on the season this run replaces:
     removed when the table changes (other dates, plots or settings), kept when it is the same."""
     from ..measure.tables import previous_outputs
+    from .traits import TRAITS_OUTPUTS
 
     old = out / "season.csv"
     try:  # bytes: a table saved again in another encoding has changed too
@@ -228,8 +229,7 @@ def _stale_traits(out, table):
             return []
     except OSError:
         return []
-    names = ("traits.csv", "traits.geojson", "growth.png", "traits_map.png")
-    return previous_outputs(out / "traits", names, markers=("growth.png", "traits_map.png"))
+    return previous_outputs(out / "traits", TRAITS_OUTPUTS, markers=TRAITS_OUTPUTS[-2:])
 
 
 def _set_shifts(jobs, found):

@@ -56,6 +56,9 @@ SEASON_COLUMNS = {
     "height_p90", "height_max", "height_mode", "height_units", "reason", "error",
 }  # fmt: skip
 STEP_DAYS = 0.1
+#: The files `cliff-terrain traits` writes, in the order it writes them (the last marks a finished
+#: run); the season's runner removes them when the table they were fitted on changes.
+TRAITS_OUTPUTS = ("traits.csv", "traits.geojson", "growth.png", "traits_map.png")
 
 
 def season_traits(rows, *, model="auto", closure=0.9):
