@@ -9,6 +9,8 @@ and the colour attribute ``fit_colour`` (the grid's yellow, red where flagged), 
 edited.
 """
 
+import functools
+
 import bpy
 import numpy as np
 from mathutils import Vector
@@ -121,6 +123,25 @@ def layout_of(settings):
     )
 
 
+def _georeference(path):
+    """The photo's georeference, read once per version of the file: the labels overlay asks at
+    every redraw of every 3D view (it read the GeoTIFF's header 20 times in 20 redraws)."""
+    import os
+
+    try:
+        stamp = os.stat(path).st_mtime_ns
+    except OSError:
+        stamp = None  # read_georeference says what is wrong with the path
+    return _georeference_of(path, stamp)
+
+
+@functools.lru_cache(maxsize=8)
+def _georeference_of(path, stamp):
+    from ..cliff_terrain.io.raster.geotiff import read_georeference
+
+    return read_georeference(path)
+
+
 class MapFrame:
     """Blender world (x, y) <-> map (x, y) of a relief built from a georeferenced orthophoto."""
 
@@ -145,9 +166,7 @@ class MapFrame:
 
             self.crs = crs_from_record(record.crs, source=relief.name)
         else:
-            from ..cliff_terrain.io.raster.geotiff import read_georeference
-
-            transform, self.crs = read_georeference(record.source_file)
+            transform, self.crs = _georeference(record.source_file)
             # The mesh's local (0, 0) is the photo's bottom-left corner.
             self.offset = transform[:2, :2] @ [0.0, float(record.image_height)] + transform[:2, 2]
         self.matrix = np.array(relief.matrix_world, dtype=np.float64)

@@ -49,8 +49,9 @@ def configure(parser):
         "--resolution",
         type=float,
         default=None,
-        help="metres per pixel of the grid (default: the orthophoto's, up to "
-        f"{settings.MAX_SIZE} pixels on its longest side)",
+        help="metres per pixel of the grid, no finer than the orthophoto's: a finer value measures on "
+        f"the orthophoto's own (default: the orthophoto's, up to {settings.MAX_SIZE} pixels on its longest "
+        "side; summary.json's grid says what was used)",
     )
     parser.add_argument(
         "--max-size",
