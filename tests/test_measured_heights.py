@@ -440,10 +440,7 @@ def test_plot_table_equals_direct_computation():
     heights[:, 120:] = np.nan
     rows = plot_table(plots, labels, mask=truth.labels > 0, heights=heights, pixel_area_m2=gsd * gsd)
     share = np.isfinite(heights[10:140, 10:200]).mean()
-    assert (
-        rows[0]["error"]
-        == f"partly measured ({share:.0%} of its area: the rest outside the raster or without data)"
-    )
+    assert rows[0]["error"] == f"partly measured ({share:.0%} of its area; no data on the rest)"
     assert rows[0]["area_m2"] == pytest.approx(130 * 190 * gsd * gsd)  # the plot's pixels
 
 

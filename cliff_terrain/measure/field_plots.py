@@ -351,9 +351,7 @@ def plot_table(
         elif heights is not None and row["valid_pixels"] == 0:
             row["error"] = "no height data in the plot"
         elif inside < 0.9:
-            row["error"] = (
-                f"partly measured ({inside:.0%} of its area: the rest outside the raster or without data)"
-            )
+            row["error"] = f"partly measured ({inside:.0%} of its area; no data on the rest)"
         else:
             row["error"] = ""
         del row["pixels"], row["valid_pixels"]

@@ -391,8 +391,7 @@ def geotiff_tags(transform, crs, *, nodata=None):
         keys, doubles, text = user_geokeys(crs)
         geo += [(GEO_DOUBLE_PARAMS, 12, len(doubles), doubles, True), (GEO_ASCII_PARAMS, 2, 0, text, True)]
     else:
-        # A geographic code is no projected CRS. A code in feet is written as the input carried it,
-        # with the metre key that overrides it (a file read so, its key winning as in GDAL).
+        # A geographic code is no projected CRS; one in feet keeps the metre key it was read with.
         check_metric_code(int(crs), f"`crs` {crs!r}", linear=False)
         keys = (1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, int(crs), 3076, 0, 1, METRE)
     extratags = [*geo, (GEO_KEY_DIRECTORY, 3, len(keys), keys, True)]
