@@ -29,7 +29,6 @@ from pathlib import Path
 
 from .. import settings
 from .._progress import add_progress_argument
-from ..measure.tables import TABLES
 from ..params import add_option
 from .cluster_options import add_cluster_arguments
 from .index_options import add_index_arguments
@@ -305,17 +304,19 @@ def run(args):
     return 0
 
 
-# Every file `heights` may write; summary.json, written last, marks a finished run.
-ALL_OUTPUTS = ("chm.tif", "ground_support.tif", "chm_err.tif", *TABLES, "ruler.png", "summary.json")
+# Every file `heights` may write but its tables (measure.tables.TABLES, which pulls numpy in: not
+# at the command line's start); summary.json, written last, marks a finished run.
+RASTERS_AND_SUMMARY = ("chm.tif", "ground_support.tif", "chm_err.tif", "ruler.png", "summary.json")
 
 
 def stale_outputs(out, outputs):
     """An earlier run's outputs in `out` that this run, writing `outputs`, does not write (its plots
     without --plots, its regions when windowed, its ruler.png without --ruler), as its summary.json
     lists them: removed as this run's are written (:func:`~cliff_terrain.measure.tables.previous_outputs`)."""
-    from ..measure.tables import previous_outputs
+    from ..measure.tables import TABLES, previous_outputs
 
-    return previous_outputs(out, [n for n in ALL_OUTPUTS if n not in outputs], record="summary.json")
+    every = (*RASTERS_AND_SUMMARY, *TABLES)
+    return previous_outputs(out, [n for n in every if n not in outputs], record="summary.json")
 
 
 def _windowed(args):
