@@ -36,8 +36,9 @@ def active_grid(context):
 
 
 def grid_relief(grid):
-    """The relief object a grid was added over (None when it is gone): the one it points at, renamed
-    or not, or for a grid from an earlier version the object of its recorded name."""
+    """The relief object a grid was added over (None when it is gone, deleted or in no scene): the one
+    carrying the grid's relief id, renamed or not, or for a grid from an earlier version the object
+    of its recorded name."""
     key, name = grid.get(RELIEF_KEY), grid.get(GRID_KEY, "")
     if isinstance(key, str):
         found = [obj for obj in bpy.data.objects if obj.get(RELIEF_ID_KEY) == key and obj.users_scene]
