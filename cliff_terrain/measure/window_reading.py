@@ -62,20 +62,12 @@ class SurfaceWindows:
 
     def read(self, r0, r1, c0, c1):
         """Heights [r0:r1, c0:c1] (float32, NaN for no data)."""
-        from ..io.raster.geotiff import is_nodata, scaled
-        from ..io.raster.surface_values import surface_data
+        from ..io.raster.surface_values import surface_heights
 
         raw = self.raster.read_window(r0, r1, c0, c1)[..., 0]
-        data = raw.astype(np.float32, copy=True)
-        invalid = ~np.isfinite(data)
-        if self.nodata is not None:
-            invalid |= is_nodata(raw, self.nodata)
-        elif self.zero_fill:
-            invalid |= raw == 0
-        data = scaled(data, self.scale_offset)
-        invalid |= ~surface_data(data)  # as read_surface: an undeclared -9999 is no surface
-        data[invalid] = np.nan
-        return data
+        return surface_heights(
+            raw, nodata=self.nodata, scale_offset=self.scale_offset, zero_fill=self.zero_fill
+        )
 
     def on_grid(self, transform, r0, r1, c0, c1):
         """The surface bilinearly resampled onto pixels [r0:r1, c0:c1] of the grid `transform`

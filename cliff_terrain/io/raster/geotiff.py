@@ -43,11 +43,8 @@ from ._tiff_window import TiffRaster
 from .bilinear import is_axis_aligned, on_grid, pixel_map
 from .blocks import block_mean
 from .crs import UserCrs, crs_text, user_geokeys
-from .surface_values import check_scaled, surface_data, zero_fill
+from .surface_values import check_scaled, is_nodata, surface_heights, zero_fill
 from .transform import as_affine, grid_bounds, pixel_size
-
-# ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
-_FLOAT_NODATA_FLOOR = -1e38
 
 
 @dataclass
@@ -134,29 +131,12 @@ def read_surface(path):
     if array.ndim != 2:
         raise RasterReadError(f"surface model {name!r} is not a single-band raster (shape {array.shape})")
     check_scaled(array.dtype, factors := scale_offset(tags.get(GDAL_METADATA)), name)
-    nodata, data = nodata_value(tags.get(GDAL_NODATA), name), array.astype(np.float32, copy=True)
-    invalid = ~np.isfinite(data)
-    if nodata is not None:
-        invalid |= is_nodata(array, nodata)
-    elif zero_fill(array[[0, 0, -1, -1], [0, -1, 0, -1]], nodata=nodata):
-        invalid |= array == 0  # gdalwarp's fill outside the footprint, undeclared
-    data = scaled(data, factors)
-    invalid |= ~surface_data(data)  # an undeclared -9999 is no surface either
-    data[invalid] = np.nan
-    if invalid.all():
+    nodata = nodata_value(tags.get(GDAL_NODATA), name)
+    fill = zero_fill(array[[0, 0, -1, -1], [0, -1, 0, -1]], nodata=nodata)
+    data = surface_heights(array, nodata=nodata, scale_offset=factors, zero_fill=fill)
+    if np.isnan(data).all():
         raise RasterReadError(f"surface model {name!r} holds no data (every pixel is no-data)")
     return GeoRaster(data=data, transform=transform, crs=crs, nodata=nodata, path=name)
-
-
-def scaled(data, scale_offset):
-    """`data` (float32) times the GDAL scale plus the offset (:func:`._geokeys.scale_offset`), in place
-    when there is either."""
-    scale, offset = scale_offset
-    if scale != 1.0:
-        data *= np.float32(scale)
-    if offset != 0.0:
-        data += np.float32(offset)
-    return data
 
 
 def read_orthophoto(path):
@@ -277,14 +257,6 @@ def raster_size(path):
     """(rows, cols) of a GeoTIFF from its header alone (no pixel decoded)."""
     _, _, tags = read_tiff(path, pixels=False)
     return tags["size"]
-
-
-def is_nodata(array, nodata):
-    if math.isnan(nodata):
-        return np.isnan(array)
-    if array.dtype.kind == "f" and nodata < _FLOAT_NODATA_FLOOR:
-        return array < _FLOAT_NODATA_FLOOR
-    return array == np.asarray(nodata).astype(array.dtype) if array.dtype.kind == "f" else array == nodata
 
 
 def check_same_crs(a, b):

@@ -1,8 +1,15 @@
-"""Which heights of a surface model are a surface: what the readers keep before any resampling."""
+"""Which heights of a surface model are a surface: what the readers keep before any resampling
+(:func:`surface_heights`, the one rule of the whole file's reader and the windows'), and how a
+declared no-data value and a GDAL scale are read."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+# ODM and GDAL write -3.4e38 (or -3.4028234663852886e38) for float32 rasters: anything this low is no data.
+_FLOAT_NODATA_FLOOR = -1e38
 
 
 def surface_data(dsm):
@@ -77,3 +84,48 @@ a scale: ...
             "tall; give it its unit as a GDAL scale (gdal_edit.py -scale 0.01 for centimetres) or save it "
             "in floating point"
         )
+
+
+def is_nodata(array, nodata):
+    """Where `array` holds the declared no-data value `nodata` (NaN; anything below -1e38 for
+    OpenDroneMap's float -3.4e38; else the value in the array's own type)."""
+    if math.isnan(nodata):
+        return np.isnan(array)
+    if array.dtype.kind == "f" and nodata < _FLOAT_NODATA_FLOOR:
+        return array < _FLOAT_NODATA_FLOOR
+    return array == np.asarray(nodata).astype(array.dtype) if array.dtype.kind == "f" else array == nodata
+
+
+def scaled(data, scale_offset):
+    """`data` (float32) times the GDAL scale plus the offset (:func:`._geokeys.scale_offset`), in place
+    when there is either."""
+    scale, offset = scale_offset
+    if scale != 1.0:
+        data *= np.float32(scale)
+    if offset != 0.0:
+        data += np.float32(offset)
+    return data
+
+
+def surface_heights(raw, *, nodata, scale_offset, zero_fill):
+    """Stored samples `raw` of a surface model as heights: float32, scaled (:func:`scaled`), NaN where
+    the file declares no data (`nodata`), where `zero_fill` (:func:`zero_fill`) says its exact zeros
+    are gdalwarp's fill, and where the value is no surface (:func:`surface_data`). The one rule of both
+    readers, the whole file's and the windows'.
+
+    Examples
+    --------
+    >>> surface_heights(np.array([0.0, 271.5, -9999.0], np.float32), nodata=None, scale_offset=(1.0, 0.0),
+    ...                 zero_fill=True).tolist()
+    [nan, 271.5, nan]
+    """
+    data = np.asarray(raw).astype(np.float32, copy=True)
+    invalid = ~np.isfinite(data)
+    if nodata is not None:
+        invalid |= is_nodata(raw, nodata)
+    elif zero_fill:
+        invalid |= raw == 0  # gdalwarp's fill outside the footprint, undeclared
+    data = scaled(data, scale_offset)
+    invalid |= ~surface_data(data)  # an undeclared -9999 is no surface either
+    data[invalid] = np.nan
+    return data
