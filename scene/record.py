@@ -197,7 +197,7 @@ def absolute_paths():
             value = owner.get(name)
             if isinstance(value, str) and value.startswith("//"):
                 kept.append((owner, name, value))
-                owner[name] = bpy.path.abspath(value)
+                owner[name] = _file(value)
     try:
         yield
     finally:
