@@ -95,6 +95,30 @@ def test_a_window_decodes_only_the_tiles_it_overlaps(tmp_path, monkeypatch):
         np.testing.assert_array_equal(overview, rgb[::step, ::step])
 
 
+def test_a_dark_window_of_a_12_bit_mosaic_is_scaled_as_the_whole_file(tmp_path):
+    # A 12-bit camera's mosaic in 16-bit samples (0..4095): its depth is the file's, not the window's.
+    # A window of dark soil (largest sample 1500, 11 bits) was scaled by 2047 instead of 4095: twice as
+    # bright as the same pixels read whole, so its soil could pass for plants.
+    from cliff_terrain.io.photo import open_image
+    from cliff_terrain.io.raster.photo_samples import photo_bands
+
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 4096, (256, 384, 3)).astype(np.uint16)
+    rgb[:128, :128] = rng.integers(0, 1500, (128, 128, 3))  # one tile of dark soil
+    path = write_mosaic(tmp_path / "m12.tif", rgb)
+    whole, _ = photo_bands(rgb, "m12")  # as the file read whole
+    assert whole[:128, :128].max() <= round(1500 * 255 / 4095)
+    with MosaicReader(path) as reader:
+        dark, _ = reader.read(0, 128, 0, 128)  # the first window read: the scale comes from the file
+        assert reader.scale == 4095
+        np.testing.assert_array_equal(dark, whole[:128, :128])
+        np.testing.assert_array_equal(reader.overview()[0], whole)
+    with MosaicReader(path, scale=4095) as reader:  # given by the caller (a worker's window)
+        np.testing.assert_array_equal(reader.read(0, 128, 0, 128)[0], whole[:128, :128])
+    with open_image(path) as photo:  # and in memory, a GeoTIFF photo by the same rule
+        np.testing.assert_array_equal(photo.decode()[0], whole)
+
+
 @pytest.mark.parametrize("tile", [(64, 64), None])
 def test_windows_read_from_several_threads_at_once_are_the_pixels(tmp_path, tile):
     # The next tile of a mosaic is read in a thread while this one's texture is read here.

@@ -107,10 +107,12 @@ def windows(shape, size):
 class WindowSources:
     """The orthophoto (in windows, :class:`cliff_terrain.io.raster.mosaic.MosaicReader`), DSM and DTM."""
 
-    def __init__(self, ortho, dsm, dtm):
+    def __init__(self, ortho, dsm, dtm, *, scale=None):
         from ..io.raster.mosaic import MosaicReader
 
-        self.ortho = MosaicReader(ortho, black_collar=True)  # as a file read whole
+        # As a file read whole: its collar, and its 16-bit `scale` (from the overview, given to
+        # every window's reader).
+        self.ortho = MosaicReader(ortho, black_collar=True, scale=scale)
         self.opened = [self.ortho]
         try:
             if self.ortho.transform is None:

@@ -31,9 +31,10 @@ from .window_reading import WindowSources, upsample, windows
 _LOCAL = threading.local()
 
 
-def worker_sources(ortho, dsm, dtm):
+def worker_sources(ortho, dsm, dtm, scale=None):
     """This thread's open :class:`~cliff_terrain.measure.window_reading.WindowSources` of the three
-    files, reopened when a path, size or modification time changes (the previous ones closed)."""
+    files (the orthophoto's 16-bit `scale` given), reopened when a path, size or modification time
+    changes (the previous ones closed)."""
 
     def stamp(path):
         if path is None:
@@ -41,13 +42,13 @@ def worker_sources(ortho, dsm, dtm):
         s = os.stat(path)
         return (str(path), s.st_size, s.st_mtime_ns)
 
-    key = (stamp(ortho), stamp(dsm), stamp(dtm))
+    key = (stamp(ortho), stamp(dsm), stamp(dtm), scale)
     held = getattr(_LOCAL, "sources", None)
     if held is None or held[0] != key:
         if held is not None:
             held[1].close()
         _LOCAL.sources = None
-        _LOCAL.sources = (key, WindowSources(ortho, dsm, dtm))
+        _LOCAL.sources = (key, WindowSources(ortho, dsm, dtm, scale=scale))
     return _LOCAL.sources[1]
 
 
@@ -90,6 +91,7 @@ class CoarseTask:
     core: tuple  # (r0, r1, c0, c1), multiples of factor but at the grid's end
     # The whole photo's soil class's upper limit (bare_soil.soil_ceiling), for ``factor`` > 1.
     soil_ceiling: float = float("inf")
+    scale: int | None = None  # the orthophoto's 16-bit scale (io.raster.photo_samples.colour_scale)
 
 
 def coarse_window(task, *, sources=None):
@@ -114,7 +116,7 @@ def coarse_window(task, *, sources=None):
     from ..photo_heights.vegetation import blurred_index
 
     if sources is None:
-        sources = worker_sources(task.ortho, task.dsm, None)
+        sources = worker_sources(task.ortho, task.dsm, None, task.scale)
     factor, shape = task.factor, task.shape
     r0, r1, c0, c1 = task.core
     surface = sources.dsm.on_grid(task.transform, r0, r1, c0, c1)
@@ -152,6 +154,7 @@ def coarse_tasks(sources, shape, transform, factor, index, threshold, window, *,
             threshold,
             core,
             soil_ceiling,
+            sources.ortho.scale,
         )
         for core in windows(shape, side)
     ]
@@ -259,6 +262,7 @@ class WindowTask:
     # The resolution check's box (measure.resolution_check.doubled_box): its plots' p90 come back
     # on the canopy height smoothed by it too.
     doubled_box: int = 0
+    scale: int | None = None  # the orthophoto's 16-bit scale (io.raster.photo_samples.colour_scale)
 
 
 def measure_window(task, ground=None, *, sources=None):
@@ -278,7 +282,7 @@ def measure_window(task, ground=None, *, sources=None):
     from .field_plots import plot_layers, plot_table
 
     if sources is None:
-        sources = worker_sources(task.ortho, task.dsm, task.dtm)
+        sources = worker_sources(task.ortho, task.dsm, task.dtm, task.scale)
     r0, r1, c0, c1 = task.core
     R0, R1, C0, C1 = task.read
     transform, factor = task.transform, task.factor
@@ -393,6 +397,7 @@ def window_tasks(sources, plots, window, result):
         task = WindowTask(
             sources.ortho.path, sources.dsm.path, dtm, transform, shape, result.factor, result.index,
             result.threshold, (r0, r1, c0, c1), (R0, R1, C0, C1), encode=encoded_windows(window),
+            scale=sources.ortho.scale,
         )  # fmt: skip
         if plots is not None:
             mine = np.flatnonzero(owner == k)

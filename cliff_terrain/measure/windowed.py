@@ -222,7 +222,7 @@ def measure_windowed(
         # and each fold at once would add about 0.15 GiB per megapixel of the ground grid.
         fit_run = run if client is not None and getattr(client, "cluster", None) is None else None
         return _measure(
-            sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run
+            sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run, readers
         )
     finally:
         for reader in readers:
@@ -285,7 +285,9 @@ def _on_threads(function, arguments, shared, readers):
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run=None):
+def _measure(
+    sources, plots, folder, block_m, ground_method, window, ground_pixels, step, run, fit_run=None, readers=()
+):
     from ..io.raster.geotiff_stream import RasterSpool, TileSpool
     from ..photo_heights.bare_soil import bare_soil, soil_ceiling
     from ..photo_heights.vegetation import blurred_index, photo_threshold
@@ -301,7 +303,7 @@ def _measure(sources, plots, folder, block_m, ground_method, window, ground_pixe
     clock.start("overview")
     # 0. The plant/soil threshold, on an overview of the whole photo (every step-th pixel, <= 4 MP),
     # read band by band where the windows are (decoding the photo is most of it).
-    overview, valid_o = _overview(sources, run)
+    overview, valid_o = _overview(sources, run, readers)
     vi_o, index = blurred_index(overview)
     rule = photo_threshold(vi_o, overview, index=index, valid=valid_o)
     threshold, decision = float(rule.threshold), {"source": rule.source, "note": rule.note}
@@ -413,14 +415,19 @@ def _decide_by_surface(sources, vi, valid, rule, *, band_rows=256):
     return float(rule.threshold), {"source": rule.source, "note": note}
 
 
-def _overview(sources, run):
+def _overview(sources, run, readers=()):
     """:meth:`~cliff_terrain.io.raster.mosaic.MosaicReader.overview`'s photo and valid mask, its bands
-    read by `run`."""
+    read by `run`; the file's 16-bit scale, taken from it, is given to every reader of `readers`."""
     from ..io.raster.mosaic import overview_from_bands
 
     step, bands = sources.ortho.overview_bands()
     tasks = ((OverviewTask(sources.ortho.path, sources.dsm.path, band, step),) for band in bands)
-    return overview_from_bands(sources.ortho.shape, step, run(overview_band, tasks))
+    photo = sources.ortho.from_overview(
+        overview_from_bands(sources.ortho.shape, step, run(overview_band, tasks))
+    )
+    for reader in readers:
+        reader.ortho.scale = sources.ortho.scale
+    return photo
 
 
 def _ahead(client):

@@ -79,6 +79,9 @@ class MosaicSettings:
     edge_scale: float
     max_height: float | None = None
     soil: float | None = None
+    # The mosaic's 16-bit scale (io.raster.photo_samples.colour_scale), so that a tile opened by
+    # its path scales its samples as the whole mosaic, without an overview of its own.
+    scale: int | None = None
 
 
 def mosaic_settings(
@@ -145,6 +148,7 @@ def mosaic_settings(
         edge_scale,
         max_height,
         soil,
+        reader.scale,
     )
 
 
@@ -175,7 +179,7 @@ def relief_tile(reader, window, settings):
         ``labels`` are numbered within the tile (0 = ground).
     """
     if isinstance(reader, str | os.PathLike):
-        with MosaicReader(reader) as opened:
+        with MosaicReader(reader, scale=settings.scale) as opened:
             return relief_tile(opened, window, settings)
     from ..photo_heights.inflate import inflate
     from ..photo_heights.quaternion import quaternion_filter

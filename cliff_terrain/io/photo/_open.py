@@ -10,7 +10,9 @@ Decisions (each documented where it applies):
   are not applied.
 * **Two readers, one protocol** (:class:`~cliff_terrain.io.photo.PhotoReader`): :func:`open_image`
   picks the reader by the file's header: tifffile's (:mod:`._tiff`) for a TIFF of three or more
-  float or greyscale-tagged samples (OpenDroneMap's orthophoto), which Pillow cannot read; Pillow's
+  float or greyscale-tagged samples (OpenDroneMap's orthophoto), which Pillow cannot read, and for
+  a GeoTIFF orthophoto (its pixels as the windowed heights read them: 16-bit colour scaled by the
+  bit depth used, alpha and no-data as masks); Pillow's
   (:class:`OpenImage`, JPEG decoding in :mod:`._jpeg`, pixels in :mod:`._pillow_pixels`) for the rest.
 * **Transparency marks no-data** (orthophotos use alpha = 0 outside the surveyed area): such pixels
   are filled with black, partially transparent ones are composited over black, and
@@ -180,7 +182,8 @@ def _open_checked(path, max_size, gsd, height_above_ground, max_pixels, *, read_
     )
     with reading(name):
         # The reader by the file's header: tifffile's for the TIFF orthophotos Pillow cannot read
-        # (three or more float or greyscale-tagged samples, OpenDroneMap's), Pillow's for the rest.
+        # (three or more float or greyscale-tagged samples, OpenDroneMap's) and for GeoTIFF
+        # orthophotos (read as the windows read them), Pillow's for the rest.
         photo = open_tiff_photo(name, gsd, height_above_ground, max_pixels, bands=bands)
         if photo is not None:
             return photo

@@ -1,4 +1,4 @@
-"""Orthophoto TIFFs that Pillow cannot read (float32 0-255 or 0-1, or 3+ bands tagged greyscale), read by tifffile.
+"""Orthophoto TIFFs, read by tifffile: those Pillow cannot read (float32 0-255 or 0-1, or 3+ bands tagged greyscale), and GeoTIFFs.
 
 OpenDroneMap's standard orthophoto is one: float32 samples in [0, 255], stored planar and tagged
 greyscale. :func:`cliff_terrain.io.photo.open_image` asks :func:`open_tiff_photo` first: for such a
@@ -18,7 +18,8 @@ from ...errors import (
 from ..raster._geokeys import GDAL_NODATA, MODEL_TIEPOINT, MODEL_TRANSFORMATION, georeference, nodata_value
 from ..raster._tiff_window import TiffRaster
 from ..raster.bands import is_multispectral, read_bands, rgb_rendering
-from ..raster.geotiff import photo_bands, read_tiff
+from ..raster.geotiff import read_tiff
+from ..raster.photo_samples import photo_bands
 from ..raster.transform import pixel_size
 from . import _camera as camera
 from ._metadata import header_metadata, image_metadata
@@ -34,8 +35,9 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
     """A :class:`TiffPhoto` when `name` is a TIFF photo Pillow cannot read, else None (Pillow's to read).
 
     Decided by the header: a TIFF whose first image has three or more samples per pixel that are
-    floats, tagged greyscale, or neither 8 nor 16 bits, or that declare a no-data value (GDAL_NODATA,
-    which Pillow ignores); or a multispectral orthomosaic (more than
+    floats, tagged greyscale, or neither 8 nor 16 bits, that declare a no-data value (GDAL_NODATA,
+    which Pillow ignores), or that are georeferenced (an orthophoto: read as the windowed heights
+    read it, :func:`~cliff_terrain.io.raster.photo_samples.photo_bands`); or a multispectral orthomosaic (more than
     four bands, bands named other than red, green, blue (see :mod:`..raster.bands`), or bands named by
     `bands`), shown in true colour.
     """
@@ -57,11 +59,12 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
         odd = page.sampleformat == _FLOAT or page.photometric in _GREY or not bits <= {8, 16}
         shape, tags, samples = tiff.shape, tiff.tags, tiff.samples
     # A GeoTIFF that declares its no-data value (GDAL_NODATA): Pillow ignores it, and would read the
-    # area outside the flight as black soil; photo_bands reads it as the windows do. So does an
-    # orthophoto of three bands without it (no alpha either): photo_bands takes its black collar for
-    # no data, as the windows do.
+    # area outside the flight as black soil; photo_bands reads it as the windows do. So is every
+    # orthophoto of three or four bands: photo_bands takes the black collar of one without alpha for
+    # no data, and scales 16 bits by the depth used (Pillow keeps the high byte: a 16-bit RGBA
+    # orthophoto's cover differed from the windows' by 0.17 points), as the windows do.
     georeferenced = MODEL_TIEPOINT in tags or MODEL_TRANSFORMATION in tags
-    odd = odd or GDAL_NODATA in tags or (georeferenced and samples == 3)
+    odd = odd or GDAL_NODATA in tags or (georeferenced and samples >= 3)
     multispectral = samples >= 3 and (bands is not None or is_multispectral(name))
     if not multispectral and (samples < 3 or len(page.shape) != 3 or not odd):
         return None

@@ -175,12 +175,23 @@ def read_bands(paths, *, names=None):
 
 
 def is_multispectral(path):
-    """True when a TIFF holds more than 4 samples or names bands other than red, green, blue in order."""
+    """True when a TIFF holds more than 4 samples or names bands other than red, green, blue in order
+    (and alpha): :func:`named_bands`."""
     with TiffRaster(path, what="orthophoto") as tiff:
-        samples = tiff.samples
-        descriptions, _, _ = _gdal_items(tiff.page, samples)
-    named = [band_name(d) for d in descriptions if d and band_name(d) != "alpha"]
-    return samples > 4 or (bool(named) and tuple(named[:3]) != ("red", "green", "blue"))
+        return bool(named_bands(tiff))
+
+
+def named_bands(tiff):
+    """The band names of an open TIFF (:class:`TiffRaster`) when it is multispectral (more than 4
+    samples, or bands named other than red, green, blue in order and alpha; None for a band without
+    a name), else ``()``: an RGB(A) photo. A 4th band named NIR is a band, not alpha."""
+    samples = tiff.samples
+    descriptions, _, _ = _gdal_items(tiff.page, samples)
+    names = [band_name(d) if d else None for d in descriptions]
+    named = tuple(n for n in names if n and n != "alpha")
+    if samples > 4 or (bool(named) and named != ("red", "green", "blue")[: len(named)]) or len(named) > 3:
+        return tuple(names)
+    return ()
 
 
 def _name_from_file(path):

@@ -43,7 +43,7 @@ from ._tiff_window import TiffRaster
 from .bilinear import is_axis_aligned, on_grid, pixel_map
 from .blocks import block_mean
 from .crs import UserCrs, crs_text, user_geokeys
-from .surface_values import check_scaled, is_nodata, surface_heights, zero_fill
+from .surface_values import check_scaled, surface_heights, zero_fill
 from .transform import as_affine, grid_bounds, pixel_size
 
 
@@ -153,6 +153,7 @@ def read_orthophoto(path):
         `data` is (rows, cols, 3) uint8.
     """
     from .bands import is_multispectral, read_bands, rgb_rendering
+    from .photo_samples import photo_bands
 
     # The header first: a multispectral file's pixels are decoded once, by read_bands.
     name, _, tags = read_tiff(path, pixels=False)
@@ -164,79 +165,6 @@ def read_orthophoto(path):
     _, array, _ = read_tiff(name)
     rgb, valid = photo_bands(array, name, nodata=nodata, planar=tags["planar"])
     return GeoRaster(data=rgb, transform=transform, crs=crs, nodata=nodata, path=name, valid=valid)
-
-
-def photo_bands(array, name, *, nodata=None, planar=False, collar=None):
-    """RGB uint8 and a valid mask (or None) from a photo's decoded samples (1, 3 or 4 bands).
-
-    `collar`: whether the file's exact black is the collar outside a mosaic's footprint (no data),
-    for integer samples without alpha or a declared no-data value; None decides it from `array`'s
-    own corners (:func:`black_corner`), as for a whole file. Float files' exact zeros are always no
-    data (OpenDroneMap's).
-    """
-    if array.ndim == 3 and planar:
-        array = np.moveaxis(array, 0, -1)
-    elif array.ndim == 3 and array.shape[2] > 4 and array.shape[0] <= 4:
-        array = np.moveaxis(array, 0, -1)
-    if array.ndim == 2:
-        array = array[..., None]
-    bands = array.shape[2]
-    if bands not in (1, 2, 3, 4):
-        raise RasterReadError(f"orthophoto {name!r} has {bands} bands, expected 1, 3 or 4")
-    colour = array[..., :3] if bands >= 3 else np.repeat(array[..., :1], 3, axis=2)
-    valid = np.ones(array.shape[:2], dtype=bool)
-    if array.dtype.kind == "f":
-        finite = np.all(np.isfinite(colour), axis=2)
-        valid &= finite
-        if nodata is not None:
-            valid &= ~np.all(is_nodata(colour, nodata), axis=2)
-        # OpenDroneMap fills the area outside the flight with exact zeros in every band (no alpha).
-        valid &= np.any(colour != 0, axis=2)
-        values = colour[valid]
-        top = float(values.max()) if values.size else 1.0
-        low = float(values.min()) if values.size else 0.0
-        if low < 0.0 or top > 255.0 + 1e-3:
-            raise RasterReadError(
-                f"orthophoto {name!r} holds float values in [{low:.3g}, {top:.3g}], not a photo in [0, 1] or [0, 255]"
-            )
-        scale = 255.0 if top <= 1.0 + 1e-6 else 1.0
-        scaled = np.where(valid[..., None], colour, 0.0).astype(np.float32) * np.float32(scale) + np.float32(
-            0.5
-        )
-        rgb = np.clip(scaled, 0, 255).astype(np.uint8)
-    elif array.dtype == np.uint8:
-        rgb = np.ascontiguousarray(colour)
-        if nodata is not None and 0 <= nodata <= 255:
-            valid &= ~np.all(colour == nodata, axis=2)
-    elif array.dtype == np.uint16:
-        if nodata is not None and 0 <= nodata <= 65535:
-            valid &= ~np.all(colour == nodata, axis=2)
-        top = int(colour.max(initial=0))
-        # 12-bit cameras store 0..4095 in 16 bits: scale by the bit depth actually used.
-        full = 255 if top <= 255 else (1 << max(8, int(top).bit_length())) - 1
-        rgb = (colour.astype(np.float32) * (255.0 / full) + 0.5).astype(np.uint8)
-    else:
-        raise RasterReadError(
-            f"orthophoto {name!r} has samples of type {array.dtype}, expected uint8, uint16 or float"
-        )
-    if bands in (2, 4):
-        alpha = array[..., -1]
-        valid &= alpha > 0
-    elif array.dtype.kind != "f" and nodata is None and (black_corner(colour) if collar is None else collar):
-        # No alpha and no declared no-data, and a corner exactly black: the collar a mosaic's export
-        # leaves outside the flight (`gdal_translate -b 1 -b 2 -b 3`, a GIS's "rendered image"), as
-        # in OpenDroneMap's float files above. Taken for black soil, a 16 % collar had the soil
-        # threshold find no bare soil at all. Only then: a photo's own darkest soil (broccoli on
-        # black earth) holds exact black too, and is soil.
-        valid &= np.any(colour != 0, axis=2)
-    return np.ascontiguousarray(rgb), (None if valid.all() else valid)
-
-
-def black_corner(colour):
-    """Whether any of the four corner pixels of `colour` ((rows, cols, bands)) is exact black in every
-    band: a mosaic's footprint never fills its rectangle, a photo's corners are the scene."""
-    corners = colour[[0, 0, -1, -1], [0, -1, 0, -1]]
-    return bool(np.any(np.all(corners == 0, axis=-1)))
 
 
 def read_georeference(path):

@@ -18,13 +18,11 @@ from ..._validate import check_int
 from ...errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 from ._geokeys import GDAL_NODATA, georeference, nodata_value
 from ._tiff_window import TiffRaster
-from .geotiff import black_corner, photo_bands
+from .photo_samples import OVERVIEW_PIXELS, black_corner, colour_scale, overview_step, photo_bands
 
 # A striped GeoTIFF is decoded whole: above this many pixels (a 12-bit 150 MP RGB image is 0.9 GB
 # decoded) it is refused with the command that tiles it.
 MAX_STRIPED_PIXELS = 150_000_000
-# The overview that fixes the threshold: at most this many pixels.
-OVERVIEW_PIXELS = 4_000_000
 
 
 class MosaicReader:
@@ -39,8 +37,13 @@ class MosaicReader:
         above it is refused (:class:`ImageTooLargeError`) with how to tile it.
     black_collar : bool, optional
         Take exact black for no data when a corner of the file is exact black and it has neither
-        alpha nor a declared no-data value (a mosaic's collar, as :func:`.geotiff.photo_bands` does
-        for a file read whole). The windowed heights read so; Import Mosaic's tiles do not yet.
+        alpha nor a declared no-data value (a mosaic's collar, as :func:`.photo_samples.photo_bands`
+        does for a file read whole). The windowed heights read so; Import Mosaic's tiles do not yet.
+    scale : int, optional
+        The value 16-bit colour samples reach at full scale (:func:`.photo_samples.colour_scale`),
+        when the caller has it from the overview; by default taken by :meth:`overview`, or on the
+        first window of a 16-bit file (an overview of its raw samples), so that every window of
+        the file is scaled alike.
 
     Examples
     --------
@@ -48,8 +51,9 @@ class MosaicReader:
     ...     rgb, valid = mosaic.read(0, 512, 0, 512)
     """
 
-    def __init__(self, path, *, max_striped_pixels=MAX_STRIPED_PIXELS, black_collar=False):
+    def __init__(self, path, *, max_striped_pixels=MAX_STRIPED_PIXELS, black_collar=False, scale=None):
         max_striped_pixels = check_int("max_striped_pixels", max_striped_pixels, minimum=1)
+        self.scale = None if scale is None else check_int("scale", scale, minimum=255)
         self.raster = TiffRaster(path, what="mosaic", error=ImageReadError)
         self.path = self.raster.path
         self.shape = self.raster.shape
@@ -76,6 +80,15 @@ class MosaicReader:
                     f"{max_striped_pixels / 1e6:.0f} MP) and not readable in windows; tile it first, for "
                     "example: gdal_translate -co TILED=YES -co COMPRESS=DEFLATE IN.tif OUT.tif"
                 )
+        from .bands import named_bands
+
+        bands = named_bands(self.raster)
+        if bands:
+            # A window is read as RGB(A) (photo_bands); a multispectral file's true colour needs
+            # its bands' gain over the whole file (bands.rgb_rendering), and a 4th band named NIR
+            # would be taken for alpha.
+            self.close()
+            raise ImageReadError(_multispectral_message(self.path, bands))
         self.tile_shape = self.raster.tile_shape
         # With `black_collar`, whether exact black is the collar is decided once from the file's
         # corners, as the whole file's reading decides it (photo_bands), so that every window agrees.
@@ -122,8 +135,25 @@ class MosaicReader:
             raise CliffTerrainError(
                 f"window [{r0}:{r1}, {c0}:{c1}] is not inside the mosaic's {rows} x {cols}"
             )
-        raw = self.raster.read_window(r0, r1, c0, c1)
-        return photo_bands(raw, self.path, nodata=self._nodata, collar=self._collar)
+        return self.photo(self.raster.read_window(r0, r1, c0, c1))
+
+    def photo(self, raw):
+        """RGB uint8 and a valid mask (or None) of `raw` samples of this file (a window, or the
+        overview :func:`overview_from_bands` assembles), by the whole file's rule."""
+        if raw.dtype == np.uint16 and self.scale is None:
+            self.scale = self.colour_scale()
+        return photo_bands(raw, self.path, nodata=self._nodata, collar=self._collar, scale=self.scale)
+
+    def colour_scale(self, raw=None):
+        """The file's 16-bit :func:`~.photo_samples.colour_scale`: from the largest colour sample of
+        its overview (`raw`, :func:`overview_from_bands`'s, or read here: every tile decoded once)."""
+        if raw is None:
+            step, bands = self.overview_bands()
+            raw = overview_from_bands(
+                self.shape, step, (self.overview_band(r0, r1, step) for r0, r1 in bands)
+            )
+        colour = raw[..., :3] if raw.shape[2] >= 3 else raw[..., :1]
+        return colour_scale(colour.max(initial=0))
 
     def overview(self, *, max_pixels=OVERVIEW_PIXELS):
         """The whole mosaic reduced by an integer step (every `step`-th pixel) to at most `max_pixels`.
@@ -135,35 +165,57 @@ class MosaicReader:
         step : int
         """
         step, bands = self.overview_bands(max_pixels=max_pixels)
-        parts = (self.overview_band(r0, r1, step) for r0, r1 in bands)
-        return (*overview_from_bands(self.shape, step, parts), step)
+        raw = overview_from_bands(self.shape, step, (self.overview_band(r0, r1, step) for r0, r1 in bands))
+        return (*(self.from_overview(raw) if max_pixels == OVERVIEW_PIXELS else self.photo(raw)), step)
+
+    def from_overview(self, raw):
+        """:meth:`photo` of the overview's raw samples (:func:`overview_from_bands` at
+        :meth:`overview_bands`' step), the file's 16-bit :attr:`scale` taken from them first."""
+        if raw.dtype == np.uint16 and self.scale is None:
+            self.scale = self.colour_scale(raw)
+        return self.photo(raw)
 
     def overview_bands(self, *, max_pixels=OVERVIEW_PIXELS):
         """(step, [(r0, r1), ...]): :meth:`overview`'s step and its bands of rows, whole rows of
         TIFF tiles (each tile decoded once) starting on a multiple of the step; a band can be read
         anywhere (:meth:`overview_band`), a cluster's worker or a thread."""
-        rows, cols = self.shape
-        step = max(1, math.ceil(math.sqrt(rows * cols / max_pixels)))
+        rows = self.shape[0]
+        step = overview_step(self.shape, max_pixels=max_pixels)
         band = max(self.tile_shape[0], step)
         band -= band % step or 0
         band = max(band, step)
         return step, [(r0, min(rows, r0 + band)) for r0 in range(0, rows, band)]
 
     def overview_band(self, r0, r1, step):
-        """(row in the overview, every `step`-th pixel of rows [r0:r1] as RGB, valid mask or None)."""
-        part, ok = self.read(r0, r1, 0, self.shape[1])
-        # Copies: a view would hold the whole band while the result waits to be placed.
-        return r0 // step, part[::step, ::step].copy(), (None if ok is None else ok[::step, ::step].copy())
+        """(row in the overview, every `step`-th pixel of rows [r0:r1]: the raw samples, (rows',
+        cols', samples)); :meth:`photo` makes the assembled overview RGB."""
+        # A copy: a view would hold the whole band while the result waits to be placed.
+        return r0 // step, self.raster.read_window(r0, r1, 0, self.shape[1])[::step, ::step].copy()
 
 
 def overview_from_bands(shape, step, parts):
-    """(rgb, valid or None): the overview of a (rows, cols) mosaic at `step` from its bands'
+    """The raw samples of a (rows, cols) mosaic's overview at `step`, from its bands'
     :meth:`MosaicReader.overview_band` results `parts` (in any order)."""
     rows, cols = shape
-    rgb = np.zeros((math.ceil(rows / step), math.ceil(cols / step), 3), np.uint8)
-    valid = np.ones(rgb.shape[:2], bool)
-    for at, part, ok in parts:
-        rgb[at : at + len(part)] = part
-        if ok is not None:
-            valid[at : at + len(part)] = ok
-    return rgb, (None if valid.all() else valid)
+    raw = None
+    for at, part in parts:
+        if raw is None:
+            raw = np.zeros((math.ceil(rows / step), math.ceil(cols / step), part.shape[2]), part.dtype)
+        raw[at : at + len(part)] = part
+    return raw
+
+
+def _multispectral_message(path, bands):
+    """The line refusing a multispectral orthomosaic in windows, with the gdal_translate that keeps
+    its red, green and blue bands when it names them."""
+    from .bands import band_label
+
+    described = ", ".join(band_label(n) if n else "unnamed" for n in bands)
+    where = [bands.index(n) + 1 if n in bands else None for n in ("red", "green", "blue")]
+    keep = " ".join(f"-b {k}" for k in where) if None not in where else "-b <red> -b <green> -b <blue>"
+    return (
+        f"mosaic {path!r} is a multispectral orthomosaic ({len(bands)} bands: {described}); windows "
+        "read RGB or RGBA orthophotos: measure it without --windowed (with --max-size or "
+        f"--resolution, and --bands to name its bands), or keep its colour bands: gdal_translate {keep} "
+        "-co TILED=YES IN.tif OUT.tif"
+    )
