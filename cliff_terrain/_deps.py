@@ -139,3 +139,20 @@ def environment_error(error, *, doing):
 def _module_in(text):
     match = re.search(r"module '([\w.]+)'", text)
     return match.group(1) if match else None
+
+
+def require_extra(module, *, extra, needed_by):
+    """Raise :class:`DependencyError` before any work when `module`, of the package's `extra`
+    (``pip install 'cliff-terrain[season]'``), is not installed; `needed_by` says what needs it.
+
+    Examples
+    --------
+    >>> require_extra("numpy", extra="season", needed_by="growth.png")
+    """
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        raise DependencyError(
+            f"{needed_by} needs {distribution(module)}, which is not installed: pip install "
+            f"'cliff-terrain[{extra}]' (from a checkout of the repository: pip install '.[{extra}]')"
+        ) from None

@@ -154,7 +154,9 @@ def build_relief(image_or_path, params=None, *, progress=None, **settings):
         the camera metadata gives. With a GSD the heights and the mesh are in metres.
     dsm : str or os.PathLike, optional
         A digital surface model GeoTIFF (metres, projected CRS) of the orthophoto
-        `image_or_path` (a georeferenced GeoTIFF): the heights are then measured. It is resampled
+        `image_or_path` (a georeferenced GeoTIFF): the canopy is then measured on it, and the
+        relief follows it with `height_source` ``"measured"`` or ``"calibrated"`` (here the default
+        stays ``"inflated"``; the command line's with ``--dsm`` is ``"measured"``). It is resampled
         onto the processing grid; ``Relief.canopy`` holds the DSM, ground and canopy height there,
         and ``Relief.georeference`` the grid's CRS and map origin (the mesh starts at 0, 0).
     dtm : str or os.PathLike, optional

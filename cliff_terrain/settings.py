@@ -365,7 +365,7 @@ PARAMETERS = {
         Parameter(
             "dsm",
             "Surface Model",
-            "digital surface model GeoTIFF (DSM, metres) of the orthophoto: the heights are then measured",
+            "digital surface model GeoTIFF (DSM, metres) of the orthophoto: the canopy is measured on it; the relief follows it when the height source is measured or calibrated (the command line's default with a DSM is measured)",
             "path",
             unset="heights from the photo alone",
             metavar="DSM",

@@ -93,12 +93,16 @@ class _ViewSettings:
             rows, cols = Record.of(obj).grid_shape
             resolution = view_resolution(self.resolution, rows, cols, name="Resolution")
             view_rig = rig.make_rig(context, obj, resolution=resolution)
-            paths, seconds = views.render_views(
-                context, view_rig, out_dir, views=view_names, engine=engine, samples=self.samples
-            )
-            start = time.perf_counter()
-            metrics = views.evaluate_relief(obj, view_rig, paths["xy"], paths["xy_flat"])
-            seconds["metrics"] = time.perf_counter() - start
+            try:
+                paths, seconds = views.render_views(
+                    context, view_rig, out_dir, views=view_names, engine=engine, samples=self.samples
+                )
+                start = time.perf_counter()
+                metrics = views.evaluate_relief(obj, view_rig, paths["xy"], paths["xy_flat"])
+                seconds["metrics"] = time.perf_counter() - start
+            except BaseException:
+                rig.remove_rig(scene)  # a failed run leaves no cameras or sun of its own behind
+                raise
         metrics.update(
             engine=engine,
             samples=self.samples,

@@ -355,6 +355,38 @@ def test_operators_render_and_evaluate_the_active_relief(field, tmp_path):
         assert min(summary.size) > 400
 
 
+FAILED_EVALUATION = OPERATORS_HEAD + textwrap.dedent(
+    r"""
+    from cliff_terrain_addon.scene import views
+    from cliff_terrain_addon.cliff_terrain.errors import CliffTerrainError
+    bpy.ops.cliff_terrain.build_relief(filepath=sys.argv[2], max_size=96)
+    mine = bpy.data.worlds.new("My World")
+    scene.world = mine
+
+    def fails(*args, **kwargs):
+        raise CliffTerrainError("the comparison failed")
+
+    views.evaluate_relief = fails  # after both views are rendered
+    try:
+        out = {"evaluate": sorted(bpy.ops.cliff_terrain.evaluate(resolution=64))}
+    except RuntimeError as exc:  # bpy.ops raises the operator's error report
+        out = {"evaluate": str(exc).strip()}
+    out["rig"] = "Cliff Terrain Views" in bpy.data.collections
+    out["world"] = scene.world.name
+    print("RESULT " + json.dumps(out), flush=True)
+    _loader.leave(0)
+    """
+)
+
+
+def test_a_failed_evaluation_leaves_neither_its_rig_nor_its_sky_behind(field, tmp_path):
+    photo, *_ = field
+    proc = run("-c", FAILED_EVALUATION, str(ROOT), str(photo))
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    result = json.loads(proc.stdout.split("RESULT ", 1)[1].splitlines()[0])
+    assert result == {"evaluate": "Error: the comparison failed", "rig": False, "world": "My World"}
+
+
 CHANGED_PHOTO = OPERATORS_HEAD + textwrap.dedent(
     r"""
     import os, shutil

@@ -776,6 +776,27 @@ def test_schedulers_that_need_a_key_are_refused_before_any_work(soybean, tmp_pat
     assert not (tmp_path / "out" / "season.csv").exists()
 
 
+@pytest.mark.parametrize("command", ["season", "traits"])
+def test_without_the_season_extra_the_commands_say_so_before_any_work(soybean, tmp_path, command):
+    # A base install (no matplotlib): `season` measured every date, then stopped with a traceback and
+    # no table; `traits` left an empty folder. Now one line, before any work, naming the extra.
+    hide = "import sys, runpy; sys.modules['matplotlib'] = None; sys.argv[0] = 'cliff-terrain'; "
+    hide += "runpy.run_module('cliff_terrain', run_name='__main__')"
+    args = [soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", "--workers", "0"]
+    args += ["--no-progress"]
+    if command == "traits":
+        args = [tmp_path / "season"]
+    done = subprocess.run(
+        [sys.executable, "-c", hide, command, *map(str, args)],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "needs matplotlib, which is not installed" in lines[0], done.stderr
+    assert "pip install 'cliff-terrain[season]'" in lines[0] and "pip install '.[season]'" in lines[0]
+    assert not (tmp_path / "out").exists() and not (tmp_path / "season").exists()
+
+
 def test_insecure_joins_a_plain_tcp_scheduler_elsewhere(soybean, tmp_path):
     pytest.importorskip("distributed", reason="the `season` extra (dask[distributed]) is not installed")
     # 192.0.2.0/24 is TEST-NET-1: nothing answers, so --insecure gets as far as trying to connect.

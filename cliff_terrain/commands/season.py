@@ -60,12 +60,16 @@ def configure(parser):
 
 
 def run(args):
+    from .._deps import require_extra
     from ..season.dates import parse_given_dates
     from ..season.plan import plan_season
     from ..season.runner import run_season
     from .cluster_options import cluster_security
     from .out_folder import check_out_folder
 
+    # Before any work: growth.png is drawn after every date is measured (a base install measured
+    # them all, then stopped with a traceback and no table).
+    require_extra("matplotlib", extra="season", needed_by="the season's growth.png")
     security = cluster_security(args)  # checked before any work
     check_out_folder(args.out)
     jobs, plot_set = plan_season(

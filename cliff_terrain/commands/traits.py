@@ -37,11 +37,13 @@ def run(args):
     import csv
     import json
 
+    from .._deps import require_extra
     from ..errors import CliffTerrainError
     from ..measure.tables import previous_outputs, table_csv, write_files
     from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, TRAITS_OUTPUTS, season_traits
     from .out_folder import check_out_folder, finished_outputs
 
+    require_extra("matplotlib", extra="season", needed_by="the traits' figures")  # before any work
     table = args.season / "season.csv"
     if not table.is_file():
         raise CliffTerrainError(f"{str(table)!r} does not exist: run `cliff-terrain season` first")

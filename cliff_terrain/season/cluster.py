@@ -165,7 +165,8 @@ def dask_client(*, workers=None, scheduler=None, timeout=10.0, memory_limit="aut
         from distributed import Client
     except ImportError:
         raise CliffTerrainError(
-            "Dask is not installed: pip install 'cliff-terrain[season]', or run serially with --workers 0"
+            "Dask is not installed: pip install 'cliff-terrain[season]' (from a checkout of the repository: "
+            "pip install '.[season]'), or run in this process with --workers 0"
         ) from None
     cluster = None
     try:
