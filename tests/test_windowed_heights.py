@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import subprocess
 import sys
 
@@ -389,6 +390,40 @@ def test_windows_encoded_where_measured_write_the_same_file_byte_for_byte(tmp_pa
     ):
         unaligned.put(0, 0, encode_block(data[:512, :600]))
     unaligned.close()
+
+
+@pytest.mark.parametrize("levels", [2, 3])
+def test_windows_that_encode_their_overviews_too_write_the_same_file_byte_for_byte(tmp_path, levels):
+    # Windows of 1024 (2048) pixels give their first (and second) overview as whole tiles too, encoded
+    # where they were measured: the one process writing the file then compresses a sixteenth (a
+    # sixty-fourth) of the pixels instead of a third. The file is RasterSpool's to the byte.
+    rng = np.random.default_rng(2)
+    side = 512 << (levels - 1)
+    data = rng.normal(size=(2 * side + 300, side + 700)).astype(np.float32)  # short tiles at both edges
+    data[rng.random(data.shape) < 0.1] = np.nan
+    transform = np.array([[0.1, 0, 1000.0], [0, -0.1, 2000.0], [0, 0, 1]])
+    raw = RasterSpool(tmp_path, "raw", data.shape)
+    encoded = TileSpool(tmp_path, "encoded", data.shape, levels=levels)
+    assert isinstance(encoded.half, TileSpool)
+    for r0 in reversed(range(0, data.shape[0], side)):
+        for c0 in range(0, data.shape[1], side):
+            block = data[r0 : r0 + side, c0 : c0 + side]
+            raw.put(r0, c0, block)
+            encoded.put(r0, c0, encode_block(block, levels=levels))
+    for spool in (raw, encoded):
+        spool.write_geotiff(
+            tmp_path / f"{spool.path}.tif", transform=transform, crs=32616, nodata=float("nan")
+        )
+        spool.close()
+    written = (tmp_path / "encoded.tiles.tif").read_bytes()
+    assert written == (tmp_path / "raw.raw.tif").read_bytes()
+    with tifffile.TiffFile(tmp_path / "encoded.tiles.tif") as tif:  # halving until one tile holds it
+        assert len(tif.pages) == 1 + math.ceil(math.log2(max(data.shape) / 512))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["encoded.tiles.tif", "raw.raw.tif"]
+    mixed = TileSpool(tmp_path, "mixed", data.shape, levels=levels)
+    with pytest.raises(ValueError, match=f"a block encoded to 1 level\\(s\\) given to a spool of {levels}"):
+        mixed.put(0, 0, encode_block(data[:side, :side]))
+    mixed.close()
 
 
 def test_with_a_terrain_model_encoded_and_raw_windows_give_the_same_chm(tmp_path):

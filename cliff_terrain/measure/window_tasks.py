@@ -255,8 +255,9 @@ class WindowTask:
     fields: tuple = ()
     plots_path: str = ""
     mine: np.ndarray | None = None  # the plots whose centre the core holds
-    # The rasters come back encoded (geotiff_stream.encode_block): the core is whole output tiles.
-    encode: bool = False
+    # The rasters come back encoded to this many levels (geotiff_stream.encode_block): the core is
+    # whole output tiles (and its overview's whole tiles, for each level beyond the first).
+    encode: int = 0
     # The plot table's columns: the rows come back with their CSV lines and GeoJSON features too.
     columns: list | None = None
     # The resolution check's box (measure.resolution_check.doubled_box): its plots' p90 come back
@@ -319,7 +320,7 @@ def measure_window(task, ground=None, *, sources=None):
 
         for name in ("chm", "chm_err", "ground_support"):
             if name in out:
-                out[name] = encode_block(out[name])
+                out[name] = encode_block(out[name], levels=task.encode)
     if task.mine is not None and task.mine.size:
         n = len(task.plot_ids)
         local = PlotSet(task.pixel_rings.unpack(), [{}] * n, (), None, task.plots_path)
@@ -361,11 +362,12 @@ def measure_window(task, ground=None, *, sources=None):
 
 
 def encoded_windows(window):
-    """Whether windows of side `window` are whole output tiles, so they come back encoded
-    (:class:`~cliff_terrain.io.raster.geotiff_stream.TileSpool`)."""
-    from ..io.raster.geotiff import COG_TILE
+    """How many levels of the output rasters windows of side `window` give encoded (0: none, the
+    rasters come back as arrays; :func:`~cliff_terrain.io.raster.geotiff_stream.encoded_levels`):
+    their cores are then whole output tiles (:class:`~cliff_terrain.io.raster.geotiff_stream.TileSpool`)."""
+    from ..io.raster.geotiff_stream import encoded_levels
 
-    return window % COG_TILE == 0
+    return encoded_levels(window)
 
 
 def window_tasks(sources, plots, window, result):

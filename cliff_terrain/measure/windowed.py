@@ -372,8 +372,11 @@ def _measure(
         factor, threshold, index, check, seconds=seconds, threshold_rule=decision,
     )  # fmt: skip
     names = ["chm"] + (["chm_err", "ground_support"] if ground_c is not None else [])
-    spool = TileSpool if encoded_windows(window) else RasterSpool
-    result.spools = {n: spool(folder, n, shape) for n in names}
+    levels = encoded_windows(window)
+    if levels:
+        result.spools = {n: TileSpool(folder, n, shape, levels=levels) for n in names}
+    else:
+        result.spools = {n: RasterSpool(folder, n, shape) for n in names}
     try:
         ground = None if ground_c is None else (ground_c, sigma_c, support_c)
         _full_grid(sources, plots, window, result, ground, step, run)

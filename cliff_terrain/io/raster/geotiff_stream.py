@@ -156,7 +156,7 @@ class TileSpool(_TiledFile):
     >>> spool.close()
     """
 
-    def __init__(self, folder, name, shape, *, tile=COG_TILE):
+    def __init__(self, folder, name, shape, *, tile=COG_TILE, levels=1):
         super().__init__(folder, f"{name}.tiles", shape, tile)
         self._end = 0
         self._offsets = np.full(self.tiles, -1, np.int64)
@@ -164,7 +164,10 @@ class TileSpool(_TiledFile):
         self.half = None
         if max(self.shape) > self.tile:
             half = ((self.shape[0] + 1) // 2, (self.shape[1] + 1) // 2)
-            self.half = RasterSpool(folder, f"{name}-half", half, tile=self.tile)
+            if levels > 1:  # the overview arrives encoded too (encode_block's `levels`)
+                self.half = TileSpool(folder, f"{name}-half", half, tile=self.tile, levels=levels - 1)
+            else:
+                self.half = RasterSpool(folder, f"{name}-half", half, tile=self.tile)
 
     def put(self, r0, c0, encoded):
         """Store `encoded` (:func:`encode_block` of a block whose top-left pixel is (r0, c0), a tile
@@ -186,9 +189,15 @@ class TileSpool(_TiledFile):
             self._file.write(data)
             self._end += len(data)
         if self.half is not None:
-            self.half.put(r0 // 2, c0 // 2, encoded["half"])
+            half = encoded["half"]
+            if isinstance(half, dict) != isinstance(self.half, TileSpool):
+                raise ValueError(
+                    f"a block encoded to {_levels(encoded)} level(s) given to a spool of {_levels(self)}"
+                )
+            self.half.put(r0 // 2, c0 // 2, half)
 
-    def _encoded_tiles(self):
+    def encoded_tiles(self):
+        """The tiles' bytes in row-major order (every tile must have arrived)."""
         self._file.flush()
         if (self._offsets < 0).any():
             ti, tj = np.argwhere(self._offsets < 0)[0]
@@ -213,7 +222,7 @@ class TileSpool(_TiledFile):
     def write_geotiff(self, path, *, transform, crs, nodata=None):
         """As :meth:`RasterSpool.write_geotiff`: the same file, level 0 copied as encoded."""
         _write_pyramid(
-            path, self, self._encoded_tiles(), self.half, transform=transform, crs=crs, nodata=nodata
+            path, self, self.encoded_tiles(), self.half, transform=transform, crs=crs, nodata=nodata
         )
 
 
@@ -235,18 +244,22 @@ def decode_tile(data, tile=COG_TILE):
     return tifffile.TIFF.UNPREDICTORS[3](raw, axis=-1, out=raw)
 
 
-def encode_block(block, *, tile=COG_TILE):
+def encode_block(block, *, tile=COG_TILE, levels=1):
     """A window's raster as :class:`TileSpool` takes it: its tiles encoded (row-major, zero beyond
-    the block, as tifffile pads a raster's edge tiles) and its 2 x 2 means for the first overview.
+    the block, as tifffile pads a raster's edge tiles) and its 2 x 2 means for the first overview;
+    with `levels` > 1 the overview is encoded too, as such a dict (its own means below it), down to
+    `levels` encoded levels (:func:`encoded_levels`).
 
     The block must start on a tile corner and be whole tiles but at the raster's right and bottom
-    edges, where the tiles it leaves short are the raster's last.
+    edges, where the tiles it leaves short are the raster's last (at every encoded level).
 
     Examples
     --------
     >>> encoded = encode_block(np.ones((3, 5), np.float32), tile=2)
     >>> len(encoded["tiles"]), encoded["half"].shape
     (6, (2, 3))
+    >>> len(encode_block(np.ones((4, 4), np.float32), tile=2, levels=2)["half"]["tiles"])
+    1
     """
     block = np.asarray(block, dtype=_DTYPE)
     rows, cols = block.shape
@@ -257,7 +270,36 @@ def encode_block(block, *, tile=COG_TILE):
             if part.shape != (tile, tile):
                 part = np.pad(part, ((0, tile - part.shape[0]), (0, tile - part.shape[1])))
             tiles.append(encode_tile(part))
-    return {"shape": (rows, cols), "tiles": tiles, "half": block_mean(block, 2)}
+    half = block_mean(block, 2)
+    if levels > 1:
+        half = encode_block(half, tile=tile, levels=levels - 1)
+    return {"shape": (rows, cols), "tiles": tiles, "half": half}
+
+
+def encoded_levels(window, tile=COG_TILE):
+    """How many levels of a raster windows of side `window` (starting at multiples of it) give as
+    whole tiles, encoded where they are measured: level k's while `window` / 2**k is a multiple of
+    `tile` (0: none; 1024-pixel windows give the full resolution and the first overview, whose
+    Deflate was a quarter of the writing left to the one process writing the file).
+
+    Examples
+    --------
+    >>> encoded_levels(512), encoded_levels(1024), encoded_levels(2048), encoded_levels(1000)
+    (1, 2, 3, 0)
+    """
+    levels = 0
+    while window % (tile << levels) == 0:
+        levels += 1
+    return levels
+
+
+def _levels(spool_or_encoded):
+    """How many encoded levels a :class:`TileSpool` (or an :func:`encode_block` dict) holds."""
+    if isinstance(spool_or_encoded, TileSpool):
+        half = spool_or_encoded.half
+        return 1 + (_levels(half) if isinstance(half, TileSpool) else 0)
+    half = spool_or_encoded["half"]
+    return 1 + (_levels(half) if isinstance(half, dict) else 0)
 
 
 def _overview_spool(level, path, index):
@@ -289,6 +331,12 @@ def _write_pyramid(path, level0, tiles0, below, *, transform, crs, nodata):
             )
             level = below
             while level is not None:
+                if isinstance(level, TileSpool):  # an overview that arrived encoded: copied
+                    tif.write(
+                        level.encoded_tiles(), shape=level.shape, dtype=_DTYPE, subfiletype=1, **options
+                    )
+                    level = level.half
+                    continue
                 below = _overview_spool(level, path, len(levels) + 1)
                 if below is not None:
                     levels.append(below)
