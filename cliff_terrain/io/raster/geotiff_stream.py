@@ -14,8 +14,10 @@ overviews are those of ``write_geotiff(..., overviews=True)`` on the whole array
 tiles is compressed where it was measured (:func:`encode_block`, on a Dask worker or a window's
 thread) into the bytes tifffile would write, with its 2 x 2 means for the first overview. Writing
 is then a copy of those bytes and the overviews' encoding (a third of the pixels): the Deflate of
-the full-resolution image, most of a windowed run's writing, runs where the windows do. The file is
-byte for byte :class:`RasterSpool`'s (tested).
+the full-resolution image, most of a windowed run's writing, runs where the windows do. A window of
+1024 pixels (2048) is whole tiles of the first overview too (and the second): those arrive encoded
+as well (:func:`encoded_levels`), and the one process writing compresses a sixteenth of the pixels
+(a sixty-fourth). The file is byte for byte :class:`RasterSpool`'s (tested).
 """
 
 from __future__ import annotations
