@@ -728,6 +728,24 @@ def test_heights_command_on_a_coarser_grid_the_user_chooses(field_files):
     assert np.nanmax(chm.data) == pytest.approx(truth.chm.max(), abs=0.05)
 
 
+def test_a_resolution_finer_than_the_orthophoto_is_said_on_the_summary_line(field_files):
+    # The orthophoto's pixels hold no finer detail: its own grid is measured, and the line says so
+    # (it ran silently, summary.json's grid the only trace).
+    folder, _ = field_files
+    pixel = read_surface(folder / "dsm.tif").pixel_size[0]  # the synthetic pair shares one grid
+    out = folder / "finer"
+    done = run_cli(
+        "heights", folder / "ortho.tif", "--dsm", folder / "dsm.tif", "--resolution", pixel / 2, "--out", out
+    )
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert (
+        f"--resolution {pixel / 2:g} m is finer than the orthophoto's {pixel:.3g} m: measured on its own grid"
+        in done.stdout
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["grid"]["pixel_size_m"] == pytest.approx(pixel)
+
+
 def test_plot_geojson_keeps_holes_and_islands(tmp_path):
     # A plot with a hole holding an island, and a second part: written as GeoJSON and read back, it
     # burns into exactly the same pixels (a hole written as its own polygon would come back filled).

@@ -49,8 +49,8 @@ def configure(parser):
         type=float,
         default=None,
         help="metres per pixel of the grid, no finer than the orthophoto's: a finer value measures on "
-        f"the orthophoto's own (default: the orthophoto's, up to {settings.MAX_SIZE} pixels on its longest "
-        "side; summary.json's grid says what was used)",
+        f"the orthophoto's own, and the summary line says so (default: the orthophoto's, up to "
+        f"{settings.MAX_SIZE} pixels on its longest side; summary.json's grid says what was used)",
     )
     parser.add_argument(
         "--max-size",
@@ -297,11 +297,19 @@ def run(args):
     from ..measure.resolution_check import resolution_line
     from ..measure.ruler import ruler_line
 
-    against = ruler_line(ruler_record) + resolution_line(resolution)
+    against = ruler_line(ruler_record) + resolution_line(resolution) + _finer_note(args.resolution, canopy)
     print(
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
+
+
+def _finer_note(asked, canopy):
+    """The summary line's note when ``--resolution`` asked for a grid finer than the orthophoto's,
+    which is measured on its own grid instead (its pixels hold no finer detail)."""
+    if asked is None or asked >= 0.99 * canopy.pixel_size:
+        return ""
+    return f"; --resolution {asked:g} m is finer than the orthophoto's {canopy.pixel_size:.3g} m: measured on its own grid"
 
 
 # Every file `heights` may write but its tables (measure.tables.TABLES, which pulls numpy in: not
