@@ -5,8 +5,8 @@ import bpy
 
 
 class Progress:
-    """Progress bar and status-bar text during long work: Build Relief, Import Mosaic (both may be
-    missing in background mode)."""
+    """Progress bar and status-bar text during long work: Build Relief, Import Mosaic, Season
+    Animation (both may be missing in background mode)."""
 
     def __init__(self, context):
         self.wm = context.window_manager

@@ -49,6 +49,7 @@ class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
             from ..cliff_terrain.io.vector.plot_polygons import read_plots
             from ..cliff_terrain.season.reader import plot_colours, read_season
             from ..scene.season_animation import build_season_scene, render_season
+            from .progress import Progress
         except ImportError as exc:
             self.report({"ERROR"}, f"Cliff Terrain cannot load its libraries: {exc}")
             return {"CANCELLED"}
@@ -62,15 +63,23 @@ class CLIFF_TERRAIN_OT_season_animation(FileOperator, bpy.types.Operator):
                     raise CliffTerrainError(f"`color_by` {self.color_by!r} needs the season's plots file")
                 colours = plot_colours(season, self.color_by, n_plots=len(plots.polygons))
                 self.report({"INFO"}, f"colour by {colours.describe()}")
-            built = build_season_scene(
-                context,
-                season,
-                plots=plots if self.show_plots else None,
-                colours=colours,
-                colour_plots=plots,
-            )
-            if self.render:
-                render_season(built, folder / ANIMATION_DIR, log=lambda m: self.report({"INFO"}, m))
+            with Progress(context) as bar:
+                share = 0.25 if self.render else 1.0  # of the bar: the reliefs, then the frames
+                built = build_season_scene(
+                    context,
+                    season,
+                    plots=plots if self.show_plots else None,
+                    colours=colours,
+                    colour_plots=plots,
+                    progress=lambda fraction, stage: bar(share * fraction, stage),
+                )
+                if self.render:
+                    render_season(
+                        built,
+                        folder / ANIMATION_DIR,
+                        log=lambda m: self.report({"INFO"}, m),
+                        progress=lambda fraction, stage: bar(share + (1 - share) * fraction, stage),
+                    )
         except CliffTerrainError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -55,7 +55,15 @@ class SeasonScene:
 
 
 def build_season_scene(
-    context, season, *, plots=None, colours=None, colour_plots=None, size=(1280, 720), engine="WORKBENCH"
+    context,
+    season,
+    *,
+    plots=None,
+    colours=None,
+    colour_plots=None,
+    size=(1280, 720),
+    engine="WORKBENCH",
+    progress=None,
 ):
     """Build the season's animation in a scene of its own, ``Cliff Terrain Season`` (replacing an
     earlier season's), shown in the context's window: the user's scene is left as it was.
@@ -76,6 +84,8 @@ def build_season_scene(
         Frame (cols, rows) in pixels.
     engine : {"WORKBENCH", "CYCLES"}
         Workbench needs EGL in background mode; Cycles is taken when it is missing.
+    progress : callable, optional
+        ``progress(fraction, stage)`` as each date's relief is made.
 
     Returns
     -------
@@ -104,6 +114,8 @@ def build_season_scene(
         if colours is not None:
             _colour_plots(obj, date, colour_plots, colours.normalised(i))
         reliefs.append(obj)
+        if progress is not None:
+            progress((i + 1) / len(season.dates), "making the dates' reliefs")
     n = len(reliefs)
     scene.frame_start, scene.frame_end = 1, n
     for marker in list(scene.timeline_markers):
@@ -136,12 +148,12 @@ def remove_season():
     remove_collection(COLLECTION)
 
 
-def render_season(season_scene, out_dir, *, hold=12, fps=12, video=True, log=print):
+def render_season(season_scene, out_dir, *, hold=12, fps=12, video=True, log=print, progress=None):
     """Render one PNG per date into ``OUT/frames/`` and, with `video`, ``OUT/season.mp4``.
 
     The frames come from Blender's animation render, each stamped with its date (the timeline
     marker); the video is Blender's own FFmpeg output of those frames, each held `hold` frames
-    at `fps`.
+    at `fps`. `progress` (``progress(fraction, stage)``) is told as each frame is rendered.
 
     Returns
     -------
@@ -155,7 +167,22 @@ def render_season(season_scene, out_dir, *, hold=12, fps=12, video=True, log=pri
         old.unlink()
     scene.render.filepath = str(frames_dir / "date_")
     scene.render.use_file_extension = True
-    bpy.ops.render.render(animation=True, scene=scene.name)
+    count = scene.frame_end - scene.frame_start + 1
+    done = []
+
+    def rendered(rendered_scene, *_):  # render_post: after each frame of the animation
+        if progress is not None and rendered_scene == scene:
+            done.append(rendered_scene.frame_current)
+            progress(min(len(done) / count, 1.0), "rendering the dates")
+
+    if progress is not None:
+        # The stage first, here: a stage change redraws the window, which a render handler must not.
+        progress(0.0, "rendering the dates")
+    bpy.app.handlers.render_post.append(rendered)
+    try:
+        bpy.ops.render.render(animation=True, scene=scene.name)
+    finally:
+        bpy.app.handlers.render_post.remove(rendered)
     frames = [str(frames_dir / f"date_{i:04d}.png") for i in range(scene.frame_start, scene.frame_end + 1)]
     missing = [f for f in frames if not os.path.isfile(f)]
     if missing:

@@ -253,6 +253,26 @@ def test_sidebar_operator_builds_and_renders_the_season(addon, scene, season_dir
     assert [d["date"] for d in manifest["dates"]] == dates
 
 
+def test_building_and_rendering_the_season_tell_their_progress(addon, scene, season_dir, tmp_path):
+    # Season Animation showed nothing while it made the reliefs and rendered every date: the sidebar's
+    # operator now draws its progress bar from these calls (one per date made, one per frame).
+    import bpy
+    from cliff_terrain_addon.scene.season_animation import build_season_scene, render_season
+
+    from cliff_terrain.season.reader import read_season
+
+    told = []
+    built = build_season_scene(
+        bpy.context, read_season(season_dir), progress=lambda f, s: told.append((f, s))
+    )
+    assert told == [(k / 3, "making the dates' reliefs") for k in (1, 2, 3)]
+    told.clear()
+    render_season(built, tmp_path, video=False, log=lambda m: None, progress=lambda f, s: told.append((f, s)))
+    assert told == [(0.0, "rendering the dates")] + [(k / 3, "rendering the dates") for k in (1, 2, 3)]
+    assert len(list((tmp_path / "frames").glob("*.png"))) == 3
+    assert not any(h.__name__ == "rendered" for h in bpy.app.handlers.render_post)  # the handler is gone
+
+
 def test_sidebar_operator_colours_by_cover(addon, scene, season_dir):
     import bpy
 
