@@ -119,6 +119,64 @@ def test_a_dark_window_of_a_12_bit_mosaic_is_scaled_as_the_whole_file(tmp_path):
         np.testing.assert_array_equal(photo.decode()[0], whole)
 
 
+def test_a_glint_above_the_overview_grids_scale_saturates_instead_of_wrapping():
+    # The scale comes from every step-th pixel (step 2 here, 4.2 MP): a 12-bit glint the grid misses,
+    # above the 11 bits it saw, read (4095 / 2047) * 255 = 510, and the cast to 8 bits wrapped it
+    # to 254 - 256 = dark. It saturates at white.
+    from cliff_terrain.io.raster.photo_samples import overview_step, photo_bands
+
+    rgb = np.full((2100, 2000, 3), 1500, np.uint16)
+    assert overview_step(rgb.shape) == 2
+    rgb[1, 1] = (4095, 3000, 2100)  # off the grid
+    out, valid = photo_bands(rgb, "glint")
+    assert valid is None and out[0, 0].tolist() == [187, 187, 187]  # 1500 of 2047
+    assert out[1, 1].tolist() == [255, 255, 255]
+
+
+def test_pixels_without_data_are_black_and_a_float_window_is_scaled_as_its_file(tmp_path):
+    # Colour stored under alpha 0 (white here) bled into the relief's filters in memory, where
+    # Pillow had composited it over black; a 0-255 float window of collar and a few values under 1
+    # was read as if the file were 0-1.
+    from cliff_terrain.io.raster.photo_samples import photo_bands
+
+    rgba = np.full((4, 4, 4), 255, np.uint8)
+    rgba[:2, :, 3] = 0
+    rgb, valid = photo_bands(rgba, "rgba")
+    assert not valid[:2].any() and valid[2:].all()
+    assert (rgb[:2] == 0).all() and (rgb[2:] == 255).all()
+    assert (rgba[:2, :, :3] == 255).all()  # the samples themselves untouched
+
+    photo = np.zeros((256, 256, 3), np.float32)
+    photo[128:, 128:] = 200.0  # a 0-255 float orthophoto: one window of it holds only 0.8 and collar
+    photo[10, 10] = 0.8
+    path = tmp_path / "float.tif"
+    tifffile.imwrite(path, photo, photometric="rgb", tile=(128, 128), extratags=geo_tags(0.0, 0.0, 0.1))
+    whole, _ = photo_bands(photo, "float")
+    with MosaicReader(path) as reader:
+        window, _ = reader.read(0, 128, 0, 128)
+        assert reader.scale == 255.0
+    np.testing.assert_array_equal(window, whole[:128, :128])
+    assert window[10, 10].tolist() == [1, 1, 1]  # 0.8 of 255, not 0.8 of 1
+
+
+def test_a_cmyk_geotiff_is_read_by_pillow_in_memory_and_refused_in_windows(tmp_path):
+    # photo_bands would read C, M, Y as R, G, B and K as alpha (K 0: every pixel without data).
+    from cliff_terrain.errors import ImageReadError
+    from cliff_terrain.io.photo import open_image
+
+    cmyk = np.zeros((64, 64, 4), np.uint8)
+    cmyk[..., 0] = 200  # cyan: a bluish-green photo
+    path = tmp_path / "cmyk.tif"
+    tifffile.imwrite(path, cmyk, photometric="separated", extratags=geo_tags(0.0, 0.0, 0.1))
+    with open_image(path) as photo:
+        rgb, meta = photo.decode()
+    assert meta.valid_fraction == 1.0 and rgb[0, 0].tolist() == [55, 255, 255]  # Pillow's conversion
+    with pytest.raises(ImageReadError) as caught:
+        MosaicReader(path)
+    assert str(caught.value).startswith(f"mosaic {str(path)!r} is CMYK; windows read RGB or RGBA")
+    assert "\n" not in str(caught.value)
+
+
 @pytest.mark.parametrize("tile", [(64, 64), None])
 def test_windows_read_from_several_threads_at_once_are_the_pixels(tmp_path, tile):
     # The next tile of a mosaic is read in a thread while this one's texture is read here.

@@ -395,8 +395,8 @@ def test_windows_encoded_where_measured_write_the_same_file_byte_for_byte(tmp_pa
 @pytest.mark.parametrize("levels", [2, 3])
 def test_windows_that_encode_their_overviews_too_write_the_same_file_byte_for_byte(tmp_path, levels):
     # Windows of 1024 (2048) pixels give their first (and second) overview as whole tiles too, encoded
-    # where they were measured: the one process writing the file then compresses a sixteenth (a
-    # sixty-fourth) of the pixels instead of a third. The file is RasterSpool's to the byte.
+    # where they were measured: the one process writing the file then compresses a twelfth (a
+    # forty-eighth) of the pixels instead of a third. The file is RasterSpool's to the byte.
     rng = np.random.default_rng(2)
     side = 512 << (levels - 1)
     data = rng.normal(size=(2 * side + 300, side + 700)).astype(np.float32)  # short tiles at both edges

@@ -297,19 +297,30 @@ def run(args):
     from ..measure.resolution_check import resolution_line
     from ..measure.ruler import ruler_line
 
-    against = ruler_line(ruler_record) + resolution_line(resolution) + _finer_note(args.resolution, canopy)
+    against = ruler_line(ruler_record) + resolution_line(resolution) + _finer_note(args, canopy)
     print(
         f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
 
 
-def _finer_note(asked, canopy):
-    """The summary line's note when ``--resolution`` asked for a grid finer than the orthophoto's,
-    which is measured on its own grid instead (its pixels hold no finer detail)."""
-    if asked is None or asked >= 0.99 * canopy.pixel_size:
+def _finer_note(args, canopy):
+    """The summary line's note when ``--resolution`` asked for a grid finer than the orthophoto's
+    pixel (which holds no finer detail): the grid measured instead."""
+    import numpy as np
+
+    from ..io.raster.geotiff import read_georeference
+
+    if args.resolution is None:
         return ""
-    return f"; --resolution {asked:g} m is finer than the orthophoto's {canopy.pixel_size:.3g} m: measured on its own grid"
+    transform, _ = read_georeference(args.ortho)
+    own = float(np.mean([np.hypot(*transform[:2, 0]), np.hypot(*transform[:2, 1])]))
+    if args.resolution >= 0.99 * own:
+        return ""
+    return (
+        f"; --resolution {args.resolution:g} m is finer than the orthophoto's {own:.3g} m: measured on a "
+        f"{canopy.pixel_size:.3g} m grid"
+    )
 
 
 # Every file `heights` may write but its tables (measure.tables.TABLES, which pulls numpy in: not

@@ -91,7 +91,7 @@ class CoarseTask:
     core: tuple  # (r0, r1, c0, c1), multiples of factor but at the grid's end
     # The whole photo's soil class's upper limit (bare_soil.soil_ceiling), for ``factor`` > 1.
     soil_ceiling: float = float("inf")
-    scale: int | None = None  # the orthophoto's 16-bit scale (io.raster.photo_samples.colour_scale)
+    scale: float | None = None  # the orthophoto's sample scale (io.raster.photo_samples.sample_scale)
 
 
 def coarse_window(task, *, sources=None):
@@ -263,7 +263,7 @@ class WindowTask:
     # The resolution check's box (measure.resolution_check.doubled_box): its plots' p90 come back
     # on the canopy height smoothed by it too.
     doubled_box: int = 0
-    scale: int | None = None  # the orthophoto's 16-bit scale (io.raster.photo_samples.colour_scale)
+    scale: float | None = None  # the orthophoto's sample scale (io.raster.photo_samples.sample_scale)
 
 
 def measure_window(task, ground=None, *, sources=None):

@@ -79,9 +79,9 @@ class MosaicSettings:
     edge_scale: float
     max_height: float | None = None
     soil: float | None = None
-    # The mosaic's 16-bit scale (io.raster.photo_samples.colour_scale), so that a tile opened by
+    # The mosaic's sample scale (io.raster.photo_samples.sample_scale), so that a tile opened by
     # its path scales its samples as the whole mosaic, without an overview of its own.
-    scale: int | None = None
+    scale: float | None = None
 
 
 def mosaic_settings(

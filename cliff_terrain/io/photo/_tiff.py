@@ -28,7 +28,7 @@ from ._reader import reading
 _TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 # TIFF SampleFormat 3 (IEEE float) and PhotometricInterpretation 0/1 (grey): Pillow reads neither
 # with three or more samples (it refuses the file, or opens one float band).
-_FLOAT, _GREY = 3, (0, 1)
+_FLOAT, _GREY, _CMYK = 3, (0, 1), 5
 
 
 def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
@@ -58,6 +58,7 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
         bits = set(page.bitspersample) if isinstance(page.bitspersample, tuple) else {page.bitspersample}
         odd = page.sampleformat == _FLOAT or page.photometric in _GREY or not bits <= {8, 16}
         shape, tags, samples = tiff.shape, tiff.tags, tiff.samples
+        cmyk = page.photometric == _CMYK
     # A GeoTIFF that declares its no-data value (GDAL_NODATA): Pillow ignores it, and would read the
     # area outside the flight as black soil; photo_bands reads it as the windows do. So is every
     # orthophoto of three or four bands: photo_bands takes the black collar of one without alpha for
@@ -66,8 +67,8 @@ def open_tiff_photo(name, gsd, height_above_ground, max_pixels, *, bands=None):
     georeferenced = MODEL_TIEPOINT in tags or MODEL_TRANSFORMATION in tags
     odd = odd or GDAL_NODATA in tags or (georeferenced and samples >= 3)
     multispectral = samples >= 3 and (bands is not None or is_multispectral(name))
-    if not multispectral and (samples < 3 or len(page.shape) != 3 or not odd):
-        return None
+    if not multispectral and (samples < 3 or len(page.shape) != 3 or not odd or cmyk):
+        return None  # Pillow's (it converts CMYK; photo_bands would take K for alpha)
     rows, cols = shape
     if rows * cols > max_pixels:
         raise ImageTooLargeError(

@@ -16,8 +16,8 @@ thread) into the bytes tifffile would write, with its 2 x 2 means for the first 
 is then a copy of those bytes and the overviews' encoding (a third of the pixels): the Deflate of
 the full-resolution image, most of a windowed run's writing, runs where the windows do. A window of
 1024 pixels (2048) is whole tiles of the first overview too (and the second): those arrive encoded
-as well (:func:`encoded_levels`), and the one process writing compresses a sixteenth of the pixels
-(a sixty-fourth). The file is byte for byte :class:`RasterSpool`'s (tested).
+as well (:func:`encoded_levels`), and the one process writing compresses a twelfth of the pixels
+(a forty-eighth). The file is byte for byte :class:`RasterSpool`'s (tested).
 """
 
 from __future__ import annotations

@@ -14,12 +14,13 @@ import math
 
 import numpy as np
 
-from ..._validate import check_int
+from ..._validate import check_float, check_int
 from ...errors import CliffTerrainError, ImageReadError, ImageTooLargeError
 from ._geokeys import GDAL_NODATA, georeference, nodata_value
 from ._tiff_window import TiffRaster
-from .photo_samples import OVERVIEW_PIXELS, black_corner, colour_scale, overview_step, photo_bands
+from .photo_samples import OVERVIEW_PIXELS, black_corner, overview_step, photo_bands, sample_scale
 
+_CMYK = 5  # TIFF PhotometricInterpretation "separated"
 # A striped GeoTIFF is decoded whole: above this many pixels (a 12-bit 150 MP RGB image is 0.9 GB
 # decoded) it is refused with the command that tiles it.
 MAX_STRIPED_PIXELS = 150_000_000
@@ -39,11 +40,11 @@ class MosaicReader:
         Take exact black for no data when a corner of the file is exact black and it has neither
         alpha nor a declared no-data value (a mosaic's collar, as :func:`.photo_samples.photo_bands`
         does for a file read whole). The windowed heights read so; Import Mosaic's tiles do not yet.
-    scale : int, optional
-        The value 16-bit colour samples reach at full scale (:func:`.photo_samples.colour_scale`),
+    scale : float, optional
+        The value full-scale 16-bit or float samples reach (:func:`.photo_samples.sample_scale`),
         when the caller has it from the overview; by default taken by :meth:`overview`, or on the
-        first window of a 16-bit file (an overview of its raw samples), so that every window of
-        the file is scaled alike.
+        first window of a 16-bit or float file (an overview of its raw samples), so that every
+        window of the file is scaled alike.
 
     Examples
     --------
@@ -53,7 +54,7 @@ class MosaicReader:
 
     def __init__(self, path, *, max_striped_pixels=MAX_STRIPED_PIXELS, black_collar=False, scale=None):
         max_striped_pixels = check_int("max_striped_pixels", max_striped_pixels, minimum=1)
-        self.scale = None if scale is None else check_int("scale", scale, minimum=255)
+        self.scale = None if scale is None else check_float("scale", scale, minimum=0.0, strict_minimum=True)
         self.raster = TiffRaster(path, what="mosaic", error=ImageReadError)
         self.path = self.raster.path
         self.shape = self.raster.shape
@@ -89,6 +90,12 @@ class MosaicReader:
             # would be taken for alpha.
             self.close()
             raise ImageReadError(_multispectral_message(self.path, bands))
+        if int(self.raster.page.photometric) == _CMYK:  # its K would be read as alpha
+            self.close()
+            raise ImageReadError(
+                f"mosaic {self.path!r} is CMYK; windows read RGB or RGBA orthophotos: convert it, for "
+                "example: gdal_translate -co TILED=YES IN.tif OUT.tif (GDAL reads CMYK as RGBA)"
+            )
         self.tile_shape = self.raster.tile_shape
         # With `black_collar`, whether exact black is the collar is decided once from the file's
         # corners, as the whole file's reading decides it (photo_bands), so that every window agrees.
@@ -140,20 +147,19 @@ class MosaicReader:
     def photo(self, raw):
         """RGB uint8 and a valid mask (or None) of `raw` samples of this file (a window, or the
         overview :func:`overview_from_bands` assembles), by the whole file's rule."""
-        if raw.dtype == np.uint16 and self.scale is None:
-            self.scale = self.colour_scale()
+        if raw.dtype != np.uint8 and self.scale is None:
+            self.scale = self.sample_scale()
         return photo_bands(raw, self.path, nodata=self._nodata, collar=self._collar, scale=self.scale)
 
-    def colour_scale(self, raw=None):
-        """The file's 16-bit :func:`~.photo_samples.colour_scale`: from the largest colour sample of
-        its overview (`raw`, :func:`overview_from_bands`'s, or read here: every tile decoded once)."""
+    def sample_scale(self, raw=None):
+        """The file's :func:`~.photo_samples.sample_scale` (None for 8 bits): from its overview's
+        samples (`raw`, :func:`overview_from_bands`'s, or read here: every tile decoded once)."""
         if raw is None:
             step, bands = self.overview_bands()
             raw = overview_from_bands(
                 self.shape, step, (self.overview_band(r0, r1, step) for r0, r1 in bands)
             )
-        colour = raw[..., :3] if raw.shape[2] >= 3 else raw[..., :1]
-        return colour_scale(colour.max(initial=0))
+        return sample_scale(raw, nodata=self._nodata)
 
     def overview(self, *, max_pixels=OVERVIEW_PIXELS):
         """The whole mosaic reduced by an integer step (every `step`-th pixel) to at most `max_pixels`.
@@ -170,9 +176,9 @@ class MosaicReader:
 
     def from_overview(self, raw):
         """:meth:`photo` of the overview's raw samples (:func:`overview_from_bands` at
-        :meth:`overview_bands`' step), the file's 16-bit :attr:`scale` taken from them first."""
-        if raw.dtype == np.uint16 and self.scale is None:
-            self.scale = self.colour_scale(raw)
+        :meth:`overview_bands`' step), the file's :attr:`scale` taken from them first."""
+        if raw.dtype != np.uint8 and self.scale is None:
+            self.scale = self.sample_scale(raw)
         return self.photo(raw)
 
     def overview_bands(self, *, max_pixels=OVERVIEW_PIXELS):
@@ -215,7 +221,7 @@ def _multispectral_message(path, bands):
     keep = " ".join(f"-b {k}" for k in where) if None not in where else "-b <red> -b <green> -b <blue>"
     return (
         f"mosaic {path!r} is a multispectral orthomosaic ({len(bands)} bands: {described}); windows "
-        "read RGB or RGBA orthophotos: measure it without --windowed (with --max-size or "
-        f"--resolution, and --bands to name its bands), or keep its colour bands: gdal_translate {keep} "
-        "-co TILED=YES IN.tif OUT.tif"
+        f"read RGB or RGBA orthophotos: keep its colour bands (gdal_translate {keep} -co TILED=YES "
+        "IN.tif OUT.tif), or read it whole (heights without --windowed, with --max-size or "
+        "--resolution and --bands; Build Relief in Blender)"
     )
