@@ -30,7 +30,7 @@ import numpy as np
 from ...errors import RasterReadError
 from .surface_values import is_nodata
 
-#: The overview that fixes the windowed heights' threshold and 16-bit depth: at most this many pixels.
+#: The overview that fixes the windowed heights' threshold and a file's sample scale: at most this many pixels.
 OVERVIEW_PIXELS = 4_000_000
 
 
