@@ -779,13 +779,16 @@ def test_schedulers_that_need_a_key_are_refused_before_any_work(soybean, tmp_pat
 @pytest.mark.parametrize("command", ["season", "traits"])
 def test_without_the_season_extra_the_commands_say_so_before_any_work(soybean, tmp_path, command):
     # A base install (no matplotlib): `season` measured every date, then stopped with a traceback and
-    # no table; `traits` left an empty folder. Now one line, before any work, naming the extra.
+    # no table; `traits` left an empty folder. Now one line, after the inputs' checks and before any
+    # work, naming the extra.
     hide = "import sys, runpy; sys.modules['matplotlib'] = None; sys.argv[0] = 'cliff-terrain'; "
     hide += "runpy.run_module('cliff_terrain', run_name='__main__')"
     args = [soybean, "--plots", soybean / "plots.geojson", "--out", tmp_path / "out", "--workers", "0"]
     args += ["--no-progress"]
     if command == "traits":
-        args = [tmp_path / "season"]
+        (tmp_path / "season").mkdir()
+        (tmp_path / "season" / "season.csv").write_text("plot,date,cover\n0,2018-08-15,0.5\n")
+        args = [tmp_path / "season", "--out", tmp_path / "out"]
     done = subprocess.run(
         [sys.executable, "-c", hide, command, *map(str, args)],
         cwd=REPO, capture_output=True, text=True, timeout=300,
@@ -794,7 +797,7 @@ def test_without_the_season_extra_the_commands_say_so_before_any_work(soybean, t
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "needs matplotlib, which is not installed" in lines[0], done.stderr
     assert "pip install 'cliff-terrain[season]'" in lines[0] and "pip install '.[season]'" in lines[0]
-    assert not (tmp_path / "out").exists() and not (tmp_path / "season").exists()
+    assert not (tmp_path / "out").exists()
 
 
 def test_insecure_joins_a_plain_tcp_scheduler_elsewhere(soybean, tmp_path):

@@ -67,9 +67,6 @@ def run(args):
     from .cluster_options import cluster_security
     from .out_folder import check_out_folder
 
-    # Before any work: growth.png is drawn after every date is measured (a base install measured
-    # them all, then stopped with a traceback and no table).
-    require_extra("matplotlib", extra="season", needed_by="the season's growth.png")
     security = cluster_security(args)  # checked before any work
     check_out_folder(args.out)
     jobs, plot_set = plan_season(
@@ -85,6 +82,9 @@ def run(args):
         indices=args.indices,
         bands=args.bands,
     )
+    # After the inputs' checks, before any work: growth.png is drawn after every date is measured
+    # (a base install measured them all, then stopped with a traceback and no table).
+    require_extra("matplotlib", extra="season", needed_by="the season's growth.png")
     season = run_season(
         jobs,
         plot_set,

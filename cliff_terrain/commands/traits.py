@@ -43,7 +43,6 @@ def run(args):
     from ..season.traits import SEASON_COLUMNS, TRAIT_COLUMNS, TRAITS_OUTPUTS, season_traits
     from .out_folder import check_out_folder, finished_outputs
 
-    require_extra("matplotlib", extra="season", needed_by="the traits' figures")  # before any work
     table = args.season / "season.csv"
     if not table.is_file():
         raise CliffTerrainError(f"{str(table)!r} does not exist: run `cliff-terrain season` first")
@@ -73,6 +72,7 @@ def run(args):
         raise CliffTerrainError(
             f"`--trait` must be a column of traits.csv ({', '.join(sorted(known))}), got {args.trait!r}"
         )
+    require_extra("matplotlib", extra="season", needed_by="the traits' figures")  # before the fits
     traits = season_traits(rows, model=args.model, closure=args.closure)
     columns = list(traits[0]) if traits else ["plot", *TRAIT_COLUMNS]
     files = {out / "traits.csv": table_csv(traits, columns)}
