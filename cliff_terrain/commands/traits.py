@@ -72,7 +72,7 @@ def run(args):
         raise CliffTerrainError(
             f"`--trait` must be a column of traits.csv ({', '.join(sorted(known))}), got {args.trait!r}"
         )
-    require_extra("matplotlib", extra="season", needed_by="the traits' figures")  # before the fits
+    require_extra("matplotlib", extra="season", needed_by="drawing the traits' figures")  # before the fits
     traits = season_traits(rows, model=args.model, closure=args.closure)
     columns = list(traits[0]) if traits else ["plot", *TRAIT_COLUMNS]
     files = {out / "traits.csv": table_csv(traits, columns)}
