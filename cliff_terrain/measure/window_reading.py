@@ -110,7 +110,7 @@ class WindowSources:
     def __init__(self, ortho, dsm, dtm, *, scale=None):
         from ..io.raster.mosaic import MosaicReader
 
-        # As a file read whole: its collar, and its 16-bit `scale` (from the overview, given to
+        # As a file read whole: its collar, and its sample `scale` (from the overview, given to
         # every window's reader).
         self.ortho = MosaicReader(ortho, black_collar=True, scale=scale)
         self.opened = [self.ortho]

@@ -33,7 +33,7 @@ _LOCAL = threading.local()
 
 def worker_sources(ortho, dsm, dtm, scale=None):
     """This thread's open :class:`~cliff_terrain.measure.window_reading.WindowSources` of the three
-    files (the orthophoto's 16-bit `scale` given), reopened when a path, size or modification time
+    files (the orthophoto's sample `scale` given), reopened when a path, size or modification time
     changes (the previous ones closed)."""
 
     def stamp(path):

@@ -420,7 +420,7 @@ def _decide_by_surface(sources, vi, valid, rule, *, band_rows=256):
 
 def _overview(sources, run, readers=()):
     """:meth:`~cliff_terrain.io.raster.mosaic.MosaicReader.overview`'s photo and valid mask, its bands
-    read by `run`; the file's 16-bit scale, taken from it, is given to every reader of `readers`."""
+    read by `run`; the file's sample scale, taken from it, is given to every reader of `readers`."""
     from ..io.raster.mosaic import overview_from_bands
 
     step, bands = sources.ortho.overview_bands()

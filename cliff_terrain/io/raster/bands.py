@@ -189,7 +189,7 @@ def named_bands(tiff):
     descriptions, _, _ = _gdal_items(tiff.page, samples)
     names = [band_name(d) if d else None for d in descriptions]
     named = tuple(n for n in names if n and n != "alpha")
-    if samples > 4 or (bool(named) and named != ("red", "green", "blue")[: len(named)]) or len(named) > 3:
+    if samples > 4 or (bool(named) and named != ("red", "green", "blue")[: len(named)]):
         return tuple(names)
     return ()
 

@@ -74,11 +74,17 @@ def sample_scale(samples, *, nodata=None):
         return colour_scale(colour.max(initial=0))
     if samples.dtype.kind != "f":
         return None
+    values = colour[_float_data(colour, nodata)]
+    return 1.0 if not values.size or float(values.max()) <= 1.0 + 1e-6 else 255.0
+
+
+def _float_data(colour, nodata):
+    """Where float `colour` samples ((rows, cols, bands)) hold data: finite, not the declared no-data
+    value, and not exact zeros in every band (OpenDroneMap fills the area outside the flight so)."""
     data = np.all(np.isfinite(colour), axis=2) & np.any(colour != 0, axis=2)
     if nodata is not None:
         data &= ~np.all(is_nodata(colour, nodata), axis=2)
-    values = colour[data]
-    return 1.0 if not values.size or float(values.max()) <= 1.0 + 1e-6 else 255.0
+    return data
 
 
 def photo_bands(array, name, *, nodata=None, planar=False, collar=None, scale=None):
@@ -106,12 +112,7 @@ def photo_bands(array, name, *, nodata=None, planar=False, collar=None, scale=No
     colour = array[..., :3] if bands >= 3 else np.repeat(array[..., :1], 3, axis=2)
     valid = np.ones(array.shape[:2], dtype=bool)
     if array.dtype.kind == "f":
-        finite = np.all(np.isfinite(colour), axis=2)
-        valid &= finite
-        if nodata is not None:
-            valid &= ~np.all(is_nodata(colour, nodata), axis=2)
-        # OpenDroneMap fills the area outside the flight with exact zeros in every band (no alpha).
-        valid &= np.any(colour != 0, axis=2)
+        valid &= _float_data(colour, nodata)
         values = colour[valid]
         top = float(values.max()) if values.size else 1.0
         low = float(values.min()) if values.size else 0.0
