@@ -36,6 +36,39 @@ def in_order(client, function, arguments, *, ahead):
             client.cancel(list(futures))
 
 
+def as_done(client, function, arguments, *, ahead):
+    """``function(*args)`` of each tuple of `arguments` as tasks on `client`, results as they finish.
+
+    As :func:`in_order`, at most `ahead` tasks are queued beyond the one being taken, and a task's
+    exception is raised when it is taken; but no result waits for the one submitted before it. For
+    results placed by what they carry (a window's corner): taken in order, a worker that finished
+    its tasks waits for the one still measuring the oldest (the first pass's windows, about 0.1 s
+    each, scaled 1.43x on two workers).
+    """
+    from distributed import as_completed
+
+    pending = iter(arguments)
+    running = set()
+
+    def submit(batch):
+        for args in batch:
+            future = client.submit(function, *args, pure=False)
+            running.add(future)
+            done.add(future)
+
+    done = as_completed(loop=client.loop)
+    submit(itertools.islice(pending, ahead))
+    try:
+        for future in done:
+            running.discard(future)
+            result = future.result()
+            submit(itertools.islice(pending, 1))
+            yield result
+    finally:
+        if running:
+            client.cancel(list(running))
+
+
 def as_completed_results(client, function, payloads, finished, *, prefix):
     """``function(payload)`` of each ``(name, payload)`` of `payloads` as one task on `client`, all
     submitted at once; ``finished(index, result)`` as each completes, in any order.

@@ -21,6 +21,7 @@ import json
 import math
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -764,6 +765,42 @@ def test_a_dask_cluster_gives_exactly_what_this_process_gives(tmp_path):
             assert there[0].windows == count
             assert_same(here, there)
             assert_table_text(there[0], plots)
+
+
+def _nap(k, seconds):
+    import time
+
+    if seconds < 0:
+        raise CliffTerrainError(f"window {k} is broken")
+    time.sleep(seconds)
+    return k
+
+
+def test_windows_on_a_cluster_are_taken_as_they_finish_and_a_failure_stops_the_rest():
+    # The passes place each window's result by its corner, so none waits for an older, slower one:
+    # window 0 takes a second, the others finish first and are taken first.
+    from distributed import Client, LocalCluster
+
+    from cliff_terrain._dask import as_done
+
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster,
+        Client(cluster, set_as_default=False) as client,
+    ):
+        naps = [1.0, 0.0, 0.0, 0.0, 0.0]
+        taken = list(as_done(client, _nap, ((k, s) for k, s in enumerate(naps)), ahead=3))
+        assert sorted(taken) == [0, 1, 2, 3, 4] and taken[0] != 0 and taken.index(0) >= 2, taken
+
+        # A failed window is raised when taken; the windows not yet taken are cancelled, none runs on.
+        naps = [0.0, -1.0] + [3.0] * 20
+        results = as_done(client, _nap, ((k, s) for k, s in enumerate(naps)), ahead=3)
+        with pytest.raises(CliffTerrainError, match="window 1 is broken"):
+            list(results)
+        for _ in range(10):  # released by the scheduler well before their 3 s are up
+            if not any(client.processing().values()):
+                break
+            time.sleep(0.1)
+        assert not any(client.processing().values())
 
 
 def test_the_command_on_two_workers_writes_the_same_tables(tmp_path):

@@ -52,10 +52,6 @@ REACHED_THROUGH = {
         "an interrupted run's outputs replaced, a finished run's kept",
     ),
     "cliff_terrain.__main__": (("test_cli.py",), "`python -m cliff_terrain`"),
-    "cliff_terrain._dask": (
-        ("test_mosaic.py", "test_season.py"),
-        "`relief_tiles(client=...)`, a season on Dask",
-    ),
     "cliff_terrain._memory": (("test_mosaic.py",), "`peak_rss` of a mosaic's build"),
     "cliff_terrain._validate": (
         ("test_pipeline.py", "test_bad_input_table.py"),

@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._dask import in_order
+from .._dask import as_done, in_order
 from .._progress import StageClock
 from .._validate import check_float, check_int
 from ..errors import GeoreferenceError
@@ -230,22 +230,25 @@ def measure_windowed(
 
 
 def _runner(client, readers):
-    """``run(function, argument tuples, shared)``: the calls' results in order, on `client`'s
-    workers (`shared` scattered to them once), on one thread per reader, or here."""
+    """``run(function, argument tuples, shared, ordered=True)``: the calls' results on `client`'s
+    workers (`shared` scattered to them once), on one thread per reader, or here; in order, or with
+    ``ordered=False`` on a cluster as they finish (the passes place each result by its window)."""
     if client is not None:
 
-        def on_cluster(function, arguments, shared=None):
+        def on_cluster(function, arguments, shared=None, *, ordered=True):
             if shared is not None:
                 shared = client.scatter(shared, broadcast=True)
             calls = ((*args, *_extra(shared)) for args in arguments)
-            return in_order(client, function, calls, ahead=_ahead(client))
+            return (in_order if ordered else as_done)(client, function, calls, ahead=_ahead(client))
 
         return on_cluster
     if len(readers) == 1:
-        return lambda function, arguments, shared=None: (
+        return lambda function, arguments, shared=None, *, ordered=True: (
             function(*args, *_extra(shared), sources=readers[0]) for args in arguments
         )
-    return lambda function, arguments, shared=None: _on_threads(function, arguments, shared, readers)
+    return lambda function, arguments, shared=None, *, ordered=True: _on_threads(
+        function, arguments, shared, readers
+    )
 
 
 def _extra(shared):
@@ -329,7 +332,8 @@ def _measure(
     valid_c = np.zeros((rows_c, cols_c), bool)
     dsm_c = np.full((rows_c, cols_c), np.nan, np.float32)
     parts = coarse_tasks(sources, shape, transform, factor, index, threshold, window, soil_ceiling=ceiling)
-    for k, block in enumerate(run(coarse_window, ((task,) for task in parts))):
+    # Each block lands where it says (``at``): taken as the workers finish them.
+    for k, block in enumerate(run(coarse_window, ((task,) for task in parts), ordered=False)):
         cr, cc = block["at"]
         n_r, n_c = block["valid"].shape
         where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
@@ -441,10 +445,12 @@ def _ahead(client):
 def _full_grid(sources, plots, window, result, ground, step, run):
     tasks = window_tasks(sources, plots, window, result)  # made as they are taken: plots stay single
     count = len(windows(result.shape, window))
+    # Each window's rasters land at its core and its rows at their plots' places: taken as the
+    # workers finish them (the spools write the files in row-major order whatever the order here).
     if ground is None:
-        outputs = run(measure_window, ((task, None) for task in tasks))
+        outputs = run(measure_window, ((task, None) for task in tasks), ordered=False)
     else:
-        outputs = run(measure_window, ((task,) for task in tasks), ground)
+        outputs = run(measure_window, ((task,) for task in tasks), ground, ordered=False)
     rows_out = [None] * len(plots) if plots is not None else None
     lines = [None] * len(plots) if plots is not None else None
     features = [None] * len(plots) if plots is not None else None
