@@ -82,6 +82,26 @@ def test_false_colour_nir_frame_is_detected(shared_uav):
     assert vegetation_index(resize_longest(rgb, 400))[1] == "green"
 
 
+def test_grey_pixels_do_not_make_a_photo_a_nir_frame(shared_uav):
+    # Grey pixels (R = G = B) have every channel the weakest: a greyscale orthophoto, and a colour
+    # photo of sparse seedlings on grey gravel, were read as false-colour NIR frames, whose index
+    # (R - B) / (R + B) is 0 on green leaves. The NIR frame stays one with grey pixels among it.
+    from cliff_terrain import load_image, resize_longest
+
+    rng = np.random.default_rng(0)
+    grey = np.repeat(rng.integers(60, 200, (200, 300), dtype=np.uint8)[..., None], 3, axis=2)
+    assert vegetation_index(grey)[1] == "green"
+    seedlings = grey.copy()
+    seedlings[::40, ::40] = (60, 140, 50)  # 0.06 % of the pixels: a seedling every 40 pixels
+    vi, name = vegetation_index(seedlings)
+    assert name == "green" and vi[::40, ::40].min() > 0.15 and np.median(vi) < 0.02
+    nir, _ = load_image(uav_image("seneca_nir/IMG_0505.jpg"), max_size=400)
+    nir = resize_longest(nir, 400).copy()
+    half = rng.integers(60, 200, (nir.shape[0] // 2, nir.shape[1]), dtype=np.uint8)
+    nir[: nir.shape[0] // 2] = half[..., None]  # half of it grey
+    assert vegetation_index(nir)[1] == "nir"
+
+
 def _plot_mask(tif, shape):
     """Rasterise the plot polygons (EPSG:32615) onto a grid of `shape` over the GeoTIFF."""
     page = tifffile.TiffFile(tif).pages[0]

@@ -156,6 +156,9 @@ def _looks_false_colour_nir(rgb):
     _, green, _, inv_total = _planes(np.ascontiguousarray(px).reshape(-1, 1, 3))
     exg_s = _excess_green(green, inv_total).ravel()
     px = px[px.sum(axis=1) > 30]  # black no-data borders say nothing
+    # Nor do grey pixels (R = G = B), where every channel is the weakest: a greyscale photo, or the
+    # grey soil of a colour one, was taken for a NIR frame (and its plants measured by NIR - B).
+    px = px[px.max(axis=1) > px.min(axis=1)]
     if px.shape[0] == 0:
         return False
     green_weakest = float(np.mean(px[:, 1] <= px.min(axis=1)))
