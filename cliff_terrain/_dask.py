@@ -42,8 +42,7 @@ def as_done(client, function, arguments, *, ahead):
     As :func:`in_order`, at most `ahead` tasks are queued beyond the one being taken, and a task's
     exception is raised when it is taken; but no result waits for the one submitted before it. For
     results placed by what they carry (a window's corner): taken in order, a worker that finished
-    its tasks waits for the one still measuring the oldest (the first pass's windows, about 0.1 s
-    each, scaled 1.43x on two workers).
+    its tasks waits for the one still measuring the oldest.
     """
     from distributed import as_completed
 

@@ -49,6 +49,7 @@ photo's threshold here, the segmentation's watershed there).
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -332,17 +333,20 @@ def _measure(
     valid_c = np.zeros((rows_c, cols_c), bool)
     dsm_c = np.full((rows_c, cols_c), np.nan, np.float32)
     parts = coarse_tasks(sources, shape, transform, factor, index, threshold, window, soil_ceiling=ceiling)
-    # Each block lands where it says (``at``): taken as the workers finish them.
-    for k, block in enumerate(run(coarse_window, ((task,) for task in parts), ordered=False)):
-        cr, cc = block["at"]
-        n_r, n_c = block["valid"].shape
-        where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
-        valid_c[where], dsm_c[where] = block["valid"], block["dsm"]
-        if factor == 1:
-            rgb_c[where] = block["rgb"]
-        else:
-            soil_c[where] = block["soil"]
-        step(0.4 * (k + 1) / len(parts), "ground grid")
+    # Each block lands where it says (``at``): taken as the workers finish them. Closed on a failure
+    # here, so that the windows still on the workers are cancelled at once.
+    blocks = run(coarse_window, ((task,) for task in parts), ordered=False)
+    with contextlib.closing(blocks):
+        for k, block in enumerate(blocks):
+            cr, cc = block["at"]
+            n_r, n_c = block["valid"].shape
+            where = (slice(cr, cr + n_r), slice(cc, cc + n_c))
+            valid_c[where], dsm_c[where] = block["valid"], block["dsm"]
+            if factor == 1:
+                rgb_c[where] = block["rgb"]
+            else:
+                soil_c[where] = block["soil"]
+            step(0.4 * (k + 1) / len(parts), "ground grid")
     clock.start("ground_fit")
     has_data = valid_c & np.isfinite(dsm_c)
     if not has_data.any():
@@ -456,24 +460,25 @@ def _full_grid(sources, plots, window, result, ground, step, run):
     features = [None] * len(plots) if plots is not None else None
     doubled = [float("nan")] * len(plots) if plots is not None else None
     labelled = False
-    for k, out in enumerate(outputs):
-        r0, _, c0, _ = out["core"]
-        for name, spool in result.spools.items():
-            spool.put(r0, c0, out[name])
-        result.valid_pixels += out["valid_pixels"]
-        result.plant_pixels += out["plant_pixels"]
-        labelled = labelled or out["labelled"]
-        if rows_out is not None:
-            for i, row in out["rows"].items():
-                rows_out[i] = row
-            for i, value in out.get("p90_doubled", {}).items():
-                doubled[i] = value
-            for i, line in out.get("csv", {}).items():
-                lines[i] = line
-            for i, text in out.get("features", {}).items():
-                features[i] = text
-        result.windows += 1
-        step(0.45 + 0.5 * (k + 1) / count, "canopy and plots")
+    with contextlib.closing(outputs):  # as above: a failure here cancels the windows in flight
+        for k, out in enumerate(outputs):
+            r0, _, c0, _ = out["core"]
+            for name, spool in result.spools.items():
+                spool.put(r0, c0, out[name])
+            result.valid_pixels += out["valid_pixels"]
+            result.plant_pixels += out["plant_pixels"]
+            labelled = labelled or out["labelled"]
+            if rows_out is not None:
+                for i, row in out["rows"].items():
+                    rows_out[i] = row
+                for i, value in out.get("p90_doubled", {}).items():
+                    doubled[i] = value
+                for i, line in out.get("csv", {}).items():
+                    lines[i] = line
+                for i, text in out.get("features", {}).items():
+                    features[i] = text
+            result.windows += 1
+            step(0.45 + 0.5 * (k + 1) / count, "canopy and plots")
     if plots is not None:
         if not labelled:
             raise GeoreferenceError(
