@@ -826,10 +826,11 @@ def test_the_command_on_two_workers_writes_the_same_tables(tmp_path):
 
 
 @pytest.mark.parametrize("stands", [True, False], ids=["senescent-canopy", "straw-on-the-ground"])
-def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, stands):
+def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, stands, capsys):
     # test_segmentation's yellow canopy (or straw) over brown soil, the colour undecided: measured
     # in windows, the DSM decides as the in-memory segmentation does. A standing canopy is plant
-    # (cover near the truth's share, its CHM about its 0.7 m); straw on the ground stays soil.
+    # (cover near the truth's share, its CHM about its 0.7 m); straw on the ground stays soil, and
+    # the summary line says that its cover is the prior's, not a measurement (in memory too).
     from test_segmentation import _write_yellow_field
 
     from cliff_terrain.cli import main as cli
@@ -840,6 +841,7 @@ def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, sta
                 "--window", "64", "--out", str(out), "--no-progress"])  # fmt: skip
     summary = json.loads((out / "summary.json").read_text())
     record = summary["threshold"]
+    undecided = "the photo's colours cannot tell plants from soil: cover is the prior's"
     if stands:
         assert code == 0
         assert record["source"] == "photo (dsm)" and record["note"].startswith("decided by the DSM")
@@ -849,6 +851,11 @@ def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, sta
     else:
         assert code == 0 and record["source"] == "band"
         assert "the DSM does not show it" in record["note"] and summary["cover"] < 0.05
+    line = capsys.readouterr().out
+    assert (f"cover {summary['cover']:.1%} ({undecided}" in line) is not stands, line
+    assert cli(["heights", str(tmp_path / "ortho.tif"), "--dsm", str(tmp_path / "dsm.tif"), "--out",
+                str(tmp_path / "memory"), "--no-progress"]) == 0  # fmt: skip
+    assert (undecided in capsys.readouterr().out) is not stands
 
 
 def test_the_plots_pixel_rings_and_boxes_are_each_plots_own(tmp_path):

@@ -148,7 +148,7 @@ def run(args):
     from ..io.raster.geotiff import read_georeference, write_geotiff
     from ..io.vector.plot_polygons import read_plots
     from ..measure.canopy import relief_tables
-    from ..measure.key_figures import figures_line, key_figures
+    from ..measure.key_figures import figures_line, key_figures, undecided_cover
     from ..measure.tables import PLOTS_CSV, PLOTS_GEOJSON, REGIONS_CSV, REGIONS_GEOJSON, write_files
     from ..params import ReliefParams
     from .index_options import relief_index_maps, requested_bands
@@ -299,7 +299,8 @@ def run(args):
 
     against = ruler_line(ruler_record) + resolution_line(resolution) + _finer_note(args, canopy)
     print(
-        f"{args.ortho}: ground {ground}, {figures_line(figures)}{against}; wrote {', '.join(outputs)} into {out}"
+        f"{args.ortho}: ground {ground}, {figures_line(figures, cover_note=undecided_cover(summary['threshold']))}"
+        f"{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
 

@@ -134,13 +134,15 @@ def run_windowed(args, *, outputs, plots, ruler, ground_pixels, estimate_gib, th
         ok = np.isfinite(p90)
         if ok.any():
             measured = f", {int(ok.sum())} of {len(rows)} plots with a height, median p90 {np.median(p90[ok]) * 100:.1f} cm"
+    from ..measure.key_figures import undecided_cover
     from ..measure.resolution_check import resolution_line
     from ..measure.ruler import ruler_line
 
     against = ruler_line(ruler_record) + resolution_line(summary.get("resolution_check"))
     print(
         f"{args.ortho}: windowed ({result.windows} windows), ground {ground}, cover "
-        f"{result.plant_pixels / max(1, result.valid_pixels):.1%}{measured}{against}; wrote {', '.join(outputs)} into {out}"
+        f"{result.plant_pixels / max(1, result.valid_pixels):.1%}{undecided_cover(summary['threshold'])}"
+        f"{measured}{against}; wrote {', '.join(outputs)} into {out}"
     )
     return 0
 

@@ -115,8 +115,9 @@ def key_figures(relief):
     return figures
 
 
-def figures_line(figures):
-    """The figures as one line of text (the CLI's and the log's)."""
+def figures_line(figures, *, cover_note=""):
+    """The figures as one line of text (the CLI's and the log's); `cover_note` follows the cover
+    (:func:`undecided_cover`)."""
 
     def height(key):
         value = figures.get(f"{key}_{figures['units']}")
@@ -125,6 +126,27 @@ def figures_line(figures):
         return f"{value * 100:.1f} cm" if figures["units"] == "m" else f"{value:.3g} px"
 
     return (
-        f"{figures['plants']} plants, cover {figures['cover']:.1%}, canopy height p50 {height('canopy_height_p50')}, "
+        f"{figures['plants']} plants, cover {figures['cover']:.1%}{cover_note}, canopy height p50 {height('canopy_height_p50')}, "
         f"p90 {height('canopy_height_p90')}, plant height median {height('plant_height_median')}"
     )
+
+
+def undecided_cover(threshold):
+    """The summary line's clause when the photo could not tell plants from soil, else ``""``.
+
+    `threshold` is the record of ``summary.json``'s ``threshold`` (a ``source`` and a ``note``):
+    a photo of one colour (``uniform``: the prior decided), or an undecided split the DSM did not
+    decide either (``note`` starting ``undecided``). The cover is then the prior's, not a
+    measurement, and the line says so rather than print it as one.
+
+    Examples
+    --------
+    >>> undecided_cover({"source": "band", "note": ""})
+    ''
+    >>> undecided_cover({"source": "uniform", "note": "uniform: the photo has one colour"})
+    " (the photo's colours cannot tell plants from soil: cover is the prior's, see summary.json's threshold)"
+    """
+    source, note = threshold.get("source"), threshold.get("note") or ""
+    if source == "uniform" or (note.startswith("undecided") and source != "photo (dsm)"):
+        return " (the photo's colours cannot tell plants from soil: cover is the prior's, see summary.json's threshold)"
+    return ""
