@@ -841,7 +841,7 @@ def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, sta
                 "--window", "64", "--out", str(out), "--no-progress"])  # fmt: skip
     summary = json.loads((out / "summary.json").read_text())
     record = summary["threshold"]
-    undecided = "the photo's colours cannot tell plants from soil: cover is the prior's"
+    undecided = "the image cannot tell plants from soil here: a default threshold decided"
     if stands:
         assert code == 0
         assert record["source"] == "photo (dsm)" and record["note"].startswith("decided by the DSM")
@@ -856,6 +856,14 @@ def test_the_windowed_threshold_is_decided_by_the_dsm_as_in_memory(tmp_path, sta
     assert cli(["heights", str(tmp_path / "ortho.tif"), "--dsm", str(tmp_path / "dsm.tif"), "--out",
                 str(tmp_path / "memory"), "--no-progress"]) == 0  # fmt: skip
     assert (undecided in capsys.readouterr().out) is not stands
+    # A photo of one colour: the prior band decides, and the line says so whatever the DSM shows.
+    transform, crs = read_georeference(tmp_path / "ortho.tif")
+    brown = np.full((*truth.shape, 3), (120, 90, 60), np.uint8)
+    write_geotiff(tmp_path / "brown.tif", brown, transform=transform, crs=crs)
+    assert cli(["heights", str(tmp_path / "brown.tif"), "--dsm", str(tmp_path / "dsm.tif"), "--out",
+                str(tmp_path / "brown"), "--no-progress"]) == 0  # fmt: skip
+    assert undecided in capsys.readouterr().out
+    assert json.loads((tmp_path / "brown" / "summary.json").read_text())["threshold"]["source"] == "uniform"
 
 
 def test_the_plots_pixel_rings_and_boxes_are_each_plots_own(tmp_path):

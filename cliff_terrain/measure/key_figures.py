@@ -132,21 +132,24 @@ def figures_line(figures, *, cover_note=""):
 
 
 def undecided_cover(threshold):
-    """The summary line's clause when the photo could not tell plants from soil, else ``""``.
+    """The summary line's clause when the image could not tell plants from soil, else ``""``.
 
-    `threshold` is the record of ``summary.json``'s ``threshold`` (a ``source`` and a ``note``):
-    a photo of one colour (``uniform``: the prior decided), or an undecided split the DSM did not
-    decide either (``note`` starting ``undecided``). The cover is then the prior's, not a
-    measurement, and the line says so rather than print it as one.
+    `threshold` is the record of ``summary.json``'s ``threshold`` (a ``source`` and a ``note``): an
+    image of one colour (``uniform``: the prior band's threshold decided), or a split left undecided
+    (source ``band``, ``note`` starting ``undecided``: the DSM did not decide it either, and only
+    what lies above the index floor counts). The cover then follows a default threshold, not a split
+    the image showed, and the line says so. A photo's own split (``photo``, ``photo (upper
+    valley)``, ``photo (dsm)``...) and a closed canopy's one class (the band, ``one class``) say
+    nothing.
 
     Examples
     --------
     >>> undecided_cover({"source": "band", "note": ""})
     ''
     >>> undecided_cover({"source": "uniform", "note": "uniform: the photo has one colour"})
-    " (the photo's colours cannot tell plants from soil: cover is the prior's, see summary.json's threshold)"
+    " (the image cannot tell plants from soil here: a default threshold decided, see summary.json's threshold)"
     """
     source, note = threshold.get("source"), threshold.get("note") or ""
-    if source == "uniform" or (note.startswith("undecided") and source != "photo (dsm)"):
-        return " (the photo's colours cannot tell plants from soil: cover is the prior's, see summary.json's threshold)"
+    if source == "uniform" or (source == "band" and note.startswith("undecided")):
+        return " (the image cannot tell plants from soil here: a default threshold decided, see summary.json's threshold)"
     return ""
