@@ -15,7 +15,13 @@ centres, then each plot's p90 of DSM minus that ground over the window holding t
 peak RSS, wall time, MP/s, ours/peer, and how far the copies of each plot agree (the median over
 the plots of the interquartile range of their copies' p90: the field repeats, so should they).
 
-    python bench/bench_scale.py [--tiles 30] [--plots 130000] [--split 4] [--workers 1 2] [--folder DIR]
+    python bench/bench_scale.py [--tiles 30] [--plots 130000] [--split 4] [--workers 1 2 [--rounds 3]] [--folder DIR]
+
+With ``--workers``, each count runs ``--rounds`` times, the counts in turns (1, 2, 1, 2, ...): a
+machine's speed drifts (on the 2-core VMs measured here, by 10-25 % from one run to the next, more
+from one hour to the next), so a ratio of one pair of runs is its noise as much as the code's. The
+walls and stages reported are the medians of the rounds (stage by stage); the speedup is the median
+of each round's own ratio, the rounds' ratios beside it.
 
 `main(argv=None)` returns the rows as a list of dicts.
 """
@@ -237,7 +243,19 @@ def main(argv=None):
         default=[],
         help="also ours on a local Dask cluster of N workers (its wall time against this process's)",
     )
+    parser.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="with --workers, run the worker counts in turns this many times (medians reported)",
+    )
     args = parser.parse_args(argv)
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
+    if args.rounds > 1 and not args.workers:
+        parser.error("--rounds runs the --workers counts in turns: give --workers (e.g. --workers 1 2)")
+    if len(set(args.workers)) != len(args.workers):
+        parser.error(f"--workers must not repeat a count, got {args.workers}")
     print(describe(machine()), flush=True)
     base = Path(tempfile.mkdtemp(prefix="bench_scale-", dir=args.folder))
     rows = []
@@ -294,31 +312,49 @@ def main(argv=None):
                 "ground_method": summary["ground_method"],
                 "memory_estimate_gib": round(summary["windowed"]["memory_estimate_gib"], 2),
             }
-            for w in args.workers:  # the same command on a local cluster: same table, its wall time
-                cluster_out = folder / f"out_w{w}"
-                on_cluster, _ = _run(
-                    OURS, [*command[:7], str(cluster_out), *command[8:], "--workers", str(w)], ROOT
-                )
-                same = (cluster_out / "plots.csv").read_bytes() == (folder / "out" / "plots.csv").read_bytes()
-                row[f"workers_{w}_wall_s"] = round(on_cluster["wall"], 1)
-                row[f"workers_{w}_main_peak_gib"] = round(on_cluster["peak"] / 2**30, 2)
-                row[f"workers_{w}_same_table"] = same
-                stages = json.loads((cluster_out / "summary.json").read_text())["windowed"]["seconds"]
-                row[f"workers_{w}_stages_s"] = stages
+            walls, stages, peaks, same = ({w: [] for w in args.workers} for _ in range(4))
+            for _ in range(args.rounds):  # in turns: the machine's drift falls on every count alike
+                for w in args.workers:  # the same command on a local cluster: same table, its wall time
+                    cluster_out = folder / f"out_w{w}"
+                    shutil.rmtree(cluster_out, ignore_errors=True)  # the round before's
+                    on_cluster, _ = _run(
+                        OURS, [*command[:7], str(cluster_out), *command[8:], "--workers", str(w)], ROOT
+                    )
+                    table_bytes = (cluster_out / "plots.csv").read_bytes()
+                    same[w].append(table_bytes == (folder / "out" / "plots.csv").read_bytes())
+                    walls[w].append(round(on_cluster["wall"], 1))
+                    peaks[w].append(round(on_cluster["peak"] / 2**30, 2))
+                    stages[w].append(
+                        json.loads((cluster_out / "summary.json").read_text())["windowed"]["seconds"]
+                    )
+            for w in args.workers:
+                row[f"workers_{w}_wall_s"] = round(float(np.median(walls[w])), 1)
+                if args.rounds > 1:
+                    row[f"workers_{w}_walls_s"] = walls[w]
+                row[f"workers_{w}_main_peak_gib"] = max(peaks[w])
+                row[f"workers_{w}_same_table"] = all(same[w])
+                # Stage by stage: with an even number of rounds they need not add up to one run.
+                row[f"workers_{w}_stages_s"] = {
+                    k: round(float(np.median([s[k] for s in stages[w]])), 3) for k in stages[w][0]
+                }
             if len(args.workers) >= 2:
                 one, two = args.workers[0], args.workers[1]
-                row[f"speedup_{two}_over_{one}_workers"] = round(
-                    row[f"workers_{one}_wall_s"] / row[f"workers_{two}_wall_s"], 2
-                )
+                # Each round's own ratio (its two runs minutes apart), then their median: a ratio of
+                # the median walls could pair runs of different rounds.
+                ratios = [round(a / b, 2) for a, b in zip(walls[one], walls[two], strict=True)]
+                row[f"speedup_{two}_over_{one}_workers"] = round(float(np.median(ratios)), 2)
+                if args.rounds > 1:
+                    row[f"speedup_{two}_over_{one}_workers_rounds"] = ratios
                 # The stages whose work is on the workers (the overview and both passes; this process
                 # still takes the overview's threshold and stores what the windows send back), without
                 # what it does by itself (reading the plots, the ground's fit, writing).
                 on_workers = {
-                    w: sum(row[f"workers_{w}_stages_s"][k] for k in ("overview", "ground_grid", "windows"))
+                    w: [sum(s[k] for k in ("overview", "ground_grid", "windows")) for s in stages[w]]
                     for w in (one, two)
                 }
                 row[f"speedup_{two}_over_{one}_workers_their_stages"] = round(
-                    on_workers[one] / on_workers[two], 2
+                    float(np.median([a / b for a, b in zip(on_workers[one], on_workers[two], strict=True)])),
+                    2,
                 )
             rows.append(row)
             print(json.dumps(row), flush=True)
