@@ -34,16 +34,9 @@ def test_stable_alignment_recovers_a_tilt_between_flights(validate):
     assert np.median(aligned[plots]) == pytest.approx(0.6, abs=1e-3)
 
 
-def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_path):
-    data = tmp_path / "data"
-    # Two photos with their annotated masks.
-    masks = data / "masks" / "synthetic"
-    masks.mkdir(parents=True)
-    for seed in (0, 1):
-        image, truth = synthetic_field(shape=(160, 200), seed=seed)
-        Image.fromarray(image).save(masks / f"field{seed}.png")
-        Image.fromarray(truth.mask.astype(np.uint8) * 255).save(masks / f"field{seed}_mask.png")
-    # A field: the early flight is the bare ground tilted by up to 20 cm; the later one the surface.
+def make_tilted_field(data):
+    """DATA/fields/trial: a synthetic date (ortho.tif, late.tif) with four plots, and an early flight
+    (early.tif) that is the bare ground tilted by up to 20 cm; its folder."""
     field = data / "fields" / "trial"
     field.mkdir(parents=True)
     truth = write_synthetic_pair(field, dsm_name="late.tif")
@@ -73,6 +66,19 @@ def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_pat
         "holdout": ["60"],
     }
     (field / "field.json").write_text(json.dumps(spec))
+    return field
+
+
+def test_validate_real_scores_masks_and_a_tilted_second_flight(validate, tmp_path):
+    data = tmp_path / "data"
+    # Two photos with their annotated masks.
+    masks = data / "masks" / "synthetic"
+    masks.mkdir(parents=True)
+    for seed in (0, 1):
+        image, truth = synthetic_field(shape=(160, 200), seed=seed)
+        Image.fromarray(image).save(masks / f"field{seed}.png")
+        Image.fromarray(truth.mask.astype(np.uint8) * 255).save(masks / f"field{seed}_mask.png")
+    make_tilted_field(data)
 
     record = validate.main([str(data), "--json", str(tmp_path / "out.json")])
     images = record["images"]
