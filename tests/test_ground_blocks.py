@@ -90,3 +90,31 @@ def test_a_flat_or_quantized_surface_gets_a_ground(name):
     }[name]
     fit = fit_ground(dsm, soil=soil, pixel_size=PX)
     assert np.abs(fit.ground - truth).max() < 0.01, fit.method
+
+
+def test_blocks_that_hold_soil_keep_their_level_and_the_others_take_their_neighbours():
+    from cliff_terrain.measure.ground_blocks import block_levels
+
+    rng = np.random.default_rng(3)
+    rr, cc = np.mgrid[:105, :130]  # 20 x 20 px blocks: the last row and column of blocks cut short
+    dsm = (0.002 * cc + 0.005 * rng.standard_normal(rr.shape)).astype(np.float32)
+    closed = (rr >= 40) & (rr < 80) & (cc >= 40) & (cc < 80)  # four blocks wholly under a canopy
+    dsm[closed] += 0.6
+    blocks = block_levels(dsm, pixel_size=0.05, block_m=1.0)
+    # Every block shows soil: the surface is the lowest surface's, to the bit.
+    np.testing.assert_array_equal(blocks.surface(soil=np.ones(dsm.shape, bool)), blocks.surface())
+    soil = ~closed
+    # 2 % of a block is the percentile's share: one pixel short of it in the cut-short corner
+    # block (5 x 10 pixels inside the raster) leaves it soil-less, exactly 2 % keeps it.
+    corner = (rr >= 100) & (cc >= 120)
+    soil_short = soil & ~corner
+    assert blocks._soil_levels(soil_short)[5, 6] != blocks.levels[5, 6]
+    soil_short[104, 129] = True  # 1 of its 50 pixels
+    assert blocks._soil_levels(soil_short)[5, 6] == blocks.levels[5, 6]
+    lowest, from_soil = blocks.surface(), blocks.surface(soil)
+    # Under the canopy the blocks' own level is its top; from the soil around it, the field's.
+    assert np.median((lowest - 0.002 * cc)[closed]) > 0.4
+    assert np.abs(from_soil - 0.002 * cc)[closed].max() < 0.03
+    # Blocks that hold soil keep their own level: away from the canopy's blocks nothing moves.
+    far = (rr < 20) | (rr >= 100) | (cc < 20) | (cc >= 100)
+    np.testing.assert_array_equal(from_soil[far], lowest[far])

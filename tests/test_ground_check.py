@@ -626,3 +626,22 @@ def test_heights_bad_ruler_exits_2_with_one_line_and_writes_nothing(trial, extra
     assert done.returncode == 2, done.stdout
     assert len(done.stderr.strip().splitlines()) == 1 and words in done.stderr
     assert not (folder / "o").exists()
+
+
+def test_a_closed_canopy_strip_takes_its_ground_from_the_soil_beside_it_not_its_own_lowest_pixels():
+    # A strip 5.5 m wide cut along a trial's edge (a real closed potato canopy's, day 90, read 10 cm
+    # low this way): a headland, then plots 0.45 m tall with 1 % of their pixels soil and an alley
+    # every 4.5 m. The strip's blocks shrink to 1.8 m, and the canopy's blocks' 2nd percentile is
+    # leaves: it stood 10.6 cm above the ground under the canopy, behind a passing check.
+    rng = np.random.default_rng(1)
+    rr, cc = np.mgrid[:600, :84]
+    ground = 10.0 + 0.002 * rr
+    canopy = (cc >= 28) & (rr % 68 >= 8)
+    leaves = canopy & (rng.random(canopy.shape) >= 0.01)
+    dsm = (
+        ground + 0.01 * rng.standard_normal(rr.shape) + leaves * (0.45 + 0.05 * rng.standard_normal(rr.shape))
+    )
+    fit = fit_ground(dsm.astype(np.float32), soil=~leaves, pixel_size=0.066)
+    error = (fit.ground - ground)[leaves]
+    assert fit.check["passed"] and abs(np.median(error)) < 0.03
+    assert np.percentile(np.abs(error), 90) < 0.08

@@ -20,9 +20,11 @@ with the photo's colour as evidence, never as the gate (:func:`fit_ground`):
    pixels within three robust deviations of the lowest mode of the height above the lowest
    surface, less those the colour still calls plants.
 3. **Smooth** (``"smooth"``): the lowest surface lifted onto the evidence by a smooth offset
-   (normalized convolution at the block's scale, fading into the field's median offset where
-   there is no evidence): the 2nd percentile sits in the furrows and below the DSM's noise, the
-   soil the plants stand on does not.
+   (normalized convolution at the block's scale; where the evidence is too sparse there, at twice
+   the scale, and so on, to the field's median offset): the 2nd percentile sits in the furrows and
+   below the DSM's noise, the soil the plants stand on does not. A block whose evidence is less
+   than the percentile's share of it (a closed canopy's block) has no soil at its 2nd percentile:
+   its level comes from the blocks around it that hold soil (:class:`~.ground_blocks.BlockLevels`).
 4. **Detailed** (``"detailed"``): the smooth ground plus the evidence's local detail (ridges under
    the rows), by local quadratic fits from fine to coarse scales (normalized convolution). The
    check tests that detail on held-out soil. The ground keeps its broad part (scales from a fifth
@@ -55,9 +57,14 @@ from .. import settings
 from .._validate import check_choice, check_float
 from ..errors import CliffTerrainError
 from ..io.raster.surface_values import surface_data
-from .ground_blocks import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, lowest_surface, naive_block_ground
+from .ground_blocks import (
+    BASELINE_PERCENTILE,
+    DEFAULT_BLOCK_M,
+    block_levels,
+    naive_block_ground,
+)
 from .ground_check import check_ground, ground_sigma, ground_support
-from .ground_detail import DETAIL_CONFIDENCE, blur, canopy_level, detail_above
+from .ground_detail import canopy_level, detail_above, evidence_offset
 from .ground_evidence import MIN_SOIL_PIXELS, exposed_soil, ground_evidence
 from .ground_occlusion import occlusion_check
 
@@ -190,17 +197,20 @@ def fit_ground(
     # A field too small for three blocks across takes smaller blocks (the check's folds do too); the
     # baseline stays the naive peer, in blocks of `block_m` whatever the field.
     small_m = min(block_m, max(2, min(dsm.shape) // 3) * pixel_size)
-    lowest = lowest_surface(dsm, pixel_size=pixel_size, block_m=small_m)
-    build = CandidateGrounds(dsm, lowest, pixel_size=pixel_size, block_m=small_m, detail_m=detail_m)
+    blocks = block_levels(dsm, pixel_size=pixel_size, block_m=small_m)
+    options = {"pixel_size": pixel_size, "block_m": small_m, "detail_m": detail_m}
 
     exposed = None if soil is None else exposed_soil(soil, pixel_size=pixel_size)
-    evidence, evidence_source, colour = ground_evidence(dsm, lowest, soil=soil, exposed=exposed)
+    evidence, evidence_source, colour = ground_evidence(dsm, blocks.surface(), soil=soil, exposed=exposed)
     if evidence.any():
         # Once more, near the smooth ground instead of the block percentile: on a slope the soil at
         # a block's upper end stands higher above the block's lowest pixels than any microrelief.
-        smooth = build(("smooth",), evidence)["smooth"]
+        smooth = CandidateGrounds(dsm, blocks.surface(evidence), **options)(("smooth",), evidence)["smooth"]
         evidence, evidence_source, colour = ground_evidence(dsm, smooth, soil=soil, exposed=exposed)
     check_enough_soil(evidence, finite, source=source)
+    # The lowest surface of the blocks that hold evidence (:class:`~.ground_blocks.BlockLevels`),
+    # decided once with all of it: like the baseline, a property of the surface in the check's folds.
+    build = CandidateGrounds(dsm, blocks.surface(evidence), **options)
 
     # Without a photo, nothing tells a low leaf from a ridge at the detail's scale: on a real potato
     # trial's surface model alone the detail put the ground 5.6 cm high, the smooth one 3.7 cm low.
@@ -339,14 +349,8 @@ def ground_candidates(dsm, lowest, evidence, *, pixel_size, block_m, detail_m, n
     if "smooth" in names or "detailed" in names:
         above = np.where(evidence, dsm - lowest, 0.0).astype(np.float32)
         offset = float(np.median(above[evidence])) if evidence.any() else 0.0
-        weight = evidence.astype(np.float32)
-        sigma = OFFSET_SCALE * block_m / pixel_size
-        den = blur(weight, sigma)
-        num = blur((above - offset) * weight, sigma)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            local = np.where(den > 1e-6, num / np.maximum(den, 1e-6), 0.0)
-        confidence = np.clip(den / DETAIL_CONFIDENCE, 0.0, 1.0)
-        smooth = (lowest + offset + confidence * local).astype(np.float32)
+        local = evidence_offset(above - offset, evidence, OFFSET_SCALE * block_m / pixel_size)
+        smooth = (lowest + offset + local).astype(np.float32)
         if "smooth" in names:
             out["smooth"] = smooth
         if "detailed" in names:

@@ -203,6 +203,46 @@ def _solve_first(normal, right):
     return b[0] / a[0, 0]
 
 
+def evidence_offset(values, evidence, sigma):
+    """`values` of the `evidence` pixels spread over the raster: normalized convolution at `sigma`
+    px, and where the evidence is too sparse to trust there, at twice the scale, and so on.
+
+    At each scale a pixel trusts its local mean in proportion to the evidence's kernel-weighted
+    share around it (fully at `DETAIL_CONFIDENCE`); what it does not trust comes from the next
+    scale, up to one as large as the raster, beyond which nothing is known and 0 is taken. A
+    pixel far from any evidence at the first scale (inside a closed canopy) thus takes the
+    evidence nearest to it, not 0: the smooth ground's offset from the lowest surface, which is
+    the canopy's own there (:func:`~cliff_terrain.measure.ground.ground_candidates`).
+
+    Examples
+    --------
+    Evidence on the left only, 0.3 above the lowest surface: the right takes it too.
+
+    >>> values = np.full((50, 400), 0.3, np.float32)
+    >>> evidence = np.zeros((50, 400), bool); evidence[:, :40] = True
+    >>> out = evidence_offset(values, evidence, 10.0)
+    >>> round(float(out[25, 20]), 3), round(float(out[25, 390]), 2)
+    (0.3, 0.3)
+    """
+    weight = evidence.astype(np.float32)
+    values = np.where(evidence, values, 0.0).astype(np.float32)
+    levels = []
+    largest = max(values.shape)
+    while True:
+        den = blur(weight, sigma)
+        num = blur(values * weight, sigma)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            local = np.where(den > 1e-6, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
+        levels.append((local, np.clip(den / DETAIL_CONFIDENCE, 0.0, 1.0).astype(np.float32)))
+        if sigma >= largest or levels[-1][1].min() >= 1.0:
+            break
+        sigma *= 2.0
+    out = np.zeros(values.shape, np.float32)
+    for local, confidence in reversed(levels):
+        out = confidence * local + (1.0 - confidence) * out
+    return out
+
+
 def blur(image, sigma):
     """Gaussian blur of `sigma` px; large sigmas on a reduced grid (cv2, fast on big rasters)."""
     import cv2
