@@ -94,12 +94,14 @@ def _ours_on_surface(dsm, labels, n, pixel):
 
 
 def _figures(ours, err, base, truth, whole):
+    """Ours and the baseline on the same plots: whole in the cut, with a reference and both heights."""
     ok = whole & np.isfinite(truth) & np.isfinite(base)
+    if ours is not None:
+        ok &= np.isfinite(ours) & np.isfinite(err)
     out = {"plots": int(ok.sum())}
     e = base[ok] - truth[ok]
     out["baseline_bias_cm"], out["baseline_rmse_cm"] = 100 * e.mean(), 100 * np.sqrt(np.mean(e**2))
     if ours is not None:
-        ok &= np.isfinite(ours) & np.isfinite(err)
         e = ours[ok] - truth[ok]
         out["ours_bias_cm"], out["ours_rmse_cm"] = 100 * e.mean(), 100 * np.sqrt(np.mean(e**2))
         out["err_median_cm"] = 100 * float(np.median(err[ok]))

@@ -118,3 +118,38 @@ def test_blocks_that_hold_soil_keep_their_level_and_the_others_take_their_neighb
     # Blocks that hold soil keep their own level: away from the canopy's blocks nothing moves.
     far = (rr < 20) | (rr >= 100) | (cc < 20) | (cc >= 100)
     np.testing.assert_array_equal(from_soil[far], lowest[far])
+
+
+def test_a_block_half_outside_the_outline_is_judged_by_its_pixels_with_data():
+    from cliff_terrain.measure.ground_blocks import block_levels
+
+    dsm = np.full((40, 40), 0.6, np.float32)  # a canopy everywhere, four 20 x 20 px blocks
+    dsm[:, 30:] = np.nan  # the outline cuts the right-hand blocks in half: 200 pixels with data each
+    soil = np.zeros(dsm.shape, bool)
+    soil[:20, :20] = True  # the top-left block is bare
+    dsm[soil] = 0.0
+    soil[0, 20:25] = True  # 5 of the top-right block's 200 pixels with data (2.5 %; of its 400, 1.25 %)
+    dsm[0, 20:25] = 0.0
+    blocks = block_levels(dsm, pixel_size=0.05, block_m=1.0)
+    levels = blocks._soil_levels(soil)
+    assert levels[0, 1] == blocks.levels[0, 1]  # it holds soil: its own level
+    assert levels[1, 0] != blocks.levels[1, 0] and levels[1, 1] != blocks.levels[1, 1]
+
+
+def test_soil_less_blocks_take_the_soil_blocks_level_and_the_fields_plane_beyond():
+    from cliff_terrain.measure.ground_blocks import block_levels
+
+    # A closed canopy 0.5 m tall rising 0.4 m along 30 m over flat ground, bare soil only in a
+    # headland 3 m wide. Beside the headland the soil-less blocks take its level; far from it, what
+    # no soil shows follows the plane through the blocks' levels, which this canopy tilts (the
+    # limitation the ground page states): never the canopy's own lowest pixels.
+    rr, cc = np.mgrid[:120, :600]
+    canopy = cc >= 60
+    dsm = np.where(canopy, 0.5 + 0.4 * cc / 600, 0.0).astype(np.float32)
+    blocks = block_levels(dsm, pixel_size=0.05, block_m=1.0)
+    assert np.median((dsm - blocks.surface())[canopy]) < 0.05  # alone: the canopy's top
+    lowest = blocks.surface(soil=~canopy)
+    assert np.abs(lowest[canopy & (cc < 100)]).max() < 0.04  # 2 m beside the headland
+    assert (dsm - lowest)[canopy].min() > 0.45
+    with pytest.raises(Exception, match="`soil` must have the surface's shape"):
+        blocks.surface(soil=np.ones((5, 5), bool))

@@ -20,11 +20,11 @@ with the photo's colour as evidence, never as the gate (:func:`fit_ground`):
    pixels within three robust deviations of the lowest mode of the height above the lowest
    surface, less those the colour still calls plants.
 3. **Smooth** (``"smooth"``): the lowest surface lifted onto the evidence by a smooth offset
-   (normalized convolution at the block's scale; where the evidence is too sparse there, at twice
-   the scale, and so on, to the field's median offset): the 2nd percentile sits in the furrows and
-   below the DSM's noise, the soil the plants stand on does not. A block whose evidence is less
-   than the percentile's share of it (a closed canopy's block) has no soil at its 2nd percentile:
-   its level comes from the blocks around it that hold soil (:class:`~.ground_blocks.BlockLevels`).
+   (normalized convolution at the block's scale, fading into the field's median offset where
+   there is no evidence): the 2nd percentile sits in the furrows and below the DSM's noise, the
+   soil the plants stand on does not. A block whose evidence is less than the percentile's share
+   of its pixels with data (a closed canopy's block) has no soil at its 2nd percentile: its level
+   comes from the blocks around it that hold soil (:class:`~.ground_blocks.BlockLevels`).
 4. **Detailed** (``"detailed"``): the smooth ground plus the evidence's local detail (ridges under
    the rows), by local quadratic fits from fine to coarse scales (normalized convolution). The
    check tests that detail on held-out soil. The ground keeps its broad part (scales from a fifth
@@ -349,7 +349,7 @@ def ground_candidates(dsm, lowest, evidence, *, pixel_size, block_m, detail_m, n
     if "smooth" in names or "detailed" in names:
         above = np.where(evidence, dsm - lowest, 0.0).astype(np.float32)
         offset = float(np.median(above[evidence])) if evidence.any() else 0.0
-        local = evidence_offset(above - offset, evidence, OFFSET_SCALE * block_m / pixel_size)
+        local = evidence_offset(above - offset, evidence, OFFSET_SCALE * block_m / pixel_size)  # one scale
         smooth = (lowest + offset + local).astype(np.float32)
         if "smooth" in names:
             out["smooth"] = smooth

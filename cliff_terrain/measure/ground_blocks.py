@@ -88,7 +88,16 @@ def block_levels(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M):
     levels, block = _block_percentiles(
         dsm - plane, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
     )
-    return BlockLevels(levels, block, plane)
+    return BlockLevels(levels, block, plane, _block_sums(np.isfinite(dsm), block))
+
+
+def _block_sums(mask, block):
+    """True pixels of `mask` in each `block` x `block` block (edge blocks cut by the raster)."""
+    rows, cols = mask.shape
+    nb_r, nb_c = -(-rows // block), -(-cols // block)
+    padded = np.zeros((nb_r * block, nb_c * block), np.int32)
+    padded[:rows, :cols] = mask
+    return padded.reshape(nb_r, block, nb_c, block).sum(axis=(1, 3))
 
 
 @dataclass(eq=False, frozen=True)
@@ -98,9 +107,10 @@ class BlockLevels:
 
     A block's lowest pixels are the ground only where the block holds soil (the assumption of the
     block percentile): given the `soil` pixels, a block where less than the percentile's share of
-    its pixels is soil takes the level of the blocks around it that hold some (normalized
-    convolution, :func:`~cliff_terrain.measure.ground_detail.evidence_offset`), not its own, which
-    is its canopy's: a closed potato canopy's 1.9 m blocks (a strip 5.6 m wide cut along a real
+    its pixels with data is soil takes the level of the blocks around it that hold some
+    (normalized convolution from one block's scale up, about the soil blocks' median level:
+    :func:`~cliff_terrain.measure.ground_detail.evidence_offset`), not its own, which is its
+    canopy's: a closed potato canopy's 1.9 m blocks (a strip 5.6 m wide cut along a real
     trial's edge) stood 8 cm above the ground, and every plot in the strip read that much low.
 
     Examples
@@ -117,6 +127,7 @@ class BlockLevels:
     levels: np.ndarray
     block: int
     plane: np.ndarray
+    data: np.ndarray  # each block's pixels with data (its percentile's pixels)
 
     def surface(self, soil=None):
         """The lowest surface, from the blocks that hold `soil` when it is given."""
@@ -132,22 +143,24 @@ class BlockLevels:
         return (np.ascontiguousarray(big[:rows, :cols]) + self.plane).astype(np.float32)
 
     def _soil_levels(self, soil):
+        from ..errors import CliffTerrainError
         from .ground_detail import evidence_offset
 
-        rows, cols = self.plane.shape
-        nb_r, nb_c = self.levels.shape
-        padded = np.zeros((nb_r * self.block, nb_c * self.block), np.int32)
-        padded[:rows, :cols] = soil
-        count = padded.reshape(nb_r, self.block, nb_c, self.block).sum(axis=(1, 3))
-        inside = np.outer(  # the pixels of each block inside the raster (fewer at its edges)
-            np.minimum(self.block, rows - np.arange(nb_r) * self.block),
-            np.minimum(self.block, cols - np.arange(nb_c) * self.block),
-        )
+        soil = np.asarray(soil, dtype=bool)
+        if soil.shape != self.plane.shape:
+            raise CliffTerrainError(
+                f"`soil` must have the surface's shape {self.plane.shape}, got {soil.shape}"
+            )
+        count = _block_sums(soil, self.block)  # soil is among the pixels with data (the evidence is)
         has = np.isfinite(self.levels)
-        holds = has & (100 * count >= BASELINE_PERCENTILE * inside)
+        # The percentile reaches the soil when the soil is at least its share of the block's data.
+        holds = has & (100 * count >= BASELINE_PERCENTILE * self.data)
         if holds.all() or not holds.any():
             return self.levels
-        around = evidence_offset(np.where(holds, self.levels, 0.0), holds, 1.0)
+        # From one block's scale up, around the soil blocks' median level (beyond every scale, that
+        # level: not the plane's, which a closed canopy's blocks tilt and lift).
+        centre = np.float32(np.median(self.levels[holds]))
+        around = centre + evidence_offset(self.levels - centre, holds, 1.0, widen=True, valid=has)
         return np.where(holds | ~has, self.levels, around).astype(np.float32)
 
 

@@ -203,44 +203,50 @@ def _solve_first(normal, right):
     return b[0] / a[0, 0]
 
 
-def evidence_offset(values, evidence, sigma):
-    """`values` of the `evidence` pixels spread over the raster: normalized convolution at `sigma`
-    px, and where the evidence is too sparse to trust there, at twice the scale, and so on.
+def evidence_offset(values, evidence, sigma, *, widen=False, valid=None):
+    """`values` of the `evidence` pixels spread over the raster by normalized convolution at `sigma`
+    px: each pixel's kernel-weighted mean of the evidence, trusted in proportion to the evidence's
+    kernel-weighted share around it (fully at `DETAIL_CONFIDENCE`), 0 for what it does not trust.
 
-    At each scale a pixel trusts its local mean in proportion to the evidence's kernel-weighted
-    share around it (fully at `DETAIL_CONFIDENCE`); what it does not trust comes from the next
-    scale, up to one as large as the raster, beyond which nothing is known and 0 is taken. A
-    pixel far from any evidence at the first scale (inside a closed canopy) thus takes the
-    evidence nearest to it, not 0: the smooth ground's offset from the lowest surface, which is
-    the canopy's own there (:func:`~cliff_terrain.measure.ground.ground_candidates`).
+    With `widen`, what a pixel does not trust at one scale comes from twice the scale, and so on,
+    until every `valid` pixel (default: every pixel) trusts what it has or the scale is as large as
+    the raster; only then is 0 taken. The scales are blended from fine to coarse in one pass (two
+    rasters beside each scale's own). The smooth ground uses one scale
+    (:func:`~cliff_terrain.measure.ground.ground_candidates`); the lowest surface's blocks without
+    soil are filled widening (:class:`~cliff_terrain.measure.ground_blocks.BlockLevels`).
 
     Examples
     --------
-    Evidence on the left only, 0.3 above the lowest surface: the right takes it too.
+    Evidence on the left only, 0.3: at one scale the right knows nothing (0); widening, it takes it.
 
     >>> values = np.full((50, 400), 0.3, np.float32)
     >>> evidence = np.zeros((50, 400), bool); evidence[:, :40] = True
-    >>> out = evidence_offset(values, evidence, 10.0)
-    >>> round(float(out[25, 20]), 3), round(float(out[25, 390]), 2)
+    >>> round(float(evidence_offset(values, evidence, 10.0)[25, 390]), 3)
+    0.0
+    >>> out = evidence_offset(values, evidence, 10.0, widen=True)
+    >>> round(float(out[25, 20]), 3), round(float(out[25, 390]), 3)
     (0.3, 0.3)
     """
+    from .._validate import check_float
+
+    sigma = check_float("sigma", sigma, minimum=0.0, strict_minimum=True)
     weight = evidence.astype(np.float32)
     values = np.where(evidence, values, 0.0).astype(np.float32)
-    levels = []
+    out = np.zeros(values.shape, np.float32)
+    remaining = np.ones(values.shape, np.float32)  # the share of each pixel no scale has given yet
     largest = max(values.shape)
     while True:
         den = blur(weight, sigma)
         num = blur(values * weight, sigma)
         with np.errstate(invalid="ignore", divide="ignore"):
             local = np.where(den > 1e-6, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
-        levels.append((local, np.clip(den / DETAIL_CONFIDENCE, 0.0, 1.0).astype(np.float32)))
-        if sigma >= largest or levels[-1][1].min() >= 1.0:
-            break
+        confidence = np.clip(den / DETAIL_CONFIDENCE, 0.0, 1.0).astype(np.float32)
+        out += remaining * confidence * local
+        remaining *= 1.0 - confidence
+        left = remaining if valid is None else remaining[valid]
+        if not widen or sigma >= largest or not left.size or float(left.max()) == 0.0:
+            return out
         sigma *= 2.0
-    out = np.zeros(values.shape, np.float32)
-    for local, confidence in reversed(levels):
-        out = confidence * local + (1.0 - confidence) * out
-    return out
 
 
 def blur(image, sigma):
