@@ -111,8 +111,7 @@ def _figures(ours, err, base, truth, whole):
 
 def field_cuts(data_dir):
     """Every cut of every date: a list of records (see the module)."""
-    import cv2
-    from validate_real import plot_p90, stable_alignment
+    from validate_real import aligned_difference, plot_p90
 
     from cliff_terrain.io.raster.geotiff import read_orthophoto, read_surface, resample
     from cliff_terrain.io.vector.plot_polygons import read_plots
@@ -137,9 +136,7 @@ def field_cuts(data_dir):
             early = resample(read_surface(folder / spec["reference"]), transform=transform, shape=shape)
             labels = rasterize_plots(plots, transform=transform, shape=shape)
             difference = dsm - early
-            reach = max(1, round(0.5 / pixel))
-            near = cv2.dilate((labels > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)) > 0
-            truth = plot_p90(labels, n, np.maximum(difference - stable_alignment(difference, ~near), 0))
+            truth = plot_p90(labels, n, np.maximum(aligned_difference(difference, labels, pixel), 0))
             sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
             for name, (r0, r1, c0, c1) in cut_windows(labels, shape).items():
                 part, cut_dsm = labels[r0:r1, c0:c1], dsm[r0:r1, c0:c1]

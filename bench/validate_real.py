@@ -155,6 +155,15 @@ def stable_alignment(difference, outside):
     return sum(c * t for c, t in zip(coef, terms, strict=True)).astype(np.float32)
 
 
+def aligned_difference(difference, labels, pixel):
+    """`difference` less its :func:`stable_alignment` on the ground at least 0.5 m outside every plot."""
+    import cv2
+
+    reach = max(1, round(0.5 / pixel))
+    near = cv2.dilate((labels > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)) > 0
+    return difference - stable_alignment(difference, ~near)
+
+
 def agreement(estimate, truth):
     """:func:`cliff_terrain.measure.ruler.agreement` (n, r, RMSE, bias) with the lengths in cm."""
     from cliff_terrain.measure.ruler import agreement as in_metres
@@ -218,8 +227,6 @@ def field_rows(data_dir, *, ground="auto", colour="photo", windowed=False):
     :func:`golden_photo`), and skips the dates without one: the ground when the colour does not
     follow the crop. With `windowed`, ours is ``cliff-terrain heights --windowed`` (the path of
     orthophotos too big for memory)."""
-    import cv2
-
     from cliff_terrain.io.raster.geotiff import read_surface, resample
     from cliff_terrain.io.vector.plot_polygons import read_plots
     from cliff_terrain.measure.field_plots import rasterize_plots
@@ -279,10 +286,7 @@ def field_rows(data_dir, *, ground="auto", colour="photo", windowed=False):
             if reference is not None:
                 early = resample(reference, transform=transform, shape=shape)
                 difference = dsm - early
-                # Stable ground: at least half a metre outside every plot.
-                reach = max(1, round(0.5 / pixel))
-                near = cv2.dilate((labels > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)) > 0
-                aligned = difference - stable_alignment(difference, ~near)
+                aligned = aligned_difference(difference, labels, pixel)  # on stable ground
                 truths["aligned"] = plot_p90(labels, n, np.maximum(aligned, 0))
                 truths["raw"] = plot_p90(labels, n, np.maximum(difference, 0))
             if ruler is not None:

@@ -34,23 +34,23 @@ def naive_block_ground(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M, percentile=5
     >>> float(naive_block_ground(dsm, pixel_size=0.1, percentile=2)[50, 50])
     9.0
     """
+    dsm = np.asarray(dsm, dtype=np.float32)
+    levels, block = _block_percentiles(dsm, pixel_size=pixel_size, block_m=block_m, percentile=percentile)
+    return _bilinear(levels, block, dsm.shape)
+
+
+def _bilinear(levels, block, shape):
+    """Block `levels` (NaN: a block without data, which takes the median level) interpolated
+    bilinearly between the block centres onto a raster of `shape`."""
     import cv2
 
-    dsm = np.asarray(dsm, dtype=np.float32)
-    levels, block = _block_levels(dsm, pixel_size=pixel_size, block_m=block_m, percentile=percentile)
-    rows, cols = dsm.shape
-    nb_r, nb_c = levels.shape
-    big = cv2.resize(levels, (nb_c * block, nb_r * block), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(big[:rows, :cols])
-
-
-def _block_levels(dsm, *, pixel_size, block_m, percentile):
-    """(levels, block px): the `percentile` of `dsm` in each block (NaN-free: empty blocks take the median)."""
-    levels, block = _block_percentiles(dsm, pixel_size=pixel_size, block_m=block_m, percentile=percentile)
     if np.isnan(levels).any():
         fill = np.nanmedian(levels) if np.isfinite(levels).any() else 0.0
         levels = np.where(np.isnan(levels), fill, levels).astype(np.float32)
-    return levels, block
+    rows, cols = shape
+    nb_r, nb_c = levels.shape
+    big = cv2.resize(levels, (nb_c * block, nb_r * block), interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(big[:rows, :cols])
 
 
 def _block_percentiles(dsm, *, pixel_size, block_m, percentile):
@@ -88,16 +88,16 @@ def block_levels(dsm, *, pixel_size, block_m=DEFAULT_BLOCK_M):
     levels, block = _block_percentiles(
         dsm - plane, pixel_size=pixel_size, block_m=block_m, percentile=BASELINE_PERCENTILE
     )
-    return BlockLevels(levels, block, plane, _block_sums(np.isfinite(dsm), block))
+    return BlockLevels(levels, block, plane, block_count(np.isfinite(dsm), block))
 
 
-def _block_sums(mask, block):
+def block_count(mask, block):
     """True pixels of `mask` in each `block` x `block` block (edge blocks cut by the raster)."""
     rows, cols = mask.shape
-    nb_r, nb_c = -(-rows // block), -(-cols // block)
-    padded = np.zeros((nb_r * block, nb_c * block), np.int32)
+    nr, nc = -(-rows // block), -(-cols // block)
+    padded = np.zeros((nr * block, nc * block), np.uint16)
     padded[:rows, :cols] = mask
-    return padded.reshape(nb_r, block, nb_c, block).sum(axis=(1, 3))
+    return padded.reshape(nr, block, nc, block).sum(axis=(1, 3), dtype=np.int64)
 
 
 @dataclass(eq=False, frozen=True)
@@ -131,16 +131,8 @@ class BlockLevels:
 
     def surface(self, soil=None):
         """The lowest surface, from the blocks that hold `soil` when it is given."""
-        import cv2
-
         levels = self.levels if soil is None else self._soil_levels(soil)
-        if np.isnan(levels).any():
-            fill = np.nanmedian(levels) if np.isfinite(levels).any() else 0.0
-            levels = np.where(np.isnan(levels), fill, levels).astype(np.float32)
-        rows, cols = self.plane.shape
-        nb_r, nb_c = levels.shape
-        big = cv2.resize(levels, (nb_c * self.block, nb_r * self.block), interpolation=cv2.INTER_LINEAR)
-        return (np.ascontiguousarray(big[:rows, :cols]) + self.plane).astype(np.float32)
+        return (_bilinear(levels, self.block, self.plane.shape) + self.plane).astype(np.float32)
 
     def _soil_levels(self, soil):
         from ..errors import CliffTerrainError
@@ -151,7 +143,7 @@ class BlockLevels:
             raise CliffTerrainError(
                 f"`soil` must have the surface's shape {self.plane.shape}, got {soil.shape}"
             )
-        count = _block_sums(soil, self.block)  # soil is among the pixels with data (the evidence is)
+        count = block_count(soil, self.block)  # soil is among the pixels with data (the evidence is)
         has = np.isfinite(self.levels)
         # The percentile reaches the soil when the soil is at least its share of the block's data.
         holds = has & (100 * count >= BASELINE_PERCENTILE * self.data)

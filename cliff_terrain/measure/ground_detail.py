@@ -232,8 +232,7 @@ def evidence_offset(values, evidence, sigma, *, widen=False, valid=None):
     sigma = check_float("sigma", sigma, minimum=0.0, strict_minimum=True)
     weight = evidence.astype(np.float32)
     values = np.where(evidence, values, 0.0).astype(np.float32)
-    out = np.zeros(values.shape, np.float32)
-    remaining = np.ones(values.shape, np.float32)  # the share of each pixel no scale has given yet
+    out, remaining = 0.0, 1.0  # the blend so far; the share of each pixel no scale has given yet
     largest = max(values.shape)
     while True:
         den = blur(weight, sigma)
@@ -241,10 +240,12 @@ def evidence_offset(values, evidence, sigma, *, widen=False, valid=None):
         with np.errstate(invalid="ignore", divide="ignore"):
             local = np.where(den > 1e-6, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
         confidence = np.clip(den / DETAIL_CONFIDENCE, 0.0, 1.0).astype(np.float32)
-        out += remaining * confidence * local
-        remaining *= 1.0 - confidence
+        if not widen:
+            return confidence * local
+        out = out + remaining * confidence * local
+        remaining = remaining * (1.0 - confidence)
         left = remaining if valid is None else remaining[valid]
-        if not widen or sigma >= largest or not left.size or float(left.max()) == 0.0:
+        if sigma >= largest or not left.size or float(left.max()) == 0.0:
             return out
         sigma *= 2.0
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..io.raster.blocks import reduce_blocks
 from .ground import BASELINE_PERCENTILE, DEFAULT_BLOCK_M, fit_ground, naive_block_ground, surface_data
+from .ground_blocks import block_count
 from .window_reading import upsample
 
 #: The ground grid's coarsest pixel (metres) for the detail's sake: the ground's finest detail is
@@ -95,17 +96,8 @@ def reduce_for_ground(surface, soil, has_data, factor):
     heights_bare, n_bare = reduce_blocks(surface, factor, soil & finite)
     shows_soil = n_bare > 0
     heights = np.where(shows_soil, heights_bare, heights)
-    data = _block_count(has_data, factor) * 2 > _block_pixels(has_data.shape, factor)
+    data = block_count(has_data, factor) * 2 > _block_pixels(has_data.shape, factor)
     return np.where(data, heights, np.nan).astype(np.float32), shows_soil & data, data
-
-
-def _block_count(mask, factor):
-    """True pixels of `mask` in each `factor` x `factor` block (edge blocks cut by the raster)."""
-    rows, cols = mask.shape
-    nr, nc = -(-rows // factor), -(-cols // factor)
-    padded = np.zeros((nr * factor, nc * factor), np.uint16)
-    padded[:rows, :cols] = mask
-    return padded.reshape(nr, factor, nc, factor).sum(axis=(1, 3), dtype=np.int64)
 
 
 def _block_pixels(shape, factor):
