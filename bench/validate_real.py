@@ -311,6 +311,7 @@ def field_rows(data_dir, *, ground="auto", colour="photo", windowed=False):
                 row["against"][kind] = {
                     "ours": agreement(ours, truth),
                     "coverage": _coverage(ours, err, truth),
+                    "stated_error_cm": _stated_error(ours, err, truth),
                     **{name: agreement(values, truth) for name, values in peers.items()},
                     "difference": {
                         name: paired_bootstrap(ours, values, truth) for name, values in peers.items()
@@ -433,6 +434,12 @@ def _coverage(ours, err, truth):
     if not ok.any():
         return None
     return float(np.mean(np.abs(ours[ok] - truth[ok]) <= Z90 * err[ok]))
+
+
+def _stated_error(ours, err, truth):
+    """The median stated error (cm) over the plots the coverage counts."""
+    ok = np.isfinite(ours) & np.isfinite(err) & np.isfinite(truth)
+    return float(100 * np.median(err[ok])) if ok.any() else None
 
 
 def plot_p90(labels, n, heights):
@@ -642,6 +649,12 @@ def _pct(value):
     return "-" if value is None else f"{100 * value:.1f} %"
 
 
+def _coverage_cell(figures):
+    """Coverage, and the median stated error when the record holds it."""
+    stated = figures.get("stated_error_cm")
+    return _pct(figures.get("coverage")) + ("" if stated is None else f" (±{stated:.1f} cm)")
+
+
 def _num(value, digits=3):
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -800,7 +813,8 @@ def docs_page(record):
         "outliers, is removed) and raw, and a breeder's ruler. The naive baseline (the DSM's 2nd "
         "percentile in 5 m blocks, bilinear) and plantcv-geospatial's `height_percentile` (each plot's "
         "DSM p90 minus its p25) run on the same grid in the same run. Each cell is r / RMSE / bias; "
-        "coverage is the share of plots with |error| <= 1.645 x `height_p90_err_m`; the last column is "
+        "coverage is the share of plots with |error| <= 1.645 x `height_p90_err_m` (in brackets that error's "
+        "median over the plots); the last column is "
         "ours minus the baseline in r and in RMSE with their 95 % intervals from a paired bootstrap over "
         "the plots (both scored on the same resampled plots): an interval that holds 0 is a tie.",
     ]
@@ -828,7 +842,7 @@ def docs_page(record):
             _fit(figures.get("ours")),
             _fit(figures.get("baseline")),
             _fit(figures.get("plantcv")),
-            _pct(figures.get("coverage")),
+            _coverage_cell(figures),
             _difference((figures.get("difference") or {}).get("baseline")),
         )
         for r in fields

@@ -65,7 +65,7 @@ from .ground_blocks import (
 )
 from .ground_check import check_ground, ground_sigma, ground_support
 from .ground_detail import canopy_level, detail_above, evidence_offset
-from .ground_evidence import MIN_SOIL_PIXELS, exposed_soil, ground_evidence
+from .ground_evidence import MIN_SOIL_PIXELS, exposed_soil, ground_evidence, soil_top
 from .ground_occlusion import occlusion_check
 
 DEFAULT_DETAIL_M = 0.15
@@ -289,6 +289,16 @@ def fit_ground(
                 f"; the {chosen} ground follows it: heights may read that much low (counted in the error)"
             )
         occlusion["note"] += "; give a terrain model (--dtm) or calibrate with --ruler"
+    # Without a photo, nothing tells the soil at the surface's lowest mode (furrows) from the soil of
+    # ridges or beds above it, on which the plants may stand, or from the lowest leaves: the plants'
+    # soil lies anywhere from the ground up to where the surface thins below the canopy
+    # (`soil_top`), and that spread (uniform: its RMS about the ground, top / sqrt(3)) counts in the
+    # error. A real hilled potato trial's surface model cut to its plots' box read 11 cm high with
+    # a stated 4 cm: its soil mode was the furrows, the hills' soil stood 15 cm above them.
+    if soil is None:
+        top = soil_top((dsm - ground)[finite])
+        check["sigma_model"]["soil_top_m"] = top
+        error = np.sqrt(error**2 + np.float32(top * top / 3.0))
     # A colour the surface overruled confirms no soil level: where the ground stands above the lowest
     # surface (the naive baseline), that lift rests on the surface's lowest layer alone, which in a
     # window without open soil is the canopy's own (a real closed potato canopy cut to its plots:

@@ -7,6 +7,8 @@ out of the surface's soil.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 # Colour soil counts this far (metres) from anything the photo does not call soil.
@@ -15,6 +17,8 @@ DEFAULT_EXPOSURE_M = 0.06
 MICRORELIEF_M = 0.25
 # Fewest pixels that make soil evidence (or a mode of the surface's soil).
 MIN_SOIL_PIXELS = 100
+# The height histogram's bin (metres).
+_BIN_M = 0.005
 # The surface's own soil peak: this many robust deviations of its lower side.
 _PEAK_SPREAD = 3.0
 
@@ -100,11 +104,80 @@ def soil_peak(above):
     the soil's mode (prominence 5 % of its height), taken as the mode, raised the plots' p90 bias
     against the two-flight difference from +3.7 to +5.3 cm.
     """
-    from scipy.signal import find_peaks
-
     if above.size == 0:
         return 0.0
-    step = 0.005
+    peaks = _histogram_peaks(above)
+    pick = peaks.significant & peaks.resolved
+    mode = float(peaks.levels[pick][0]) if pick.any() else peaks.highest
+    low = peaks.low
+    lower = above[(above <= mode) & (above >= low)] - mode
+    spread = float(np.sqrt(np.mean(lower**2))) if lower.size else _BIN_M
+    return float(min(MICRORELIEF_M, mode + _PEAK_SPREAD * max(spread, _BIN_M)))
+
+
+def soil_top(above):
+    """Height (metres, >= 0) up to which the surface alone cannot tell soil from leaves.
+
+    Without a photo the surface's soil is its lowest mode (:func:`soil_peak`): furrows, say. Above
+    it, the surface's low part runs on into the flanks and tops of ridges or beds, whose soil the
+    plants may stand on, and into the lowest leaves, which the surface alone cannot tell apart. That
+    low part ends where the surface is thinnest between the soil's mode and the microrelief's top
+    (the first lowest bin of the smoothed height histogram there): above it stands the canopy.
+
+    Parameters
+    ----------
+    above : 1-D float array
+        Heights above the ground (metres), finite.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    Furrows at 0, rounded ridges 15 cm high whose crests the plants cover (their flanks bare), and
+    the plants' leaves from 25 to 60 cm:
+
+    >>> rng = np.random.default_rng(0)
+    >>> ridges = 0.15 * (1 + np.cos(rng.uniform(-np.pi, np.pi, 6000))) / 2
+    >>> above = np.concatenate([ridges[ridges < 0.11], rng.uniform(0.25, 0.6, 3000)])
+    >>> 0.10 < soil_top(above) < 0.25
+    True
+    >>> round(soil_top(rng.normal(0, 0.005, 5000)), 2)  # flat soil: its noise and the smoothing's reach
+    0.03
+    """
+    # Heights up to twice the microrelief: the histogram must not end at the level it looks for.
+    above = above[above <= 2 * MICRORELIEF_M]
+    if above.size == 0:
+        return 0.0
+    peaks = _histogram_peaks(above)
+    soil = peaks.significant & peaks.resolved
+    mode = float(peaks.levels[soil][0]) if soil.any() else peaks.highest
+    span = (peaks.centres > mode) & (peaks.centres <= MICRORELIEF_M)
+    if not span.any():
+        return 0.0
+    counts = np.where(span, peaks.smooth, np.inf)
+    return max(0.0, float(peaks.centres[np.argmin(counts)]))
+
+
+@dataclass
+class _Peaks:
+    """The smoothed height histogram and its peaks (:func:`_histogram_peaks`)."""
+
+    centres: np.ndarray  # bin centres (metres)
+    smooth: np.ndarray  # counts, smoothed over five bins
+    levels: np.ndarray  # the peaks' bin centres, lowest first
+    significant: np.ndarray  # rises out of its counts' noise and holds MIN_SOIL_PIXELS
+    resolved: np.ndarray  # the valleys beside it fall below half its height
+    highest: float  # the level of the histogram's largest bin
+    low: float  # where the histogram starts
+
+
+def _histogram_peaks(above):
+    """The peaks of the histogram of `above` in 5 mm bins smoothed over five (see :func:`soil_peak`)."""
+    from scipy.signal import find_peaks
+
+    step = _BIN_M
     # From the 1st percentile: a few pits (or unmarked no-data) far below must not stretch the bins.
     low = max(float(np.percentile(above, 1.0)), float(above.max()) - 2.0)
     # At least five bins: "same" convolution returns max(bins, 5) values, and on a flat or
@@ -116,16 +189,19 @@ def soil_peak(above):
     peaks, props = find_peaks(np.concatenate([[0.0], smooth, [0.0]]), prominence=0.0)
     peaks, prominence = peaks - 1, props["prominences"]
     height = smooth[peaks]
-    modes = (
-        (prominence >= 0.5 * height)
-        & (prominence >= 3.0 * np.sqrt(np.maximum(height, 1.0) / 5.0))
-        & (5 * height >= MIN_SOIL_PIXELS)
+    significant = (prominence >= 3.0 * np.sqrt(np.maximum(height, 1.0) / 5.0)) & (
+        5 * height >= MIN_SOIL_PIXELS
     )
-    peak = int(peaks[modes][0]) if modes.any() else int(np.argmax(smooth))
-    mode = edges[peak] + step / 2
-    lower = above[(above <= mode) & (above >= low)] - mode
-    spread = float(np.sqrt(np.mean(lower**2))) if lower.size else step
-    return float(min(MICRORELIEF_M, mode + _PEAK_SPREAD * max(spread, step)))
+    centres = edges[: smooth.size] + step / 2
+    return _Peaks(
+        centres,
+        smooth,
+        centres[peaks],
+        significant,
+        prominence >= 0.5 * height,
+        float(centres[np.argmax(smooth)]),
+        low,
+    )
 
 
 def evidence_note(check):
