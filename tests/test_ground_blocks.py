@@ -136,20 +136,23 @@ def test_a_block_half_outside_the_outline_is_judged_by_its_pixels_with_data():
     assert levels[1, 0] != blocks.levels[1, 0] and levels[1, 1] != blocks.levels[1, 1]
 
 
-def test_soil_less_blocks_take_the_soil_blocks_level_and_the_fields_plane_beyond():
+def test_soil_less_blocks_take_the_soil_blocks_level_and_their_plane_beyond():
     from cliff_terrain.measure.ground_blocks import block_levels
 
-    # A closed canopy 0.5 m tall rising 0.4 m along 30 m over flat ground, bare soil only in a
-    # headland 3 m wide. Beside the headland the soil-less blocks take its level; far from it, what
-    # no soil shows follows the plane through the blocks' levels, which this canopy tilts (the
-    # limitation the ground page states): never the canopy's own lowest pixels.
+    # A closed canopy 0.5 m tall rising 0.4 m along 30 m, bare soil only in a headland 3 m wide.
+    # The field's plane goes through every block's level and this canopy tilts it (0.37 m at the
+    # far end when the fill followed it); the soil-less blocks follow the plane through the blocks
+    # that hold soil instead: over flat ground, flat; over a tilted one, its tilt. Never the
+    # canopy's own lowest pixels.
     rr, cc = np.mgrid[:120, :600]
     canopy = cc >= 60
-    dsm = np.where(canopy, 0.5 + 0.4 * cc / 600, 0.0).astype(np.float32)
-    blocks = block_levels(dsm, pixel_size=0.05, block_m=1.0)
-    assert np.median((dsm - blocks.surface())[canopy]) < 0.05  # alone: the canopy's top
-    lowest = blocks.surface(soil=~canopy)
-    assert np.abs(lowest[canopy & (cc < 100)]).max() < 0.04  # 2 m beside the headland
-    assert (dsm - lowest)[canopy].min() > 0.45
+    for ground in (np.zeros(rr.shape), 0.003 * cc + 0.001 * rr):
+        dsm = (ground + np.where(canopy, 0.5 + 0.4 * cc / 600, 0.0)).astype(np.float32)
+        blocks = block_levels(dsm, pixel_size=0.05, block_m=1.0)
+        assert np.median((dsm - blocks.surface())[canopy]) < 0.05  # alone: the canopy's top
+        lowest = blocks.surface(soil=~canopy)
+        assert np.abs(lowest - ground)[canopy].max() < 0.01
+        # Fewer than three blocks with soil make no plane: the field's is kept.
+        assert not blocks._soil_tilt(np.zeros(blocks.levels.shape, bool)).any()
     with pytest.raises(Exception, match="`soil` must have the surface's shape"):
         blocks.surface(soil=np.ones((5, 5), bool))

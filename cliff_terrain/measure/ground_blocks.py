@@ -109,9 +109,10 @@ class BlockLevels:
     block percentile): given the `soil` pixels, a block where less than the percentile's share of
     its pixels with data is soil takes the level of the blocks around it that hold some
     (normalized convolution from one block's scale up, about the soil blocks' median level:
-    :func:`~cliff_terrain.measure.ground_detail.evidence_offset`), not its own, which is its
-    canopy's: a closed potato canopy's 1.9 m blocks (a strip 5.6 m wide cut along a real
-    trial's edge) stood 8 cm above the ground, and every plot in the strip read that much low.
+    :func:`~cliff_terrain.measure.ground_detail.evidence_offset`, relative to the plane through the
+    soil blocks' levels), not its own, which is its canopy's: a closed potato canopy's 1.9 m blocks
+    (a strip 5.6 m wide cut along a real trial's edge) stood 8 cm above the ground, and every plot
+    in the strip read that much low.
 
     Examples
     --------
@@ -149,11 +150,32 @@ class BlockLevels:
         holds = has & (100 * count >= BASELINE_PERCENTILE * self.data)
         if holds.all() or not holds.any():
             return self.levels
+        # Filled about the soil blocks' own plane, not the field's: the field's plane goes through
+        # every block's level, and a closed canopy's blocks tilt and lift it (on a real closed potato
+        # canopy's 5.6 m edge strip the filled blocks stood 4 cm high at the strip's inner side).
+        tilt = self._soil_tilt(holds)
+        levels = self.levels + tilt
         # From one block's scale up, around the soil blocks' median level (beyond every scale, that
-        # level: not the plane's, which a closed canopy's blocks tilt and lift).
-        centre = np.float32(np.median(self.levels[holds]))
-        around = centre + evidence_offset(self.levels - centre, holds, 1.0, widen=True, valid=has)
-        return np.where(holds | ~has, self.levels, around).astype(np.float32)
+        # level).
+        centre = np.float32(np.median(levels[holds]))
+        around = centre + evidence_offset(levels - centre, holds, 1.0, widen=True, valid=has)
+        return np.where(holds | ~has, self.levels, around - tilt).astype(np.float32)
+
+    def _soil_tilt(self, holds):
+        """At each block's centre, the field's plane less the plane through the `holds` blocks'
+        levels (robust least squares, as the field's): 0 when fewer than three blocks hold soil."""
+        rows, cols = self.plane.shape
+        nb_r, nb_c = self.levels.shape
+        centre_r = np.minimum((np.arange(nb_r) + 0.5) * self.block, rows - 1).astype(int)
+        centre_c = np.minimum((np.arange(nb_c) + 0.5) * self.block, cols - 1).astype(int)
+        field = self.plane[np.ix_(centre_r, centre_c)].astype(np.float64)
+        if np.count_nonzero(holds) < 3:
+            return np.zeros(self.levels.shape, np.float32)
+        bi, bj = np.nonzero(holds)
+        design = np.column_stack([np.ones(bi.size), centre_r[bi], centre_c[bj]]).astype(np.float64)
+        coef = robust_plane(design, self.levels[holds] + field[holds])
+        soil = coef[0] + coef[1] * centre_r[:, None] + coef[2] * centre_c[None, :]
+        return (field - soil).astype(np.float32)
 
 
 def _field_plane(dsm, *, pixel_size, block_m):
