@@ -108,7 +108,9 @@ def soil_peak(above):
         return 0.0
     peaks = _histogram_peaks(above)
     pick = peaks.significant & peaks.resolved
-    mode = float(peaks.levels[pick][0]) if pick.any() else peaks.highest
+    # float64, as the bins are: under NumPy 2 a Python float would let float32 `above` be compared
+    # and subtracted in float32.
+    mode = np.float64(peaks.levels[pick][0] if pick.any() else peaks.highest)
     low = peaks.low
     lower = above[(above <= mode) & (above >= low)] - mode
     spread = float(np.sqrt(np.mean(lower**2))) if lower.size else _BIN_M
@@ -118,11 +120,15 @@ def soil_peak(above):
 def soil_top(above):
     """Height (metres, >= 0) up to which the surface alone cannot tell soil from leaves.
 
-    Without a photo the surface's soil is its lowest mode (:func:`soil_peak`): furrows, say. Above
-    it, the surface's low part runs on into the flanks and tops of ridges or beds, whose soil the
-    plants may stand on, and into the lowest leaves, which the surface alone cannot tell apart. That
-    low part ends where the surface is thinnest between the soil's mode and the microrelief's top
-    (the first lowest bin of the smoothed height histogram there): above it stands the canopy.
+    Without a photo the surface's soil is its lowest mode (as :func:`soil_peak` finds it): furrows,
+    say. Above it, the surface's low part runs on into the flanks and tops of ridges or beds, whose
+    soil the plants may stand on, and into the lowest leaves, which the surface alone cannot tell
+    apart. That low part ends where the surface is thinnest above its highest mode within the
+    microrelief (a bed's top is a mode of its own) and up to the microrelief's top: the first bin
+    holding the lowest count of the smoothed height histogram there. Above it stands the canopy.
+    The histogram runs to twice the microrelief, so that it does not end where it is searched.
+    A surface with nothing within the microrelief above the ground tells nothing: the
+    microrelief's top.
 
     Parameters
     ----------
@@ -146,16 +152,21 @@ def soil_top(above):
     >>> round(soil_top(rng.normal(0, 0.005, 5000)), 2)  # flat soil: its noise and the smoothing's reach
     0.03
     """
-    # Heights up to twice the microrelief: the histogram must not end at the level it looks for.
     above = above[above <= 2 * MICRORELIEF_M]
-    if above.size == 0:
-        return 0.0
+    within = above <= MICRORELIEF_M
+    if not within.any():
+        return MICRORELIEF_M
     peaks = _histogram_peaks(above)
-    soil = peaks.significant & peaks.resolved
-    mode = float(peaks.levels[soil][0]) if soil.any() else peaks.highest
-    span = (peaks.centres > mode) & (peaks.centres <= MICRORELIEF_M)
+    span = peaks.centres <= MICRORELIEF_M
+    modes = peaks.significant & peaks.resolved & (peaks.levels <= MICRORELIEF_M)
+    start = (
+        float(peaks.levels[modes][-1])
+        if modes.any()
+        else float(peaks.centres[span][np.argmax(peaks.smooth[span])])
+    )
+    span &= peaks.centres > start
     if not span.any():
-        return 0.0
+        return MICRORELIEF_M
     counts = np.where(span, peaks.smooth, np.inf)
     return max(0.0, float(peaks.centres[np.argmin(counts)]))
 
