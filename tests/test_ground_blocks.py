@@ -156,3 +156,28 @@ def test_soil_less_blocks_take_the_soil_blocks_level_and_their_plane_beyond():
         assert not blocks._soil_tilt(np.zeros(blocks.levels.shape, bool)).any()
     with pytest.raises(Exception, match="`soil` must have the surface's shape"):
         blocks.surface(soil=np.ones((5, 5), bool))
+
+
+def test_soil_blocks_in_one_row_or_column_give_no_slope_across_it_at_any_elevation():
+    from cliff_terrain.measure.ground_blocks import block_levels
+
+    # A headland one block deep (a strip cut along a field's edge), at a real field's elevation: a
+    # plane through one row of blocks has no slope across it. Fitted anyway, its noise took the
+    # ground hundreds of metres off; the field's slope is kept across it instead, and the filled
+    # blocks stay as near as the field's plane puts them (never the canopy's top).
+    rng = np.random.default_rng(0)
+    rr, cc = np.mgrid[:120, :600]
+    layouts = {
+        "one column": cc < 20,
+        "one row": rr < 20,
+        "a column and one stray block": (cc < 20) | ((rr < 20) & (cc >= 300) & (cc < 320)),
+    }
+    for name, soil in layouts.items():
+        dsm = (250.0 + np.where(soil, 0.0, 0.5) + rng.normal(0, 0.01, rr.shape)).astype(np.float32)
+        blocks = block_levels(dsm, pixel_size=0.05, block_m=1.0)
+        count = np.add.reduceat(np.add.reduceat(soil, np.arange(0, 120, 20), 0), np.arange(0, 600, 20), 1)
+        tilt = blocks._soil_tilt(count > 0)
+        # One position down the rows (30 across): a slope along the row only; and the other way.
+        assert np.ptp(tilt, axis=0 if name == "one row" else 1).max() == 0, name
+        lowest = blocks.surface(soil=soil)
+        assert np.abs(lowest - 250.0)[~soil].max() < 0.4, name

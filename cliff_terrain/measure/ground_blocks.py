@@ -162,20 +162,33 @@ class BlockLevels:
         return np.where(holds | ~has, self.levels, around - tilt).astype(np.float32)
 
     def _soil_tilt(self, holds):
-        """At each block's centre, the field's plane less the plane through the `holds` blocks'
-        levels (robust least squares, as the field's): 0 when fewer than three blocks hold soil."""
-        rows, cols = self.plane.shape
-        nb_r, nb_c = self.levels.shape
-        centre_r = np.minimum((np.arange(nb_r) + 0.5) * self.block, rows - 1).astype(int)
-        centre_c = np.minimum((np.arange(nb_c) + 0.5) * self.block, cols - 1).astype(int)
-        field = self.plane[np.ix_(centre_r, centre_c)].astype(np.float64)
+        """At each block's centre, the field's plane less the plane through the `holds` blocks.
+
+        The soil blocks' levels are relative to the field's plane already: the plane through them
+        (robust least squares, as the field's, in block units about their mean centre) is what the
+        field's misses. Along a direction in which the soil blocks take fewer than three positions
+        (a headland one or two blocks deep) a slope would be their noise extrapolated across the
+        field: there the field's slope is kept (0), and with fewer than three soil blocks, all of it.
+        """
+        tilt = np.zeros(self.levels.shape, np.float32)
         if np.count_nonzero(holds) < 3:
-            return np.zeros(self.levels.shape, np.float32)
+            return tilt
         bi, bj = np.nonzero(holds)
-        design = np.column_stack([np.ones(bi.size), centre_r[bi], centre_c[bj]]).astype(np.float64)
-        coef = robust_plane(design, self.levels[holds] + field[holds])
-        soil = coef[0] + coef[1] * centre_r[:, None] + coef[2] * centre_c[None, :]
-        return (field - soil).astype(np.float32)
+        ri, rj = bi - bi.mean(), bj - bj.mean()
+        spans = [x for x, idx in ((ri, bi), (rj, bj)) if np.unique(idx).size >= 3]
+        if not spans:
+            return tilt
+        design = np.column_stack([np.ones(bi.size), *spans])
+        coef = robust_plane(design, self.levels[holds].astype(np.float64))
+        rows = np.arange(self.levels.shape[0])[:, None] - bi.mean()
+        cols = np.arange(self.levels.shape[1])[None, :] - bj.mean()
+        slope = iter(coef[1:])
+        if np.unique(bi).size >= 3:
+            tilt = tilt + next(slope) * rows
+        if np.unique(bj).size >= 3:
+            tilt = tilt + next(slope) * cols
+        # Less the plane, not its offset: the fill is about the soil blocks' median level anyway.
+        return (-tilt).astype(np.float32)
 
 
 def _field_plane(dsm, *, pixel_size, block_m):
