@@ -100,7 +100,9 @@ class GroundFit:
         Share of evidence in the `block_m` window around each pixel (:func:`ground_support`).
     sigma : (rows, cols) float32
         Standard error of the ground at each pixel (metres), from the held-out check and, for
-        the detailed ground, its level under the canopy (which no held-out soil checks).
+        the detailed ground, its level under the canopy (which no held-out soil checks); without a
+        photo, also how far the plants' soil may stand above the surface's lowest mode
+        (``check["sigma_model"]["soil_top_m"]``).
     check : dict
         The held-out check (:func:`cliff_terrain.measure.ground_check.check_ground`): each
         candidate's error, the choice, ``passed`` and why.
