@@ -170,25 +170,20 @@ class BlockLevels:
         (a headland one or two blocks deep) a slope would be their noise extrapolated across the
         field: there the field's slope is kept (0), and with fewer than three soil blocks, all of it.
         """
-        tilt = np.zeros(self.levels.shape, np.float32)
         if np.count_nonzero(holds) < 3:
-            return tilt
-        bi, bj = np.nonzero(holds)
-        ri, rj = bi - bi.mean(), bj - bj.mean()
-        spans = [x for x, idx in ((ri, bi), (rj, bj)) if np.unique(idx).size >= 3]
-        if not spans:
-            return tilt
-        design = np.column_stack([np.ones(bi.size), *spans])
+            return np.zeros(self.levels.shape, np.float32)
+        at = np.stack(np.nonzero(holds)).astype(np.float64)  # the soil blocks' (row, col) indices
+        centre = at.mean(axis=1)
+        axes = [k for k in (0, 1) if np.unique(at[k]).size >= 3]
+        if not axes:
+            return np.zeros(self.levels.shape, np.float32)
+        design = np.column_stack([np.ones(at.shape[1]), *(at[k] - centre[k] for k in axes)])
         coef = robust_plane(design, self.levels[holds].astype(np.float64))
-        rows = np.arange(self.levels.shape[0])[:, None] - bi.mean()
-        cols = np.arange(self.levels.shape[1])[None, :] - bj.mean()
-        slope = iter(coef[1:])
-        if np.unique(bi).size >= 3:
-            tilt = tilt + next(slope) * rows
-        if np.unique(bj).size >= 3:
-            tilt = tilt + next(slope) * cols
+        grid = np.indices(self.levels.shape, dtype=np.float64)
         # Less the plane, not its offset: the fill is about the soil blocks' median level anyway.
-        return (-tilt).astype(np.float32)
+        return (-sum(c * (grid[k] - centre[k]) for c, k in zip(coef[1:], axes, strict=True))).astype(
+            np.float32
+        )
 
 
 def _field_plane(dsm, *, pixel_size, block_m):
