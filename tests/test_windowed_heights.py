@@ -472,6 +472,23 @@ def test_the_ground_is_upsampled_with_its_pixel_centres_aligned():
     np.testing.assert_array_equal(upsample(coarse, 4, 5, 9, 3, 14), full[5:9, 3:14])
 
 
+def test_local_workers_idle_beside_a_ground_grid_that_fills_its_budget(tmp_path):
+    """bench/bench_scale.py's 66 MP field (15 x 15 copies at 0.2 m, 32 400 plots): its ground grid
+    (7.4 MP) nearly fills the budget. With two local workers the whole process tree peaked at 1.56
+    GiB (AMD EPYC, 2026-12-08: summed resident sets sampled at 10 Hz); the plan refused it at 4.19
+    GiB while it counted the fit at the coefficient the grid is sized with (0.45 GiB/MP)."""
+    from cliff_terrain.commands.memory_estimate import windowed_plan
+
+    ortho = empty_raster(tmp_path / "ortho.tif", 8250, 8025, 0.2)
+    dsm = empty_raster(tmp_path / "dsm.tif", 8250, 8025, 0.2, bands=1, dtype=np.float32)
+    plans = [windowed_plan(ortho, (dsm,), window_px=1104, plots=32_400, workers=k) for k in (0, 1, 2)]
+    # The same ground grid however many workers, each estimate above the next smaller count's and
+    # above what the two-worker run took.
+    assert len({budget for budget, _ in plans}) == 1
+    estimates = [estimate for _, estimate in plans]
+    assert estimates == sorted(estimates) and 1.56 < estimates[2] < 4.0
+
+
 def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_path):
     from cliff_terrain.cli import build_parser
     from cliff_terrain.commands.heights import _windowed

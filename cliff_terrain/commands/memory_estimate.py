@@ -139,12 +139,19 @@ def check_heights_memory(ortho, others, *, longest, cap_gib=DEFAULT_CAP_GIB):
 
 
 # The windowed path (:mod:`cliff_terrain.measure.windowed`), measured with bench/bench_scale.py. Its
-# two passes peak one after the other: the ground grid's (its photo, surface, soil and fit_ground;
-# fit_ground alone measured 0.35 GiB/MP; since 2026-12-06 its quadratics' moments are filtered in
-# chunks of rows, 0.11 GiB/MP above the process on the bench field's 7.4 MP grid, against 0.19
-# before: the coefficient is kept, because the ground grid's budget, and so every windowed run's
-# numbers, follow from it), then one window's with its halo (photo, index, surface, ground, CHM,
-# plot labels) beside the coarse ground. The plots and their rows stay throughout.
+# two passes peak one after the other: the ground grid's (its photo, surface, soil and fit_ground),
+# then one window's with its halo (photo, index, surface, ground, CHM, plot labels) beside the coarse
+# ground. The plots and their rows stay throughout.
+#
+# The ground grid is sized as if fitting it took GROUND_GIB_PER_MP: fit_ground's cost when the
+# budget was set (0.35 GiB/MP measured). Every windowed run's ground, and so its numbers, follow
+# from that size, which is kept. Since 2026-12-06 its quadratics' moments are filtered in chunks of
+# rows (0.11 GiB/MP above the process on the bench field's 7.4 MP grid, 0.19 before), so the fit
+# pass is estimated with what it takes now, GROUND_FIT_GIB_PER_MP + GRID_GIB_PER_MP (its coarse
+# photo, surface and soil), as in memory: the room left is the local workers', which idle beside
+# it. With the old coefficient in the estimate as well, a 66 MP field (its grid 7.4 MP, 1.11 GiB
+# at its peak in one process) was refused with two local workers (4.19 GiB) while a 265 MP one
+# (its grid 5.4 MP) was not.
 GROUND_GIB_PER_MP = 0.45
 WINDOW_GIB_PER_MP = 0.25
 PLOT_GIB = 4e-6  # per plot: its polygon, its pixel rings and its row (about 4 kB)
@@ -199,7 +206,9 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     ground_gib = 12 * grid / 2**30  # the coarse ground, its error and support (12 bytes a pixel)
     # Pass 1 fits the ground here while each worker idles with its interpreter and striped files;
     # pass 2 holds the coarse ground here and in each worker, and one window per thread or worker.
-    fit_pass = resident + GROUND_GIB_PER_MP * grid / 1e6 + workers * (BASE_GIB + striped)
+    fit_pass = (
+        resident + (GROUND_FIT_GIB_PER_MP + GRID_GIB_PER_MP) * grid / 1e6 + workers * (BASE_GIB + striped)
+    )
     window_pass = resident + ground_gib + workers * (BASE_GIB + striped + ground_gib + window_gib)
     window_pass += (window_gib if workers == 0 else 0) + (max(1, threads) - 1) * (striped + window_gib)
     # Pass 3 writes the three rasters at once, each a band of 512-pixel tiles, its overview's and
