@@ -5,9 +5,12 @@
 Users rarely measure a whole flight: they cut a trial block, a strip along the field's edge, the
 plots' bounding box. The ground must hold there too, where less of the field's soil is in view.
 For every date of every field in ``DATA_DIR/fields`` (the layout of ``bench/validate_real.py``),
-this cuts five windows of the date's orthophoto (or, for a surface model without one, of the
+this cuts ten windows of the date's orthophoto (or, for a surface model without one, of the
 DSM): a strip along each edge, reaching from the raster's border a quarter of the plots' extent
-into the plots (so with the headland beside them), and the plots' bounding box. On each window it
+into the plots (so with the headland beside them); the plots' bounding box; the raster's four
+quarters, split at the plots' middle (an orthomosaic tiled in four, each tile with its corner's
+headland); and the plots' centre, the middle half of their box across each direction (a trial
+block with no headland). A window that holds no plot whole is skipped. On each window it
 runs what a user would (``cliff-terrain heights ORTHO --dsm DSM --plots PLOTS``; on a surface model
 alone, its ground from the surface as ``validate_real`` does) and compares the per-plot p90 of
 the plots whole in the window with the whole field's aligned two-flight difference (the
@@ -41,16 +44,26 @@ STRIP_SHARE = 0.25
 
 
 def cut_windows(labels, shape):
-    """``{name: (r0, r1, c0, c1)}``: the four edge strips with their headland and the plots' box."""
+    """``{name: (r0, r1, c0, c1)}``: the four edge strips with their headland, the plots' box, the
+    raster's four quarters (split at the plots' middle) and the plots' centre (the middle half of
+    the plots' box across each direction)."""
     rows, cols = np.nonzero(labels > 0)
     top, bottom, left, right = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     dr, dc = int(STRIP_SHARE * (bottom - top)), int(STRIP_SHARE * (right - left))
+    mid_r, mid_c = (top + bottom) // 2, (left + right) // 2
     return {
         "west strip": (0, shape[0], 0, left + dc),
         "east strip": (0, shape[0], right - dc, shape[1]),
         "north strip": (0, top + dr, 0, shape[1]),
         "south strip": (bottom - dr, shape[0], 0, shape[1]),
         "plots' box": (top, bottom, left, right),
+        # An orthomosaic tiled in four, each tile with its corner's headland.
+        "north-west quarter": (0, mid_r, 0, mid_c),
+        "north-east quarter": (0, mid_r, mid_c, shape[1]),
+        "south-west quarter": (mid_r, shape[0], 0, mid_c),
+        "south-east quarter": (mid_r, shape[0], mid_c, shape[1]),
+        # A trial block inside the field: no headland at all.
+        "plots' centre": (top + dr, bottom - dr, left + dc, right - dc),
     }
 
 

@@ -17,7 +17,7 @@ def cuts():
     return load_script(REPO / "bench" / "bench_cuts.py", "bench_cuts")
 
 
-def test_the_cuts_are_the_edge_strips_with_their_headland_and_the_plots_box(cuts):
+def test_the_cuts_are_the_edge_strips_with_their_headland_the_plots_box_and_the_quarters(cuts):
     labels = np.zeros((100, 200), np.int32)
     labels[20:40, 40:80] = 1
     labels[60:80, 120:160] = 2  # the plots span rows 20-80 and columns 40-160
@@ -28,6 +28,11 @@ def test_the_cuts_are_the_edge_strips_with_their_headland_and_the_plots_box(cuts
         "north strip": (0, 20 + 15, 0, 200),
         "south strip": (80 - 15, 100, 0, 200),
         "plots' box": (20, 80, 40, 160),
+        "north-west quarter": (0, 50, 0, 100),
+        "north-east quarter": (0, 50, 100, 200),
+        "south-west quarter": (50, 100, 0, 100),
+        "south-east quarter": (50, 100, 100, 200),
+        "plots' centre": (20 + 15, 80 - 15, 40 + 30, 160 - 30),
     }
 
 
@@ -42,7 +47,13 @@ def test_bench_cuts_measures_every_cut_against_the_whole_fields_reference(
     assert cuts.main([str(data), "--json", str(tmp_path / "cuts.json")]) == 0
     records = json.loads((tmp_path / "cuts.json").read_text())
     plots = {r["cut"]: r["plots"] for r in records}
-    assert plots == {"west strip": 2, "east strip": 1, "north strip": 2, "south strip": 2, "plots' box": 4}
+    # The quarters split at the plots' middle (x = 4.25 m), which plot 1 (4-6.5 m) straddles: the
+    # north-east quarter holds no plot whole. The plots' centre, half their extent in from each side
+    # at this share, is empty. Both are skipped.
+    assert plots == {
+        "west strip": 2, "east strip": 1, "north strip": 2, "south strip": 2, "plots' box": 4,
+        "north-west quarter": 1, "south-west quarter": 1, "south-east quarter": 1,
+    }  # fmt: skip
     for r in records:
         assert "refused" not in r, r
         # The early flight's tilt is aligned away: ours agrees in every cut, the baseline runs beside it.
@@ -50,8 +61,8 @@ def test_bench_cuts_measures_every_cut_against_the_whole_fields_reference(
         assert np.isfinite(r["baseline_rmse_cm"]) and 0.0 <= r["coverage"] <= 1.0
         assert r["ground"] in ("baseline", "smooth", "detailed") and r["held_out_cm"] >= 0.0
     out = capsys.readouterr().out
-    assert out.count("| trial | 60 |") == 5
-    assert "5 cuts, 0 refused; ours' RMSE above the baseline's in" in out
+    assert out.count("| trial | 60 |") == 8
+    assert "8 cuts, 0 refused; ours' RMSE above the baseline's in" in out
 
 
 def test_bench_cuts_needs_a_fields_folder(cuts, tmp_path, capsys):
