@@ -17,6 +17,7 @@ Peak memory and speed are measured in bench/bench_scale.py, never here.
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 import subprocess
@@ -487,6 +488,33 @@ def test_local_workers_idle_beside_a_ground_grid_that_fills_its_budget(tmp_path)
     assert len({budget for budget, _ in plans}) == 1
     estimates = [estimate for _, estimate in plans]
     assert estimates == sorted(estimates) and 1.56 < estimates[2] < 4.0
+
+
+def test_a_refused_plan_names_a_cap_that_fits(tmp_path):
+    """A larger cap enlarges the ground's grid too, so the estimate under one cap is not a cap that
+    fits: the refusal names the least one that does, in tenths of a GiB."""
+    import re
+
+    from cliff_terrain.commands.memory_estimate import windowed_plan
+
+    # 400 MP at 1 cm, its DSM at 3 cm, ten local workers: each holds its copy of the coarse ground.
+    ortho = empty_raster(tmp_path / "ortho.tif", 20_000, 20_000, 0.01)
+    dsm = empty_raster(tmp_path / "dsm.tif", 6667, 6667, 0.03, bands=1, dtype=np.float32)
+    plan = functools.partial(windowed_plan, ortho, (dsm,), window_px=1024, plots=1000, workers=10)
+    with pytest.raises(CliffTerrainError) as refused:
+        plan(cap_gib=4.0)
+    message = str(refused.value)
+    estimate = float(re.search(r"needs about ([\d.]+) GiB under the 4 GiB cap", message).group(1))
+    enough = float(re.search(r"give --max-memory ([\d.]+) or more", message).group(1))
+    assert "use fewer --workers" in message and enough > 4.0
+    _, at_enough = plan(cap_gib=enough)
+    assert at_enough <= enough
+    with pytest.raises(CliffTerrainError):
+        plan(cap_gib=round(enough - 0.1, 1))
+    # Raising the cap to the estimate alone is not enough: the grid, and each worker's copy, grow with it.
+    assert estimate < enough - 0.1
+    with pytest.raises(CliffTerrainError):
+        plan(cap_gib=estimate)
 
 
 def test_past_the_cap_the_command_measures_in_windows_instead_of_refusing(tmp_path):

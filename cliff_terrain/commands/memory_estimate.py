@@ -200,29 +200,39 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
     pixel = math.hypot(*transform[:2, 0])
     finest = ground_factor((rows, cols), pixel, ground_pixels=rows * cols)  # the 5 cm floor alone
     needed = math.ceil(rows / finest) * math.ceil(cols / finest)
-    budget = max(10_000, min(MAX_GROUND_PIXELS, int((cap_gib - resident) / GROUND_GIB_PER_MP * 1e6)))
-    factor = ground_factor((rows, cols), pixel, ground_pixels=budget)
-    grid = math.ceil(rows / factor) * math.ceil(cols / factor)
-    ground_gib = 12 * grid / 2**30  # the coarse ground, its error and support (12 bytes a pixel)
-    # Pass 1 fits the ground here while each worker idles with its interpreter and striped files;
-    # pass 2 holds the coarse ground here and in each worker, and one window per thread or worker.
-    fit_pass = (
-        resident + (GROUND_FIT_GIB_PER_MP + GRID_GIB_PER_MP) * grid / 1e6 + workers * (BASE_GIB + striped)
-    )
-    window_pass = resident + ground_gib + workers * (BASE_GIB + striped + ground_gib + window_gib)
-    window_pass += (window_gib if workers == 0 else 0) + (max(1, threads) - 1) * (striped + window_gib)
     # Pass 3 writes the three rasters at once, each a band of 512-pixel tiles, its overview's and
     # tifffile's buffer of tiles waiting for compression (never more than the raster's own tiles).
     tiles_bytes = math.ceil(rows / COG_TILE) * math.ceil(cols / COG_TILE) * COG_TILE**2 * 4
     write_pass = resident + 3 * (2 * COG_TILE * cols * 4 + min(write_buffer_bytes(), tiles_bytes)) / 2**30
-    estimate = max(fit_pass, window_pass, write_pass)
-    if budget < min(MIN_GROUND_PIXELS, needed) or estimate > cap_gib:
-        smallest = GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6
-        least = max(estimate, resident + window_gib + smallest)
+
+    def plan(cap):
+        """(budget, estimate, whether it fits) under `cap` GiB."""
+        budget = max(10_000, min(MAX_GROUND_PIXELS, int((cap - resident) / GROUND_GIB_PER_MP * 1e6)))
+        factor = ground_factor((rows, cols), pixel, ground_pixels=budget)
+        grid = math.ceil(rows / factor) * math.ceil(cols / factor)
+        ground_gib = 12 * grid / 2**30  # the coarse ground, its error and support (12 bytes a pixel)
+        # Pass 1 fits the ground here while each worker idles with its interpreter and striped files;
+        # pass 2 holds the coarse ground here and in each worker, and one window per thread or worker.
+        fit_pass = resident + (GROUND_FIT_GIB_PER_MP + GRID_GIB_PER_MP) * grid / 1e6
+        fit_pass += workers * (BASE_GIB + striped)
+        window_pass = resident + ground_gib + workers * (BASE_GIB + striped + ground_gib + window_gib)
+        window_pass += (window_gib if workers == 0 else 0) + (max(1, threads) - 1) * (striped + window_gib)
+        estimate = max(fit_pass, window_pass, write_pass)
+        return budget, estimate, budget >= min(MIN_GROUND_PIXELS, needed) and estimate <= cap
+
+    budget, estimate, fits = plan(cap_gib)
+    if not fits:
+        # A larger cap also enlarges the ground's grid, so the estimate above is not a cap that
+        # fits: name the least one that does (in tenths of a GiB; the room beside the grid grows with
+        # the cap, so the search ends), with what else would make room.
+        enough = math.floor(cap_gib * 10) / 10 + 0.1
+        while not plan(enough)[2]:
+            enough += 0.1
         raise CliffTerrainError(
-            f"measuring {str(ortho)!r} in windows needs about {least:.2f} GiB (one {window_px}-pixel window"
+            f"measuring {str(ortho)!r} in windows needs about {estimate:.2f} GiB under the "
+            f"{cap_gib:g} GiB cap (one {window_px}-pixel window"
             f"{f' here and in each of {workers} workers' if workers else ''}, the files that are striped "
-            f"decoded whole, and the ground's grid), more than the {cap_gib:g} GiB cap; raise --max-memory, "
+            f"decoded whole, and the ground's grid): give --max-memory {enough:.1f} or more, "
             f"lower --window{', use fewer --workers' if workers else ''}, or tile the striped files "
             "(gdal_translate -co TILED=YES)"
         )
