@@ -22,6 +22,9 @@ machine's speed drifts (on the 2-core VMs measured here, by 10-25 % from one run
 from one hour to the next), so a ratio of one pair of runs is its noise as much as the code's. The
 walls and stages reported are the medians of the rounds (stage by stage); the speedup is the median
 of each round's own ratio, the rounds' ratios beside it.
+Each count's peaks are this process's own and, where psutil is installed (Dask brings it), the
+resident sets of this process and its workers summed, sampled at 10 Hz (``workers_N_tree_peak_gib``:
+what the 4 GiB cap is about on one machine).
 
 `main(argv=None)` returns the rows as a list of dicts.
 """
@@ -50,10 +53,31 @@ from machine_info import describe, machine  # noqa: E402
 PAIR = ROOT.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 PLOTS = ROOT / "tests" / "data" / "odm_plots_by_hand.geojson"  # 36 plots drawn by hand on the pair
 TILE = 512
+# Ours in a fresh process: its own peak (VmHWM), and the peak of the resident sets summed over it and
+# its children (a local cluster's workers), sampled at 10 Hz by a thread (a lower bound: a spike
+# shorter than a tenth of a second can pass unseen; None without psutil, which Dask brings).
 OURS = (
-    "import sys, json, time\nfrom cliff_terrain.cli import main\nfrom cliff_terrain._memory import peak_rss\n"
+    "import sys, json, time, threading\nfrom cliff_terrain.cli import main\n"
+    "from cliff_terrain._memory import peak_rss\ntree = [None]\n"
+    "def sample():\n"
+    "    import psutil\n"
+    "    me, tree[0] = psutil.Process(), 0\n"
+    "    while True:\n"
+    "        total = 0\n"
+    "        for p in [me, *me.children(recursive=True)]:\n"
+    "            try:\n"
+    "                total += p.memory_info().rss\n"
+    "            except psutil.Error:\n"
+    "                pass\n"
+    "        tree[0] = max(tree[0], total)\n"
+    "        time.sleep(0.1)\n"
+    "try:\n"
+    "    import psutil\n"
+    "    threading.Thread(target=sample, daemon=True).start()\n"
+    "except ImportError:\n"
+    "    pass\n"
     "t = time.perf_counter()\ncode = main(sys.argv[1:])\n"
-    "print(json.dumps({'code': code, 'peak': peak_rss(), 'wall': time.perf_counter() - t}))\n"
+    "print(json.dumps({'code': code, 'peak': peak_rss(), 'tree_peak': tree[0], 'wall': time.perf_counter() - t}))\n"
 )
 PEER = (
     "import sys, json, time\nsys.path.insert(0, sys.argv[1])\nfrom bench_scale import naive_heights\n"
@@ -312,7 +336,7 @@ def main(argv=None):
                 "ground_method": summary["ground_method"],
                 "memory_estimate_gib": round(summary["windowed"]["memory_estimate_gib"], 2),
             }
-            walls, stages, peaks, same = ({w: [] for w in args.workers} for _ in range(4))
+            walls, stages, peaks, same, tree_peaks = ({w: [] for w in args.workers} for _ in range(5))
             for _ in range(args.rounds):  # in turns: the machine's drift falls on every count alike
                 for w in args.workers:  # the same command on a local cluster: same table, its wall time
                     cluster_out = folder / f"out_w{w}"
@@ -324,6 +348,8 @@ def main(argv=None):
                     same[w].append(table_bytes == (folder / "out" / "plots.csv").read_bytes())
                     walls[w].append(round(on_cluster["wall"], 1))
                     peaks[w].append(round(on_cluster["peak"] / 2**30, 2))
+                    if on_cluster.get("tree_peak") is not None:
+                        tree_peaks[w].append(round(on_cluster["tree_peak"] / 2**30, 2))
                     stages[w].append(
                         json.loads((cluster_out / "summary.json").read_text())["windowed"]["seconds"]
                     )
@@ -332,6 +358,8 @@ def main(argv=None):
                 if args.rounds > 1:
                     row[f"workers_{w}_walls_s"] = walls[w]
                 row[f"workers_{w}_main_peak_gib"] = max(peaks[w])
+                if tree_peaks[w]:  # this process and its workers together, sampled (see OURS)
+                    row[f"workers_{w}_tree_peak_gib"] = max(tree_peaks[w])
                 row[f"workers_{w}_same_table"] = all(same[w])
                 # Stage by stage: with an even number of rounds they need not add up to one run.
                 row[f"workers_{w}_stages_s"] = {
