@@ -225,14 +225,18 @@ def windowed_plan(ortho, others, *, window_px, cap_gib=DEFAULT_CAP_GIB, plots=0,
         # A larger cap also enlarges the ground's grid, so the estimate above is not a cap that
         # fits: name the least one that does (in tenths of a GiB; the room beside the grid grows with
         # the cap, so the search ends), with what else would make room.
-        enough = math.floor(cap_gib * 10) / 10 + 0.1
-        while not plan(enough)[2]:
-            enough += 0.1
+        tenths = math.floor(cap_gib * 10) + 1
+        while not plan(tenths / 10)[2]:
+            tenths += 1
+        # Refused for a ground grid below its least size, the estimate may lie under the cap: what
+        # the least grid takes beside one window is then what it needs.
+        smallest = GROUND_GIB_PER_MP * min(MIN_GROUND_PIXELS, needed) / 1e6
+        least = max(estimate, resident + window_gib + smallest)
         raise CliffTerrainError(
-            f"measuring {str(ortho)!r} in windows needs about {estimate:.2f} GiB under the "
+            f"measuring {str(ortho)!r} in windows needs about {least:.2f} GiB under the "
             f"{cap_gib:g} GiB cap (one {window_px}-pixel window"
             f"{f' here and in each of {workers} workers' if workers else ''}, the files that are striped "
-            f"decoded whole, and the ground's grid): give --max-memory {enough:.1f} or more, "
+            f"decoded whole, and the ground's grid): give --max-memory {tenths / 10:.1f} or more, "
             f"lower --window{', use fewer --workers' if workers else ''}, or tile the striped files "
             "(gdal_translate -co TILED=YES)"
         )
