@@ -54,28 +54,11 @@ PAIR = ROOT.parent / "shared" / "data" / "dsm" / "fieldimager_ex2"
 PLOTS = ROOT / "tests" / "data" / "odm_plots_by_hand.geojson"  # 36 plots drawn by hand on the pair
 TILE = 512
 # Ours in a fresh process: its own peak (VmHWM), and the peak of the resident sets summed over it and
-# its children (a local cluster's workers), sampled at 10 Hz by a thread (a lower bound: a spike
-# shorter than a tenth of a second can pass unseen; None without psutil, which Dask brings).
+# its children (a local cluster's workers), from `sample_tree` (None without psutil, which Dask brings).
 OURS = (
-    "import sys, json, time, threading\nfrom cliff_terrain.cli import main\n"
-    "from cliff_terrain._memory import peak_rss\ntree = [None]\n"
-    "def sample():\n"
-    "    import psutil\n"
-    "    me, tree[0] = psutil.Process(), 0\n"
-    "    while True:\n"
-    "        total = 0\n"
-    "        for p in [me, *me.children(recursive=True)]:\n"
-    "            try:\n"
-    "                total += p.memory_info().rss\n"
-    "            except psutil.Error:\n"
-    "                pass\n"
-    "        tree[0] = max(tree[0], total)\n"
-    "        time.sleep(0.1)\n"
-    "try:\n"
-    "    import psutil\n"
-    "    threading.Thread(target=sample, daemon=True).start()\n"
-    "except ImportError:\n"
-    "    pass\n"
+    f"import sys, json, time\nsys.path.insert(0, {str(Path(__file__).resolve().parent)!r})\n"
+    "from bench_scale import sample_tree\nfrom cliff_terrain.cli import main\n"
+    "from cliff_terrain._memory import peak_rss\ntree = sample_tree()\n"
     "t = time.perf_counter()\ncode = main(sys.argv[1:])\n"
     "print(json.dumps({'code': code, 'peak': peak_rss(), 'tree_peak': tree[0], 'wall': time.perf_counter() - t}))\n"
 )
@@ -85,6 +68,33 @@ PEER = (
     "p90 = naive_heights(*sys.argv[2:5])\nimport numpy as np\nnp.save(sys.argv[5], p90)\n"
     "print(json.dumps({'code': 0, 'peak': peak_rss(), 'wall': time.perf_counter() - t}))\n"
 )
+
+
+def sample_tree(interval=0.1):
+    """A one-item list that a daemon thread keeps at the peak of the resident sets summed over this
+    process and its children (a local cluster's workers), sampled every `interval` seconds: a lower
+    bound, since a spike between two samples passes unseen. ``[None]`` without psutil."""
+    import threading
+
+    try:
+        import psutil
+    except ImportError:
+        return [None]
+    me, peak = psutil.Process(), [0]
+
+    def sample():
+        while True:
+            total = 0
+            for process in [me, *me.children(recursive=True)]:
+                try:
+                    total += process.memory_info().rss
+                except psutil.Error:  # a worker that ended between the listing and the reading
+                    pass
+            peak[0] = max(peak[0], total)
+            time.sleep(interval)
+
+    threading.Thread(target=sample, daemon=True).start()
+    return peak
 
 
 def split_plots(plots, parts):
